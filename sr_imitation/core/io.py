@@ -1,0 +1,119 @@
+"""Atomic file writes and checked safetensors files.
+
+Every file this project writes that a later run reads back (memories, checkpoints, results) goes through
+:func:`atomic_write_bytes`: write to a temporary file in the same directory, flush and fsync, then
+``os.replace``. A run killed at any point leaves either the old file or the new one, never a torn file.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import tempfile
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import torch
+from safetensors import SafetensorError
+from safetensors.torch import load as st_load
+from safetensors.torch import save as st_save
+
+
+class CorruptFileError(RuntimeError):
+    """A file is unreadable, truncated, or does not match what it declares or what the caller expects."""
+
+    def __init__(self, path: str | os.PathLike[str], problem: str) -> None:
+        self.path = Path(path)
+        self.problem = problem
+        super().__init__(f"{self.path}: {problem}")
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file + fsync + rename); returns the path."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as f:
+            f.write(data)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+    return path
+
+
+def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
+    """JSON-serialize ``obj`` (indent 2, sorted keys) and write it atomically."""
+    return atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+
+
+def tensors_digest(tensors: Mapping[str, torch.Tensor]) -> str:
+    """sha256 over names, dtypes, shapes and raw bytes of ``tensors`` in sorted name order."""
+    h = hashlib.sha256()
+    for name in sorted(tensors):
+        t = tensors[name].detach().cpu().contiguous()
+        h.update(f"{name}|{t.dtype}|{tuple(t.shape)}|".encode())
+        h.update(t.view(torch.uint8).numpy().tobytes() if t.numel() else b"")
+    return h.hexdigest()
+
+
+def save_checked_safetensors(
+    path: str | os.PathLike[str], tensors: Mapping[str, torch.Tensor], header: Mapping[str, Any]
+) -> Path:
+    """Save tensors with a JSON header in the safetensors metadata, atomically.
+
+    The header gets ``tensors`` (name -> dtype and shape) and ``sha256`` (of the tensor bytes) added, so
+    :func:`load_checked_safetensors` can detect truncation, bit corruption and mismatches.
+    """
+    tensors = {k: v.detach().cpu().contiguous() for k, v in tensors.items()}
+    full = dict(header)
+    full["tensors"] = {k: {"dtype": str(v.dtype).removeprefix("torch."), "shape": list(v.shape)}
+                       for k, v in sorted(tensors.items())}
+    full["sha256"] = tensors_digest(tensors)
+    data = st_save(tensors, metadata={"sr_header": json.dumps(full, sort_keys=True)})
+    return atomic_write_bytes(path, data)
+
+
+def load_checked_safetensors(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Load a file written by :func:`save_checked_safetensors`; verify its header and checksum.
+
+    Raises:
+        FileNotFoundError: the file does not exist (message names it).
+        CorruptFileError: unreadable or truncated file, missing header, or tensors that differ from the header
+            (names, dtypes, shapes or checksum); the message names the file and the mismatch.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no such file")
+    data = path.read_bytes()
+    try:
+        tensors = st_load(data)
+        meta_len = int.from_bytes(data[:8], "little")
+        raw_meta = json.loads(data[8 : 8 + meta_len]).get("__metadata__", {})
+    except (SafetensorError, ValueError, json.JSONDecodeError, OverflowError) as exc:
+        raise CorruptFileError(path, f"not a readable safetensors file ({exc})") from exc
+    if "sr_header" not in raw_meta:
+        raise CorruptFileError(path, "safetensors file has no sr_header metadata (not written by sr_imitation)")
+    try:
+        header = json.loads(raw_meta["sr_header"])
+    except json.JSONDecodeError as exc:
+        raise CorruptFileError(path, f"sr_header is not valid JSON ({exc})") from exc
+    declared = header.get("tensors", {})
+    if sorted(declared) != sorted(tensors):
+        raise CorruptFileError(
+            path, f"tensor names {sorted(tensors)} differ from the header's {sorted(declared)}"
+        )
+    for name, spec in declared.items():
+        t = tensors[name]
+        actual = {"dtype": str(t.dtype).removeprefix("torch."), "shape": list(t.shape)}
+        if actual != spec:
+            raise CorruptFileError(path, f"tensor {name!r} is {actual}, header declares {spec}")
+    if tensors_digest(tensors) != header.get("sha256"):
+        raise CorruptFileError(path, "tensor data does not match the header's sha256 (corrupted file)")
+    return tensors, header

@@ -1,0 +1,248 @@
+"""Frozen skill memories: the interface both substrates implement (Section 3, "Wake phase and frozen skill
+memories"; Algorithm 1, line 4).
+
+A memory M_i is everything sleep needs from skill i: an unordered buffer (observations or states, no actions,
+rewards or transitions) plus whatever frozen model defines the skill objective L_i(theta) for the *current*
+shared policy. Concretely a memory is
+
+* a flat mapping of named tensors (buffer tensors share their leading dimension N = buffer size; frozen model
+  weights and normalizer statistics are further tensors), and
+* a small JSON-able ``config`` (skill name, architecture, reduction, ...).
+
+Because the state is only tensors plus JSON, every memory saves to one safetensors file with a JSON header
+(skill, kind, format version, names, shapes, dtypes, checksum) and loads back bit-exactly. Memories are
+immutable: tensors are cloned on creation, exposed through a read-only mapping, and attributes cannot be
+reassigned; :meth:`Memory.fingerprint` lets tests prove that sleep leaves them untouched.
+
+Concrete memories: :class:`OutputDistillationMemory` here (frozen teacher outputs on stored inputs, the
+generic form of the imitation actor memory L_i^pi); the ACT actor memory and the SAC critic memory live in
+their substrates and register themselves with :func:`register_memory`.
+"""
+
+from __future__ import annotations
+
+import os
+from abc import ABC, abstractmethod
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any, ClassVar
+
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from sr_imitation.core.io import (
+    CorruptFileError,
+    load_checked_safetensors,
+    save_checked_safetensors,
+    tensors_digest,
+)
+
+MEMORY_FORMAT_VERSION = 1
+
+PolicyFn = Callable[[Mapping[str, Tensor]], Tensor]
+"""The current shared policy as a function of a batch of buffered inputs (a dict of tensors)."""
+
+_MEMORY_KINDS: dict[str, type[Memory]] = {}
+
+
+def register_memory(cls: type[Memory]) -> type[Memory]:
+    """Class decorator: make a memory kind loadable by :func:`load_memory`."""
+    kind = cls.kind
+    if kind in _MEMORY_KINDS and _MEMORY_KINDS[kind] is not cls:
+        raise ValueError(f"memory kind {kind!r} is already registered by {_MEMORY_KINDS[kind].__name__}")
+    _MEMORY_KINDS[kind] = cls
+    return cls
+
+
+class Memory(ABC):
+    """A frozen skill memory that defines a differentiable skill objective L_i(theta).
+
+    Subclasses set ``kind``, declare ``buffer_keys`` (tensors sampled along their first dimension) and
+    implement :meth:`loss`. The constructor validates and freezes the state.
+
+    Args:
+        skill: name of the skill this memory stores.
+        tensors: the memory's state (buffers, frozen weights, statistics); cloned and frozen here.
+        config: JSON-serializable settings needed to evaluate the objective.
+    """
+
+    kind: ClassVar[str]
+    buffer_keys: ClassVar[tuple[str, ...]] = ()
+
+    def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):
+        if not skill:
+            raise ValueError("a memory needs a non-empty skill name")
+        frozen = {}
+        for name, t in tensors.items():
+            if not isinstance(t, Tensor):
+                raise TypeError(f"memory tensor {name!r} must be a torch.Tensor, got {type(t).__name__}")
+            frozen[name] = t.detach().clone().requires_grad_(False)
+        object.__setattr__(self, "skill", str(skill))
+        object.__setattr__(self, "_tensors", MappingProxyType(frozen))
+        object.__setattr__(self, "config", MappingProxyType(dict(config or {})))
+        self._validate()
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        raise AttributeError(f"{type(self).__name__} is immutable; cannot set {name!r}")
+
+    # -- state -----------------------------------------------------------------------------------------
+    @property
+    def tensors(self) -> Mapping[str, Tensor]:
+        """Read-only view of the memory's tensors (do not modify them in place)."""
+        return self._tensors
+
+    @property
+    def size(self) -> int:
+        """Number of buffered samples N."""
+        return int(self._tensors[self.buffer_keys[0]].shape[0]) if self.buffer_keys else 0
+
+    def nbytes(self) -> int:
+        """Bytes of all stored tensors (buffers, frozen weights, statistics) for the memory-budget table."""
+        return sum(t.numel() * t.element_size() for t in self._tensors.values())
+
+    def fingerprint(self) -> str:
+        """sha256 of the memory's tensors: equal before and after sleep if the memory stayed frozen."""
+        return tensors_digest(self._tensors)
+
+    def _validate(self) -> None:
+        missing = [k for k in self.buffer_keys if k not in self._tensors]
+        if missing:
+            raise ValueError(f"{type(self).__name__}({self.skill!r}) is missing buffer tensors {missing}")
+        sizes = {k: int(self._tensors[k].shape[0]) for k in self.buffer_keys}
+        if len(set(sizes.values())) > 1:
+            raise ValueError(f"{type(self).__name__}({self.skill!r}) buffer sizes differ: {sizes}")
+        if self.buffer_keys and self.size == 0:
+            raise ValueError(f"{type(self).__name__}({self.skill!r}) has an empty buffer")
+
+    # -- objective -------------------------------------------------------------------------------------
+    def sample(self, batch_size: int, generator: torch.Generator | None = None) -> dict[str, Tensor]:
+        """Draw ``batch_size`` buffer entries uniformly with replacement (the buffer is unordered)."""
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be >= 1, got {batch_size}")
+        idx = torch.randint(self.size, (batch_size,), generator=generator)
+        return {k: self._tensors[k][idx] for k in self.buffer_keys}
+
+    @abstractmethod
+    def loss(self, policy: Any, batch: Mapping[str, Tensor]) -> Tensor:
+        """L_i(theta) on a sampled ``batch`` for the current ``policy``: a differentiable scalar."""
+
+    def objective(self, policy: Any, batch_size: int, generator: torch.Generator | None = None) -> Tensor:
+        """L_i(theta) on a fresh uniform batch: ``loss(policy, sample(batch_size))``."""
+        return self.loss(policy, self.sample(batch_size, generator))
+
+    # -- persistence -----------------------------------------------------------------------------------
+    def header(self) -> dict[str, Any]:
+        return {
+            "format": "sr_imitation.memory",
+            "format_version": MEMORY_FORMAT_VERSION,
+            "kind": self.kind,
+            "skill": self.skill,
+            "config": dict(self.config),
+        }
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the memory atomically to one safetensors file with a JSON header."""
+        return save_checked_safetensors(path, self._tensors, self.header())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], skill: str | None = None) -> Memory:
+        """Load a memory saved by :meth:`save`, checking kind (and skill, if given)."""
+        memory = load_memory(path, skill=skill)
+        if cls is not Memory and not isinstance(memory, cls):
+            raise CorruptFileError(path, f"memory kind {memory.kind!r} is not a {cls.__name__}")
+        return memory
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}(skill={self.skill!r}, size={self.size}, nbytes={self.nbytes()})"
+
+
+def load_memory(path: str | os.PathLike[str], skill: str | None = None) -> Memory:
+    """Load any registered memory kind from ``path``.
+
+    Raises:
+        FileNotFoundError: missing file.
+        CorruptFileError: unreadable file, wrong format or version, unknown kind, skill mismatch, or tensors
+            inconsistent with the header; the message names the file and the mismatch.
+    """
+    tensors, header = load_checked_safetensors(path)
+    if header.get("format") != "sr_imitation.memory":
+        raise CorruptFileError(path, f"not a memory file (format {header.get('format')!r})")
+    if header.get("format_version") != MEMORY_FORMAT_VERSION:
+        raise CorruptFileError(
+            path, f"memory format version {header.get('format_version')} != supported {MEMORY_FORMAT_VERSION}"
+        )
+    kind = header.get("kind")
+    if kind not in _MEMORY_KINDS:
+        raise CorruptFileError(path, f"unknown memory kind {kind!r}; known: {sorted(_MEMORY_KINDS)}")
+    if skill is not None and header.get("skill") != skill:
+        raise CorruptFileError(path, f"memory is for skill {header.get('skill')!r}, expected {skill!r}")
+    try:
+        return _MEMORY_KINDS[kind](header["skill"], tensors, header.get("config", {}))
+    except (ValueError, TypeError, KeyError) as exc:
+        raise CorruptFileError(path, f"invalid {kind} memory: {exc}") from exc
+
+
+@register_memory
+class OutputDistillationMemory(Memory):
+    """Frozen-snapshot distillation memory: L_i = E_{o ~ B_i} ||pi_theta(o) - pi_{theta_i}(o)||^2.
+
+    The snapshot's outputs on the buffer never change, so they are computed once at creation
+    (:meth:`from_snapshot`) and stored as ``target``; the snapshot itself is not needed during sleep. Inputs
+    are stored under ``input.<name>`` and passed to the policy as a dict ``{name: tensor}``.
+
+    ``config["reduction"]``: ``"sum"`` (default; squared l2 norm per sample, averaged over the batch, exactly
+    the paper's expectation) or ``"mean"`` (also averaged over output elements: Eq. divided by the output size,
+    the same gradient direction).
+    """
+
+    kind = "output_distillation"
+
+    def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):
+        config = {"reduction": "sum", **dict(config or {})}
+        if config["reduction"] not in ("sum", "mean"):
+            raise ValueError(f"reduction must be 'sum' or 'mean', got {config['reduction']!r}")
+        super().__init__(skill, tensors, config)
+
+    @property
+    def buffer_keys(self) -> tuple[str, ...]:  # type: ignore[override]
+        inputs = sorted(k for k in self._tensors if k.startswith("input."))
+        return ("target", *inputs)
+
+    def _validate(self) -> None:
+        if not any(k.startswith("input.") for k in self._tensors):
+            raise ValueError(f"OutputDistillationMemory({self.skill!r}) stores no 'input.*' tensors")
+        super()._validate()
+
+    @classmethod
+    def from_snapshot(
+        cls,
+        skill: str,
+        snapshot: PolicyFn,
+        inputs: Mapping[str, Tensor],
+        batch_size: int = 256,
+        reduction: str = "sum",
+    ) -> OutputDistillationMemory:
+        """Evaluate the frozen ``snapshot`` once on ``inputs`` (in batches, no grad) and store the targets."""
+        n = int(next(iter(inputs.values())).shape[0])
+        outs = []
+        with torch.no_grad():
+            for start in range(0, n, batch_size):
+                outs.append(snapshot({k: v[start : start + batch_size] for k, v in inputs.items()}).detach())
+        tensors = {f"input.{k}": v for k, v in inputs.items()}
+        tensors["target"] = torch.cat(outs).cpu()
+        return cls(skill, tensors, {"reduction": reduction})
+
+    def loss(self, policy: PolicyFn, batch: Mapping[str, Tensor]) -> Tensor:
+        obs = {k.removeprefix("input."): v for k, v in batch.items() if k.startswith("input.")}
+        pred = policy(obs)
+        target = batch["target"].to(pred.device, pred.dtype)
+        if pred.shape != target.shape:
+            raise ValueError(
+                f"memory {self.skill!r}: policy output shape {tuple(pred.shape)} != stored target shape "
+                f"{tuple(target.shape)}"
+            )
+        if self.config["reduction"] == "mean":
+            return F.mse_loss(pred, target)
+        return (pred - target).pow(2).flatten(1).sum(dim=1).mean()

@@ -1,0 +1,320 @@
+"""Sleep consolidation (Algorithm 1, lines 7-15; Section 3, Eqs. 1-2).
+
+One sleep phase after skill k >= 2, over the memories S_k = {M_1..M_k}:
+
+1. set the anchor coefficient lambda_k by Eq. 2 (:func:`anchor_coefficient`);
+2. repeat up to ``max_iterations`` times: per-memory gradients g_i of L_i(theta) on a fresh batch from each
+   memory's buffer, Nash (or mean / PCGrad) aggregation on their Gram matrix, the anchored direction
+   d = g* + lambda_k (theta - theta_{k-1}^sleep), an Adam step with eta_sleep, the optional step callback
+   (homeostatic excitability), and early stopping when the windowed sleep objective plateaus.
+
+The loop is substrate-agnostic: it needs the policy's trainable parameters, a callable that the memories
+evaluate, and the memories. A non-finite loss or gradient never updates the policy: the step is skipped and
+recorded, and ``max_nonfinite_steps`` consecutive skips raise :class:`NonFiniteSleepError`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+import torch
+from torch import Tensor
+from tqdm.auto import tqdm
+
+from sr_imitation.core.aggregation import Aggregator, make_aggregator
+from sr_imitation.core.memory import Memory
+
+logger = logging.getLogger(__name__)
+
+
+class NonFiniteSleepError(FloatingPointError):
+    """Sleep met too many consecutive non-finite losses or gradients; the policy was not updated by them."""
+
+
+@dataclass
+class SleepConfig:
+    """Sleep hyperparameters. Defaults follow the paper's MT5 table ("Sleep-consolidation hyperparameters");
+    :meth:`surgicai` gives the SurgicAI table's values.
+
+    Attributes:
+        lr: Adam learning rate eta_sleep (MT5 5e-4, SurgicAI 1e-5).
+        max_iterations: N_sleep (MT5 4000, SurgicAI 1000).
+        batch_size: samples drawn from each memory per iteration (MT5 64, SurgicAI 8).
+        aggregator: ``nash`` (Eq. 1), ``mean`` (Mean-grad ablation) or ``pcgrad``.
+        fw_iterations: Frank-Wolfe iterations per Nash solve (MT5 50, SurgicAI 5).
+        eps: gradient-normalization constant (1e-5).
+        early_stop_tol: delta; stop when the windowed objective changes by less than this (1e-3).
+        early_stop_window: window length in iterations (MT5 100).
+        early_stop_relative: compare the change of window means relative to the previous window mean (True)
+            or in absolute terms (False). The paper does not say; relative keeps the rule meaningful for the
+            small distillation losses of imitation memories.
+        anchor_strength: lambda of Eq. 2 (1e-2).
+        anchor_tau: tau of Eq. 2 (MT5 150); ``None`` means the anchor is always on (no gate).
+        anchor_after_final: apply the anchor in the sleep after the final skill (MT5: no).
+        max_nonfinite_steps: consecutive skipped (non-finite) steps before raising.
+        seed: seeds the memory batch sampler (and PCGrad's projection order).
+    """
+
+    lr: float = 5e-4
+    max_iterations: int = 4000
+    batch_size: int = 64
+    aggregator: str = "nash"
+    fw_iterations: int = 50
+    eps: float = 1e-5
+    early_stop_tol: float = 1e-3
+    early_stop_window: int = 100
+    early_stop_relative: bool = True
+    anchor_strength: float = 1e-2
+    anchor_tau: float | None = 150.0
+    anchor_after_final: bool = False
+    max_nonfinite_steps: int = 10
+    seed: int = 0
+
+    def __post_init__(self) -> None:
+        checks = {
+            "lr": self.lr > 0,
+            "max_iterations": self.max_iterations >= 1,
+            "batch_size": self.batch_size >= 1,
+            "fw_iterations": self.fw_iterations >= 1,
+            "eps": self.eps > 0,
+            "early_stop_tol": self.early_stop_tol >= 0,
+            "early_stop_window": self.early_stop_window >= 1,
+            "anchor_strength": self.anchor_strength >= 0,
+            "anchor_tau": self.anchor_tau is None or self.anchor_tau > 0,
+            "max_nonfinite_steps": self.max_nonfinite_steps >= 1,
+        }
+        bad = [f"{k}={getattr(self, k)!r}" for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"invalid SleepConfig values: {', '.join(bad)}")
+        from sr_imitation.core.aggregation import AGGREGATORS
+
+        if self.aggregator not in AGGREGATORS:
+            raise ValueError(f"unknown aggregator {self.aggregator!r}; choose from {sorted(AGGREGATORS)}")
+
+    @classmethod
+    def mt5(cls, **overrides: Any) -> SleepConfig:
+        """Paper Table "Sleep-consolidation hyperparameters for MT5" (tau = 150, no anchor after the final skill)."""
+        return cls(**overrides)
+
+    @classmethod
+    def surgicai(cls, **overrides: Any) -> SleepConfig:
+        """Paper Table "Sleep-consolidation hyperparameters for SurgicAI" (anchor always on, no gate)."""
+        base = dict(lr=1e-5, max_iterations=1000, batch_size=8, fw_iterations=5, early_stop_window=50,
+                    anchor_tau=None, anchor_after_final=True)
+        base.update(overrides)
+        return cls(**base)
+
+    def make_aggregator(self) -> Aggregator:
+        kwargs: dict[str, Any] = {"eps": self.eps}
+        if self.aggregator == "nash":
+            kwargs["iterations"] = self.fw_iterations
+        elif self.aggregator == "pcgrad":
+            kwargs["seed"] = self.seed
+        return make_aggregator(self.aggregator, **kwargs)
+
+
+@dataclass
+class SleepResult:
+    """Diagnostics of one sleep phase (per-iteration arrays have one row per attempted iteration)."""
+
+    skills: list[str]
+    anchor_lambda: float
+    anchor_distances: list[float]
+    stop_iteration: int
+    stop_reason: str
+    alpha: list[list[float]] = field(default_factory=list)
+    grad_norms: list[list[float]] = field(default_factory=list)
+    memory_losses: list[list[float]] = field(default_factory=list)
+    sleep_objective: list[float] = field(default_factory=list)
+    solver_iterations: list[int] = field(default_factory=list)
+    skipped_steps: list[dict[str, Any]] = field(default_factory=list)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+    def summary(self) -> dict[str, Any]:
+        """Compact view for logs and results tables."""
+        last = lambda rows: rows[-1] if rows else None  # noqa: E731
+        return {
+            "skills": self.skills,
+            "stop_iteration": self.stop_iteration,
+            "stop_reason": self.stop_reason,
+            "anchor_lambda": self.anchor_lambda,
+            "final_alpha": last(self.alpha),
+            "final_memory_losses": last(self.memory_losses),
+            "skipped_steps": len(self.skipped_steps),
+        }
+
+
+def parameter_distance(params: Sequence[Tensor], reference: Sequence[Tensor]) -> float:
+    """||theta - theta_ref||_2 over a list of parameter tensors."""
+    if len(params) != len(reference):
+        raise ValueError(f"parameter lists differ in length: {len(params)} vs {len(reference)}")
+    total = 0.0
+    with torch.no_grad():
+        for p, r in zip(params, reference, strict=True):
+            if p.shape != r.shape:
+                raise ValueError(f"parameter shape {tuple(p.shape)} != reference shape {tuple(r.shape)}")
+            total += float((p.detach() - r.to(p.device, p.dtype)).pow(2).sum())
+    return math.sqrt(total)
+
+
+def anchor_coefficient(
+    params: Sequence[Tensor],
+    wake_snapshots: Sequence[Sequence[Tensor]],
+    strength: float,
+    tau: float | None,
+    is_final_skill: bool = False,
+    apply_after_final: bool = False,
+) -> tuple[float, list[float]]:
+    """Eq. 2: lambda_k = lambda if min_{i<k} ||theta - theta_i^wake|| < tau else 0.
+
+    Returns ``(lambda_k, [c_i])``. ``tau=None`` disables the gate (lambda always); no anchor after the
+    final skill unless ``apply_after_final`` (paper, MT5: "The anchor is not applied after the final skill").
+    """
+    distances = [parameter_distance(params, snap) for snap in wake_snapshots]
+    if strength == 0.0 or (is_final_skill and not apply_after_final):
+        return 0.0, distances
+    if tau is None:
+        return float(strength), distances
+    if not distances:
+        return 0.0, distances
+    return (float(strength) if min(distances) < tau else 0.0), distances
+
+
+def _flat_grads(loss: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
+    grads = torch.autograd.grad(loss, params, allow_unused=True)
+    offset = 0
+    for p, g in zip(params, grads, strict=True):
+        n = p.numel()
+        if g is None:
+            out[offset : offset + n].zero_()
+        else:
+            out[offset : offset + n].copy_(g.reshape(-1))
+        offset += n
+
+
+def sleep_consolidate(
+    params: Sequence[torch.nn.Parameter],
+    policy: Any,
+    memories: Sequence[Memory],
+    config: SleepConfig,
+    anchor_params: Sequence[Tensor] | None = None,
+    wake_snapshots: Sequence[Sequence[Tensor]] = (),
+    is_final_skill: bool = False,
+    step_callback: Callable[[int], None] | None = None,
+    aggregator: Aggregator | None = None,
+    progress: bool = True,
+) -> SleepResult:
+    """Run one sleep phase in place on ``params`` (Algorithm 1, lines 7-15).
+
+    Args:
+        params: the shared policy's trainable parameters theta (updated in place).
+        policy: what the memories evaluate (passed to :meth:`Memory.loss`).
+        memories: the frozen memories M_1..M_k.
+        config: sleep hyperparameters.
+        anchor_params: theta_{k-1}^sleep, the previous consolidated checkpoint (same order as ``params``);
+            ``None`` disables the anchor.
+        wake_snapshots: theta_i^wake for i < k, for the gate of Eq. 2.
+        is_final_skill: this is the sleep after the stream's last skill.
+        step_callback: called with the iteration index after each applied update (e.g. excitability).
+        aggregator: reuse an aggregator (keeps its warm start); default: a fresh one from ``config``.
+        progress: show a tqdm progress bar.
+    """
+    params = [p for p in params if p.requires_grad]
+    if not params:
+        raise ValueError("sleep needs at least one trainable parameter")
+    if not memories:
+        raise ValueError("sleep needs at least one memory")
+    k = len(memories)
+    skills = [m.skill for m in memories]
+    device = params[0].device
+    n_params = sum(p.numel() for p in params)
+    aggregator = aggregator or config.make_aggregator()
+
+    if anchor_params is not None:
+        anchor_params = [a.detach().to(p.device, p.dtype) for a, p in zip(anchor_params, params, strict=True)]
+        lam, distances = anchor_coefficient(
+            params, wake_snapshots, config.anchor_strength, config.anchor_tau, is_final_skill,
+            config.anchor_after_final,
+        )
+    else:
+        lam, distances = 0.0, [parameter_distance(params, s) for s in wake_snapshots]
+
+    generator = torch.Generator().manual_seed(config.seed)
+    optimizer = torch.optim.Adam(params, lr=config.lr)
+    jac = torch.zeros(k, n_params, device=device, dtype=params[0].dtype)
+    result = SleepResult(skills, lam, distances, stop_iteration=0, stop_reason="max_iterations")
+    window = config.early_stop_window
+    consecutive_bad = 0
+    bar = tqdm(range(config.max_iterations), desc=f"sleep k={k}", disable=not progress, leave=False)
+    logger.info("sleep over %s: lambda=%g (distances %s), %s", skills, lam,
+                [round(d, 3) for d in distances], aggregator)
+    for it in bar:
+        losses = torch.zeros(k, dtype=torch.float64)
+        for i, memory in enumerate(memories):
+            loss = memory.objective(policy, config.batch_size, generator)
+            losses[i] = float(loss.detach())
+            if math.isfinite(losses[i]):
+                _flat_grads(loss, params, jac[i])
+        finite_rows = torch.isfinite(losses) & torch.isfinite(jac).all(dim=1).cpu()
+        if not bool(finite_rows.all()):
+            bad = [skills[i] for i in range(k) if not finite_rows[i]]
+            result.skipped_steps.append({"iteration": it, "memories": bad})
+            consecutive_bad += 1
+            logger.warning("sleep iteration %d: non-finite loss or gradient from %s; step skipped", it, bad)
+            if consecutive_bad >= config.max_nonfinite_steps:
+                result.stop_iteration, result.stop_reason = it, "nonfinite"
+                raise NonFiniteSleepError(
+                    f"{consecutive_bad} consecutive sleep steps with non-finite losses/gradients from {bad}; "
+                    "the policy was not updated by them"
+                )
+            continue
+        consecutive_bad = 0
+        gram = (jac @ jac.T).double().cpu().numpy()
+        agg = aggregator(gram)
+        weights = torch.as_tensor(agg.weights, dtype=jac.dtype, device=device)
+        direction = weights @ jac
+        anchor_term = 0.0
+        offset = 0
+        with torch.no_grad():
+            for j, p in enumerate(params):
+                n = p.numel()
+                g = direction[offset : offset + n].view_as(p)
+                if lam > 0.0:
+                    diff = p - anchor_params[j]
+                    anchor_term += float(diff.pow(2).sum())
+                    g = g + lam * diff
+                p.grad = g.clone()
+                offset += n
+        optimizer.step()
+        optimizer.zero_grad(set_to_none=True)
+        if step_callback is not None:
+            step_callback(it)
+
+        alpha = agg.alpha
+        objective = float(np.dot(alpha, losses.numpy())) + 0.5 * lam * anchor_term
+        result.alpha.append([float(a) for a in alpha])
+        result.grad_norms.append([float(x) for x in np.sqrt(np.clip(np.diag(gram), 0, None))])
+        result.memory_losses.append([float(x) for x in losses])
+        result.sleep_objective.append(objective)
+        result.solver_iterations.append(int(agg.iterations))
+        result.stop_iteration = it + 1
+        if progress and it % 10 == 0:
+            bar.set_postfix(obj=f"{objective:.4g}", worst=f"{float(losses.max()):.4g}")
+        hist = result.sleep_objective
+        if len(hist) >= 2 * window and len(hist) % window == 0:
+            cur, prev = float(np.mean(hist[-window:])), float(np.mean(hist[-2 * window : -window]))
+            change = abs(cur - prev) / max(abs(prev), 1e-12) if config.early_stop_relative else abs(cur - prev)
+            if change < config.early_stop_tol:
+                result.stop_reason = "plateau"
+                break
+    bar.close()
+    logger.info("sleep stopped at iteration %d (%s); final memory losses %s", result.stop_iteration,
+                result.stop_reason, result.memory_losses[-1] if result.memory_losses else None)
+    return result
