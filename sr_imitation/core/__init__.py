@@ -1,0 +1,79 @@
+"""The substrate-agnostic core of Sleeping Robots: memories, Nash aggregation, sleep, excitability, metrics.
+
+Depends on torch and numpy only; the ACT (imitation) and SAC (RL) substrates plug into it.
+"""
+
+from sr_imitation.core.aggregation import (
+    AGGREGATORS,
+    Aggregation,
+    Aggregator,
+    MeanAggregator,
+    NashAggregator,
+    PCGradAggregator,
+    make_aggregator,
+    nash_weights,
+)
+from sr_imitation.core.excitability import ExcitabilityConfig, ExcitableReLU, update_excitability
+from sr_imitation.core.io import CorruptFileError, atomic_write_bytes, atomic_write_json
+from sr_imitation.core.memory import (
+    Memory,
+    OutputDistillationMemory,
+    load_memory,
+    register_memory,
+)
+from sr_imitation.core.metrics import (
+    MT5_PAIRS,
+    MT5_SKILLS,
+    SURGICAI_PAIRS,
+    SURGICAI_SKILLS,
+    afsr_curve,
+    bwt_curve,
+    mean_sem,
+    prs_curve,
+    spi_at_stage,
+    stream_metrics,
+    subspace_preservation,
+)
+from sr_imitation.core.sleep import (
+    NonFiniteSleepError,
+    SleepConfig,
+    SleepResult,
+    anchor_coefficient,
+    sleep_consolidate,
+)
+
+__all__ = [
+    "AGGREGATORS",
+    "MT5_PAIRS",
+    "MT5_SKILLS",
+    "SURGICAI_PAIRS",
+    "SURGICAI_SKILLS",
+    "Aggregation",
+    "Aggregator",
+    "CorruptFileError",
+    "ExcitabilityConfig",
+    "ExcitableReLU",
+    "MeanAggregator",
+    "Memory",
+    "NashAggregator",
+    "NonFiniteSleepError",
+    "OutputDistillationMemory",
+    "PCGradAggregator",
+    "SleepConfig",
+    "SleepResult",
+    "afsr_curve",
+    "anchor_coefficient",
+    "atomic_write_bytes",
+    "atomic_write_json",
+    "bwt_curve",
+    "load_memory",
+    "make_aggregator",
+    "mean_sem",
+    "nash_weights",
+    "prs_curve",
+    "register_memory",
+    "sleep_consolidate",
+    "spi_at_stage",
+    "stream_metrics",
+    "subspace_preservation",
+]

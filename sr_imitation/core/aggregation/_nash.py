@@ -10,6 +10,11 @@ second-order Taylor expansion at 0, ``log(eps_nash) + u/eps_nash - u^2/(2 eps_na
 concave and C^2, equals Eq. 1 on every alpha where all memories agree, and penalizes disagreement steeply, so
 the solver is well defined for every finite input.
 
+Normalization. The paper normalizes g_hat_i = g_i / (||g_i|| + eps). We solve the bargaining problem on the
+exact unit directions (the cosine matrix of the gradients, zero gradients masked), so the weights are exactly
+invariant to rescaling any gradient, and apply the paper's g_hat in the combined direction
+d = sum_j alpha_j g_i / (||g_j|| + eps). The two differ only for gradients with norm comparable to eps.
+
 Solver (see ``../shared/notes/nash-bargaining-solver.md`` section 3): Frank-Wolfe with the closed-form linear
 oracle (the vertex of the largest partial derivative), away steps (Lacoste-Julien & Jaggi 2015) so that a
 vertex can leave the support quickly, an exact line search on the concave 1-D restriction (safeguarded
@@ -21,8 +26,9 @@ Documented behaviour on degenerate inputs:
 * k = 1 (or one non-zero gradient): alpha = [1].
 * Zero gradients (``||g_hat_i||^2 < mask_tol``): masked, alpha_i = 0; they would otherwise hold warm-start mass
   that Frank-Wolfe only removes slowly. All gradients zero: alpha uniform, weights 0.
-* k = 2 non-zero gradients: alpha = (1/2, 1/2) in closed form. f is symmetric under alpha <-> 1 - alpha for any
-  cosine c in [-1, 1] (also with the extension) and concave, so 1/2 is optimal; for c = -1 the direction is 0.
+* k = 2 non-zero gradients: alpha = (1/2, 1/2) in closed form. On unit directions f is symmetric under
+  alpha <-> 1 - alpha for any cosine c in [-1, 1] (also with the extension) and concave, so 1/2 is optimal
+  (for c = 1 every alpha is); for c = -1 the direction is 0.
 * Identical gradients: f is constant; the warm start is returned unchanged (any alpha is optimal).
 * Opposite gradients (k >= 3 with an exact conflict): the extension drives the combined direction to
   (near) zero, a Pareto-stationary update, as MGDA does.
@@ -50,38 +56,48 @@ def _h(u: np.ndarray, eps: float) -> np.ndarray:
     return np.log(pos + eps) + neg / eps - 0.5 * (neg / eps) ** 2
 
 
-def _dh(u: np.ndarray, eps: float) -> np.ndarray:
-    return np.where(u >= 0.0, 1.0 / (np.maximum(u, 0.0) + eps), (eps - u) / (eps * eps))
-
-
-def _d2h(u: np.ndarray, eps: float) -> np.ndarray:
-    return np.where(u >= 0.0, -1.0 / (np.maximum(u, 0.0) + eps) ** 2, -1.0 / (eps * eps))
+def _dh(u: float, eps: float) -> float:
+    return 1.0 / (u + eps) if u >= 0.0 else (eps - u) / (eps * eps)
 
 
 def nash_objective(alpha: np.ndarray, g_hat: np.ndarray, eps_nash: float = NASH_EPS) -> float:
     """f(alpha) of Eq. 1 (with the concave extension for u < 0) for a normalized Gram matrix ``g_hat``."""
-    return float(_h(g_hat @ np.asarray(alpha, dtype=np.float64), eps_nash).sum())
+    return float(_h(np.asarray(g_hat) @ np.asarray(alpha, dtype=np.float64), eps_nash).sum())
 
 
-def _line_search(u: np.ndarray, delta: np.ndarray, gamma_max: float, eps: float) -> float:
-    """argmax over gamma in [0, gamma_max] of sum_i h(u_i + gamma delta_i) (concave): safeguarded Newton."""
-    lo, hi = 0.0, gamma_max
-    d_hi = float(delta @ _dh(u + hi * delta, eps))
-    if d_hi >= 0.0:
-        return hi
-    gamma = 0.5 * hi
+def _line_search(u: list[float], delta: list[float], gamma_max: float, eps: float) -> float:
+    """argmax over gamma in [0, gamma_max] of sum_i h(u_i + gamma delta_i): safeguarded Newton on the
+    derivative, which is monotone decreasing because h is concave."""
+    k = len(u)
+    d_end = sum(delta[i] * _dh(u[i] + gamma_max * delta[i], eps) for i in range(k))
+    if d_end >= 0.0:
+        return gamma_max
+    lo, hi, gamma = 0.0, gamma_max, 0.0
+    inv_e2 = 1.0 / (eps * eps)
     for _ in range(_NEWTON_MAX_ITERS):
-        v = u + gamma * delta
-        d1 = float(delta @ _dh(v, eps))
+        d1 = d2 = 0.0
+        for i in range(k):
+            di = delta[i]
+            v = u[i] + gamma * di
+            if v >= 0.0:
+                w = 1.0 / (v + eps)
+                d1 += di * w
+                d2 -= di * di * w * w
+            else:
+                d1 += di * (eps - v) * inv_e2
+                d2 -= di * di * inv_e2
         if d1 > 0.0:
             lo = gamma
         else:
             hi = gamma
-        if abs(d1) <= 1e-12 * (1.0 + float(np.abs(delta).sum())) or hi - lo <= 1e-15:
+        if hi - lo <= 1e-12 * gamma_max:
             return gamma
-        d2 = float((delta * delta) @ _d2h(v, eps))
-        step = gamma - d1 / d2 if d2 < 0.0 else math.nan
-        gamma = step if lo < step < hi else 0.5 * (lo + hi)
+        step = gamma - d1 / d2 if d2 < 0.0 else -1.0
+        if not lo < step < hi:
+            step = 0.5 * (lo + hi)
+        if abs(step - gamma) <= 1e-12 * gamma_max:
+            return step
+        gamma = step
     return gamma
 
 
@@ -90,53 +106,54 @@ def frank_wolfe_nash(
     alpha0: np.ndarray,
     max_iters: int,
     eps_nash: float = NASH_EPS,
-    tol: float = 1e-9,
+    tol: float = 1e-6,
     away_steps: bool = True,
 ) -> tuple[np.ndarray, int, float]:
     """Run Frank-Wolfe on Eq. 1 from ``alpha0``; returns ``(alpha, iterations, duality_gap)``.
 
-    Stops after ``max_iters`` iterations or when the duality gap ``max_j grad_j - alpha . grad`` is at most
-    ``tol * k`` (``alpha . grad`` is about k near the optimum, so ``tol`` is relative).
+    Stops after ``max_iters`` iterations or when the duality gap ``max_j grad_j - alpha . grad`` (an upper
+    bound on f* - f) is at most ``tol * k``. Written in plain Python floats: for the k <= ~16 memories of a
+    sleep phase this is several times faster than numpy's per-call overhead (O(k^2) per iteration).
     """
-    k = g_hat.shape[0]
-    alpha = np.asarray(alpha0, dtype=np.float64).copy()
-    u = g_hat @ alpha
+    rows = np.asarray(g_hat, dtype=np.float64).tolist()
+    k = len(rows)
+    alpha = [float(a) for a in alpha0]
+    u = [sum(map(float.__mul__, rows[i], alpha)) for i in range(k)]
     gap = math.inf
     it = 0
     for it in range(1, max_iters + 1):
-        grad = g_hat @ _dh(u, eps_nash)
-        lin = float(alpha @ grad)
-        j = int(np.argmax(grad))
-        gap = float(grad[j]) - lin
+        r = [_dh(x, eps_nash) for x in u]
+        grad = [sum(map(float.__mul__, rows[i], r)) for i in range(k)]
+        lin = sum(map(float.__mul__, alpha, grad))
+        j = max(range(k), key=grad.__getitem__)  # first index on ties: deterministic
+        gap = grad[j] - lin
         if gap <= tol * k:
-            return alpha, it - 1, gap
-        fw_dir_gain = gap
-        a = -1
-        away_gain = -math.inf
+            return np.array(alpha), it - 1, gap
+        a, away_gain = -1, -math.inf
         if away_steps:
-            support = np.flatnonzero(alpha > 0.0)
-            a = int(support[np.argmin(grad[support])])
-            away_gain = lin - float(grad[a])
-        if away_gain > fw_dir_gain and alpha[a] < 1.0:
-            # Away step: move mass off vertex a, direction alpha - e_a, feasible up to alpha_a / (1 - alpha_a).
-            gamma_max = float(alpha[a]) / (1.0 - float(alpha[a]))
-            delta = u - g_hat[:, a]
+            a = min((i for i in range(k) if alpha[i] > 0.0), key=grad.__getitem__)
+            away_gain = lin - grad[a]
+        if away_gain > gap and alpha[a] < 1.0:
+            # Away step: move along alpha - e_a, feasible up to alpha_a / (1 - alpha_a).
+            gamma_max = alpha[a] / (1.0 - alpha[a])
+            col = rows[a]
+            delta = [u[i] - col[i] for i in range(k)]
             gamma = _line_search(u, delta, gamma_max, eps_nash)
-            alpha *= 1.0 + gamma
-            alpha[a] -= gamma
-            if gamma >= gamma_max:
-                alpha[a] = 0.0  # drop step: remove the vertex exactly
+            alpha = [x * (1.0 + gamma) for x in alpha]
+            alpha[a] = 0.0 if gamma >= gamma_max else alpha[a] - gamma  # drop step removes the vertex
         else:
-            delta = g_hat[:, j] - u
+            col = rows[j]
+            delta = [col[i] - u[i] for i in range(k)]
             gamma = _line_search(u, delta, 1.0, eps_nash)
-            alpha *= 1.0 - gamma
+            alpha = [x * (1.0 - gamma) for x in alpha]
             alpha[j] += gamma
-        np.clip(alpha, 0.0, None, out=alpha)
-        alpha /= alpha.sum()
-        u = g_hat @ alpha
-    grad = g_hat @ _dh(u, eps_nash)
-    gap = float(grad.max() - alpha @ grad)
-    return alpha, it, gap
+        total = sum(max(x, 0.0) for x in alpha)
+        alpha = [max(x, 0.0) / total for x in alpha]
+        u = [sum(map(float.__mul__, rows[i], alpha)) for i in range(k)]
+    r = [_dh(x, eps_nash) for x in u]
+    grad = [sum(map(float.__mul__, rows[i], r)) for i in range(k)]
+    gap = max(grad) - sum(map(float.__mul__, alpha, grad))
+    return np.array(alpha), it, gap
 
 
 class NashAggregator(Aggregator):
@@ -162,7 +179,7 @@ class NashAggregator(Aggregator):
         iterations: int = 50,
         eps: float = GRAD_NORM_EPS,
         eps_nash: float = NASH_EPS,
-        tol: float = 1e-9,
+        tol: float = 1e-6,
         warm_start: bool = True,
         away_steps: bool = True,
         mask_tol: float = 1e-6,
@@ -203,16 +220,21 @@ class NashAggregator(Aggregator):
         if n == 0:
             alpha[:] = 1.0 / k
             return Aggregation(np.zeros(k), alpha, 0, 0.0, float("nan"), active)
+        # Bargain over unit directions (the cosine matrix): exactly scale-invariant. eps only enters the
+        # applied direction sum_j alpha_j g_j / (||g_j|| + eps), as in the paper.
+        norms = np.sqrt(np.diag(gram)[active])
+        cosine = gram[np.ix_(active, active)] / np.outer(norms, norms)
+        cosine = np.clip(0.5 * (cosine + cosine.T), -1.0, 1.0)
+        np.fill_diagonal(cosine, 1.0)
         if n <= 2:
-            alpha[active] = 1.0 / n  # closed form for one or two memories (see module docstring)
+            alpha[active] = 1.0 / n  # closed forms (module docstring)
         else:
-            sub = g_hat[np.ix_(active, active)]
             a_sub, iters, gap = frank_wolfe_nash(
-                sub, self._start(k, active), self.iterations, self.eps_nash, self.tol, self.away_steps
+                cosine, self._start(k, active), self.iterations, self.eps_nash, self.tol, self.away_steps
             )
             alpha[active] = a_sub
         self._alpha_prev = alpha.copy()
-        objective = nash_objective(alpha[active], g_hat[np.ix_(active, active)], self.eps_nash)
+        objective = nash_objective(alpha[active], cosine, self.eps_nash)
         return Aggregation(alpha * scale * active, alpha, iters, gap, objective, active)
 
     def __repr__(self) -> str:

@@ -1,0 +1,123 @@
+"""Homeostatic excitability for feedforward actors (Section 3, Eq. 3; Table "Homeostatic excitability").
+
+Each hidden neuron i carries a gain e_i in [e_min, e_max]; the activation is y_i = e_i * ReLU(w_i^T x). The gains
+are buffers, not parameters: backpropagation and optimizers never see them. They change only through the local
+rule of Eq. 3, driven by the neuron's own activity:
+
+    a_bar_i <- (1 - beta) a_bar_i + beta * y_i,
+    e_i     <- clip(e_i + eta_e * (alpha_target - a_bar_i), e_min, e_max),
+
+with phase-specific rates eta_e (wake, sleep, and a faster "novelty" rate for the first episodes of the first
+skill). y_i is the batch mean of the neuron's output in the forward pass that preceded the update. Both buffers
+are part of the module's ``state_dict``, so they are saved with the model.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+
+@dataclass
+class ExcitabilityConfig:
+    """Paper Table "Homeostatic excitability hyperparameters for MT5".
+
+    Attributes:
+        e_min, e_max: gain bounds [0.1, 5.0].
+        target: alpha_target, target activity 0.10.
+        beta: activity EMA factor 0.01.
+        wake_rate: eta_e during wake, 1e-3.
+        sleep_rate: eta_e during sleep, 1e-2.
+        novelty_rate: rate for the first ``novelty_episodes`` episodes of the first skill, 5e-3.
+        novelty_episodes: 500.
+        enabled: False gives the "No exc." ablation (gains stay at 1, no updates).
+        wake_enabled / sleep_enabled: the "Wake-exc off" / "Sleep-exc off" ablations.
+    """
+
+    e_min: float = 0.1
+    e_max: float = 5.0
+    target: float = 0.10
+    beta: float = 0.01
+    wake_rate: float = 1e-3
+    sleep_rate: float = 1e-2
+    novelty_rate: float = 5e-3
+    novelty_episodes: int = 500
+    enabled: bool = True
+    wake_enabled: bool = True
+    sleep_enabled: bool = True
+
+    def __post_init__(self) -> None:
+        if not 0 < self.e_min <= 1.0 <= self.e_max:
+            raise ValueError(f"need 0 < e_min <= 1 <= e_max, got [{self.e_min}, {self.e_max}]")
+        if not 0 < self.beta <= 1:
+            raise ValueError(f"beta must be in (0, 1], got {self.beta}")
+        for name in ("wake_rate", "sleep_rate", "novelty_rate", "target"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if self.novelty_episodes < 0:
+            raise ValueError(f"novelty_episodes must be >= 0, got {self.novelty_episodes}")
+
+    def rate(self, phase: str, skill_index: int = 0, episode: int = 0) -> float:
+        """eta_e for ``phase`` in {"wake", "sleep"}; the novelty rate applies to early episodes of skill 0."""
+        if not self.enabled:
+            return 0.0
+        if phase == "wake":
+            if not self.wake_enabled:
+                return 0.0
+            if skill_index == 0 and episode < self.novelty_episodes:
+                return self.novelty_rate
+            return self.wake_rate
+        if phase == "sleep":
+            return self.sleep_rate if self.sleep_enabled else 0.0
+        raise ValueError(f"phase must be 'wake' or 'sleep', got {phase!r}")
+
+
+class ExcitableReLU(nn.Module):
+    """y = e * ReLU(x) with per-neuron gains e updated only by :meth:`homeostatic_update` (Eq. 3).
+
+    Set ``record_activity = True`` (the default) to remember the batch-mean output of the last forward pass;
+    :meth:`homeostatic_update` consumes it. The gain is applied as a constant in the graph (gradients flow to
+    the layer's inputs, never to ``e``).
+    """
+
+    def __init__(self, num_features: int, config: ExcitabilityConfig | None = None) -> None:
+        super().__init__()
+        if num_features < 1:
+            raise ValueError(f"num_features must be >= 1, got {num_features}")
+        self.config = config or ExcitabilityConfig()
+        self.num_features = num_features
+        self.register_buffer("excitability", torch.ones(num_features))
+        self.register_buffer("activity", torch.full((num_features,), self.config.target))
+        self.record_activity = True
+        self._last_activity: Tensor | None = None
+
+    def forward(self, x: Tensor) -> Tensor:
+        if x.shape[-1] != self.num_features:
+            raise ValueError(f"expected last dimension {self.num_features}, got {tuple(x.shape)}")
+        y = torch.relu(x) * self.excitability.detach()
+        if self.record_activity:
+            self._last_activity = y.detach().reshape(-1, self.num_features).mean(dim=0)
+        return y
+
+    @torch.no_grad()
+    def homeostatic_update(self, rate: float) -> bool:
+        """Apply Eq. 3 with rate ``rate`` using the last recorded activity; returns False if none was recorded."""
+        if self._last_activity is None or rate == 0.0:
+            return False
+        beta = self.config.beta
+        self.activity.mul_(1.0 - beta).add_(beta * self._last_activity.to(self.activity))
+        self.excitability.add_(rate * (self.config.target - self.activity))
+        self.excitability.clamp_(self.config.e_min, self.config.e_max)
+        self._last_activity = None
+        return True
+
+    def extra_repr(self) -> str:
+        c = self.config
+        return f"{self.num_features}, bounds=[{c.e_min}, {c.e_max}], target={c.target}"
+
+
+def update_excitability(model: nn.Module, rate: float) -> int:
+    """Apply Eq. 3 to every :class:`ExcitableReLU` in ``model``; returns how many layers were updated."""
+    return sum(int(m.homeostatic_update(rate)) for m in model.modules() if isinstance(m, ExcitableReLU))
