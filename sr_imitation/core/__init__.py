@@ -76,4 +76,5 @@ __all__ = [
     "spi_at_stage",
     "stream_metrics",
     "subspace_preservation",
+    "update_excitability",
 ]

@@ -104,8 +104,8 @@ class SleepConfig:
     @classmethod
     def surgicai(cls, **overrides: Any) -> SleepConfig:
         """Paper Table "Sleep-consolidation hyperparameters for SurgicAI" (anchor always on, no gate)."""
-        base = dict(lr=1e-5, max_iterations=1000, batch_size=8, fw_iterations=5, early_stop_window=50,
-                    anchor_tau=None, anchor_after_final=True)
+        base = {"lr": 1e-5, "max_iterations": 1000, "batch_size": 8, "fw_iterations": 5, "early_stop_window": 50,
+                    "anchor_tau": None, "anchor_after_final": True}
         base.update(overrides)
         return cls(**base)
 
@@ -277,6 +277,7 @@ def sleep_consolidate(
             continue
         consecutive_bad = 0
         gram = (jac @ jac.T).double().cpu().numpy()
+        gram = 0.5 * (gram + gram.T)  # float32 GEMM is not exactly symmetric
         agg = aggregator(gram)
         weights = torch.as_tensor(agg.weights, dtype=jac.dtype, device=device)
         direction = weights @ jac

@@ -51,7 +51,7 @@ class Aggregator(ABC):
     def __call__(self, gram: np.ndarray) -> Aggregation:
         """Aggregate; ``gram`` must be finite (a ValueError names the non-finite rows otherwise)."""
 
-    def reset(self) -> None:
+    def reset(self) -> None:  # noqa: B027 - optional hook, stateless aggregators need nothing
         """Forget any warm-start state (call between sleep phases of different runs)."""
 
     def __repr__(self) -> str:

@@ -1,0 +1,114 @@
+"""AFSR, PRS, BWT, SPI and mean +- SEM against hand-computed values."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from sr_imitation.core.metrics import (
+    MT5_PAIRS,
+    MT5_SKILLS,
+    SURGICAI_PAIRS,
+    SURGICAI_SKILLS,
+    afsr_curve,
+    all_pairs,
+    bwt_curve,
+    mean_sem,
+    prs_curve,
+    spi_at_stage,
+    stream_metrics,
+    subspace_preservation,
+)
+
+NAN = float("nan")
+S = [
+    [0.9, NAN, NAN],
+    [0.5, 0.8, NAN],
+    [0.2, 0.6, 1.0],
+]
+
+
+def test_afsr_by_hand():
+    np.testing.assert_allclose(afsr_curve(S), [0.9, 0.65, 0.6])
+
+
+def test_bwt_by_hand():
+    out = bwt_curve(S)
+    assert math.isnan(out[0])
+    np.testing.assert_allclose(out[1:], [0.5 - 0.9, ((0.2 - 0.9) + (0.6 - 0.8)) / 2])
+
+
+def test_prs_uses_only_pairs_of_learned_skills():
+    skills = ["a", "b", "c"]
+    pairs = [("a", "b"), ("b", "c"), ("a", "c")]
+    out = prs_curve(S, skills, pairs)
+    assert math.isnan(out[0])
+    assert out[1] == pytest.approx(min(0.5, 0.8))  # only (a, b) is learned at k = 2
+    assert out[2] == pytest.approx((0.2 + 0.6 + 0.2) / 3)
+    # A pair list without any complete pair at k = 2 leaves PRS undefined there.
+    assert math.isnan(prs_curve(S, skills, [("b", "c")])[1])
+
+
+def test_paper_pair_lists_match_their_streams():
+    assert len(MT5_PAIRS) == 6 and len(SURGICAI_PAIRS) == 7
+    k = 5
+    full = np.tril(np.full((k, k), 0.5))
+    prs_curve(full, [f"{s}-v3" for s in MT5_SKILLS], MT5_PAIRS)  # version suffixes match by identity
+    prs_curve(full, SURGICAI_SKILLS, SURGICAI_PAIRS)
+    assert len(all_pairs(list("abcdefgh"))) == 28
+    with pytest.raises(ValueError, match="not in the stream"):
+        prs_curve(full, SURGICAI_SKILLS, MT5_PAIRS)
+
+
+def test_bad_success_matrices_are_rejected():
+    with pytest.raises(ValueError, match="NaN on or below"):
+        afsr_curve([[0.5, NAN], [NAN, 0.5]])
+    with pytest.raises(ValueError, match=r"\[0, 1\]"):
+        afsr_curve([[1.5]])
+    with pytest.raises(ValueError, match="K x K"):
+        afsr_curve([[0.5, 0.5]])
+
+
+def _trajectory(basis: np.ndarray, rng: np.random.Generator, t: int = 200) -> np.ndarray:
+    coeffs = rng.normal(size=(t, basis.shape[1])) * np.array([5.0, 3.0, 2.0])[: basis.shape[1]]
+    return coeffs @ basis.T + 0.01 * rng.normal(size=(t, basis.shape[0])) + 7.0
+
+
+def test_spi_identical_orthogonal_and_partial_subspaces():
+    rng = np.random.default_rng(0)
+    eye = np.eye(6)
+    ref = _trajectory(eye[:, [0, 1, 2]], rng)
+    assert subspace_preservation(ref, _trajectory(eye[:, [0, 1, 2]], rng)) == pytest.approx(1.0, abs=1e-4)
+    assert subspace_preservation(ref, _trajectory(eye[:, [3, 4, 5]], rng)) == pytest.approx(0.0, abs=1e-4)
+    assert subspace_preservation(ref, _trajectory(eye[:, [0, 1, 4]], rng)) == pytest.approx(2 / 3, abs=1e-3)
+    # A rotation by 60 degrees of one direction inside a 2-D plane gives cos^2 = 1/4 for that direction.
+    c, s = 0.5, math.sqrt(3) / 2
+    rotated = np.stack([eye[:, 0], eye[:, 1], c * eye[:, 2] + s * eye[:, 3]], axis=1)
+    assert subspace_preservation(ref, _trajectory(rotated, rng)) == pytest.approx((1 + 1 + 0.25) / 3, abs=1e-3)
+
+
+def test_spi_at_stage_averages_earlier_skills():
+    rng = np.random.default_rng(1)
+    eye = np.eye(5)
+    ref = {"a": _trajectory(eye[:, :3], rng), "b": _trajectory(eye[:, :3], rng)}
+    cur = {"a": _trajectory(eye[:, :3], rng), "b": _trajectory(eye[:, 2:], rng)}
+    assert spi_at_stage(ref, cur, ["a", "b"]) == pytest.approx((1 + 1 / 3) / 2, abs=1e-3)
+    assert math.isnan(spi_at_stage(ref, cur, []))
+    with pytest.raises(ValueError, match=r"skills \['c'\]"):
+        spi_at_stage(ref, cur, ["c"])
+
+
+def test_mean_sem_by_hand():
+    m, se = mean_sem([0.2, 0.4, 0.6])
+    assert m == pytest.approx(0.4) and se == pytest.approx(0.2 / math.sqrt(3))
+    assert mean_sem([0.3])[0] == 0.3 and math.isnan(mean_sem([0.3])[1])
+    assert math.isnan(mean_sem([])[0])
+    assert mean_sem([0.1, NAN, 0.3])[0] == pytest.approx(0.2)
+
+
+def test_stream_metrics_bundles_curves_and_finals():
+    out = stream_metrics(S, ["a", "b", "c"], [("a", "b")], spi=[NAN, 0.9, 0.8])
+    assert out["afsr"] == pytest.approx(0.6) and out["spi"] == 0.8
+    assert len(out["prs_curve"]) == 3 and out["prs"] == pytest.approx(0.2)

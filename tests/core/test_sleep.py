@@ -1,0 +1,180 @@
+"""Sleep consolidation (Algorithm 1 lines 7-15) on a toy two-skill problem with conflicting memories."""
+
+from __future__ import annotations
+
+import copy
+
+import pytest
+import torch
+from torch import nn
+
+from sr_imitation.core.memory import OutputDistillationMemory
+from sr_imitation.core.sleep import (
+    NonFiniteSleepError,
+    SleepConfig,
+    anchor_coefficient,
+    parameter_distance,
+    sleep_consolidate,
+)
+
+
+def _net() -> nn.Module:
+    torch.manual_seed(0)
+    return nn.Sequential(nn.Linear(2, 16), nn.Tanh(), nn.Linear(16, 2))
+
+
+def _skill_data(center: float, sign: float, n: int = 256) -> tuple[torch.Tensor, torch.Tensor]:
+    g = torch.Generator().manual_seed(int(10 * center) + 7)
+    x = center + 0.6 * (torch.rand(n, 2, generator=g) - 0.5) * 2  # overlapping input regions
+    y = torch.stack([sign * torch.sin(2 * x[:, 0]), sign * x[:, 1]], dim=1)
+    return x, y
+
+
+def _wake(net: nn.Module, x: torch.Tensor, y: torch.Tensor, steps: int = 400) -> None:
+    opt = torch.optim.Adam(net.parameters(), lr=1e-2)
+    for _ in range(steps):
+        opt.zero_grad()
+        nn.functional.mse_loss(net(x), y).backward()
+        opt.step()
+
+
+def _policy(net: nn.Module):
+    return lambda obs: net(obs["x"])
+
+
+@pytest.fixture(scope="module")
+def stream():
+    """Two skills learned sequentially (wake only): the second overwrites the first where inputs overlap."""
+    net = _net()
+    xa, ya = _skill_data(-0.3, +1.0)
+    xb, yb = _skill_data(+0.3, -1.0)
+    _wake(net, xa, ya)
+    theta_a = [p.detach().clone() for p in net.parameters()]
+    mem_a = OutputDistillationMemory.from_snapshot("a", _policy(net), {"x": xa})
+    _wake(net, xb, yb)
+    theta_b = [p.detach().clone() for p in net.parameters()]
+    mem_b = OutputDistillationMemory.from_snapshot("b", _policy(net), {"x": xb})
+    return net, theta_a, theta_b, [mem_a, mem_b]
+
+
+def _worst_loss(net: nn.Module, memories) -> float:
+    with torch.no_grad():
+        return max(
+            float(m.loss(_policy(net), dict(m.tensors.items()))) for m in memories
+        )
+
+
+def _config(**kw) -> SleepConfig:
+    base = {"lr": 5e-3, "max_iterations": 300, "batch_size": 64, "anchor_tau": None, "early_stop_window": 50,
+                "early_stop_tol": 0.0, "seed": 0}
+    base.update(kw)
+    return SleepConfig(**base)
+
+
+def test_sleep_lowers_the_worst_memory_loss_compared_with_no_sleep(stream):
+    net0, _, theta_b, memories = stream
+    net = copy.deepcopy(net0)
+    before = _worst_loss(net, memories)
+    fingerprints = [m.fingerprint() for m in memories]
+    result = sleep_consolidate(list(net.parameters()), _policy(net), memories, _config(), progress=False)
+    after = _worst_loss(net, memories)
+    assert before > 0.05  # wake-only forgot skill a
+    assert after < 0.5 * before
+    assert [m.fingerprint() for m in memories] == fingerprints  # memories stay frozen
+    assert result.stop_iteration == 300 and result.stop_reason == "max_iterations"
+    assert len(result.alpha) == 300 and all(abs(sum(a) - 1) < 1e-9 for a in result.alpha)
+    assert len(result.grad_norms[0]) == 2 and len(result.memory_losses[0]) == 2
+
+
+def test_nash_and_mean_sleep_both_lower_the_worst_loss_on_three_memories(stream):
+    net0, _, _, memories = stream
+    xc, yc = _skill_data(0.0, 0.5)
+    net_c = copy.deepcopy(net0)
+    _wake(net_c, xc, yc, steps=200)
+    mem_c = OutputDistillationMemory.from_snapshot("c", _policy(net_c), {"x": xc})
+    worst = {}
+    for name in ("nash", "mean"):
+        net = copy.deepcopy(net0)
+        sleep_consolidate(list(net.parameters()), _policy(net), [*memories, mem_c],
+                          _config(aggregator=name, max_iterations=200), progress=False)
+        worst[name] = _worst_loss(net, [*memories, mem_c])
+    before = _worst_loss(net0, [*memories, mem_c])
+    assert worst["nash"] < before and worst["mean"] < before
+
+
+def test_anchor_pulls_toward_the_previous_checkpoint(stream):
+    net0, theta_a, theta_b, memories = stream
+    distances = {}
+    for lam in (0.0, 5.0):
+        net = copy.deepcopy(net0)
+        result = sleep_consolidate(
+            list(net.parameters()), _policy(net), memories, _config(anchor_strength=lam, max_iterations=150),
+            anchor_params=theta_a, wake_snapshots=[theta_a], progress=False,
+        )
+        assert result.anchor_lambda == lam
+        distances[lam] = parameter_distance(list(net.parameters()), theta_a)
+    start = parameter_distance(theta_b, theta_a)
+    assert distances[5.0] < distances[0.0]
+    assert distances[5.0] < start
+
+
+def test_anchor_gate_of_eq_2():
+    params = [torch.zeros(3)]
+    near, far = [torch.full((3,), 1.0)], [torch.full((3,), 100.0)]  # distances sqrt(3) and 100 sqrt(3)
+    lam, dist = anchor_coefficient(params, [far, near], strength=0.01, tau=2.0)
+    assert lam == 0.01 and dist == pytest.approx([100 * 3**0.5, 3**0.5])
+    assert anchor_coefficient(params, [far], strength=0.01, tau=2.0)[0] == 0.0
+    assert anchor_coefficient(params, [far], strength=0.01, tau=None)[0] == 0.01
+    assert anchor_coefficient(params, [near], 0.01, 2.0, is_final_skill=True)[0] == 0.0
+    assert anchor_coefficient(params, [near], 0.01, 2.0, is_final_skill=True, apply_after_final=True)[0] == 0.01
+    # The gate flips exactly at tau.
+    assert anchor_coefficient(params, [near], 0.01, tau=3**0.5 + 1e-9)[0] == 0.01
+    assert anchor_coefficient(params, [near], 0.01, tau=3**0.5 - 1e-9)[0] == 0.0
+
+
+class _NaNMemory(OutputDistillationMemory):
+    def loss(self, policy, batch):
+        return super().loss(policy, batch) * float("nan")
+
+
+def test_non_finite_gradients_never_update_the_policy(stream):
+    net0, _, _, memories = stream
+    net = copy.deepcopy(net0)
+    bad = _NaNMemory("broken", dict(memories[0].tensors))
+    before = [p.detach().clone() for p in net.parameters()]
+    with pytest.raises(NonFiniteSleepError, match="broken"):
+        sleep_consolidate(list(net.parameters()), _policy(net), [memories[1], bad],
+                          _config(max_nonfinite_steps=3), progress=False)
+    assert all(torch.equal(a, b) for a, b in zip(before, net.parameters(), strict=True))
+
+
+def test_early_stopping_on_a_plateau(stream):
+    net0, _, _, memories = stream
+    net = copy.deepcopy(net0)
+    result = sleep_consolidate(list(net.parameters()), _policy(net), memories,
+                               _config(lr=1e-9, max_iterations=1000, early_stop_window=20, early_stop_tol=1e-2),
+                               progress=False)
+    # Window means differ only by batch-sampling noise: stops at a window boundary long before the budget.
+    assert result.stop_reason == "plateau"
+    assert result.stop_iteration % 20 == 0 and 40 <= result.stop_iteration < 1000
+
+
+def test_same_seed_same_result_and_callback_runs_each_step(stream):
+    net0, _, _, memories = stream
+    finals, calls = [], []
+    for _ in range(2):
+        net = copy.deepcopy(net0)
+        sleep_consolidate(list(net.parameters()), _policy(net), memories, _config(max_iterations=30),
+                          step_callback=calls.append, progress=False)
+        finals.append([p.detach().clone() for p in net.parameters()])
+    assert all(torch.equal(a, b) for a, b in zip(*finals, strict=True))
+    assert calls == list(range(30)) * 2
+
+
+def test_invalid_configs_are_rejected():
+    with pytest.raises(ValueError, match="lr=0"):
+        SleepConfig(lr=0)
+    with pytest.raises(ValueError, match="unknown aggregator"):
+        SleepConfig(aggregator="sum")
+    assert SleepConfig.surgicai().lr == 1e-5 and SleepConfig.surgicai().fw_iterations == 5
+    assert SleepConfig.mt5().anchor_tau == 150.0 and SleepConfig.mt5().max_iterations == 4000
