@@ -114,5 +114,5 @@ class ACTSRPolicy(ACTPolicy):
         loss_dict["bc_loss"] = loss_dict["l1_loss"] + self.config.kl_weight * loss_dict.get("kld_loss", 0.0)
         if not torch.isfinite(loss):
             # Raised before any backward pass, so a NaN never reaches the weights.
-            raise FloatingPointError(f"non-finite ACT-SR loss {float(loss)} (components {loss_dict})")
+            raise FloatingPointError(f"non-finite ACT-SR loss {float(loss.detach())} (components {loss_dict})")
         return loss, loss_dict
