@@ -6,7 +6,7 @@ Interface contract from ``shared/notes/surgicai-needle-spec.md`` §2 and §6.1:
   base frame, order ``[x, y, z, roll, pitch, yaw, jaw]``; out-of-range actions are clipped, non-finite ones raise;
 - observation ``{"pixels": wrist RGB uint8 (H, W, 3), "agent_pos": float32 (35,)}``, where ``agent_pos`` is
   SurgicAI's ``[observation(21) = cur, goal, goal - cur; achieved_goal(7); desired_goal(7)]`` with xyz in cm;
-- ``info["is_success"]`` every step, termination on success, truncation after ``max_episode_steps`` (300).
+- ``info["is_success"]`` every step, termination on success, truncation after ``step_limit`` steps (300).
 
 Simulation is purely kinematic (spec §6.2): physics never steps; MuJoCo is only used to render.
 """
@@ -58,8 +58,10 @@ class NeedleEnvSettings:
         image_height, image_width: wrist image size (640x480 as in the paper, 64-96 px for CPU work).
         render_mode: ``rgb_array`` for :meth:`NeedleEnv.render` (scene camera), or None.
         render_height, render_width: size of :meth:`NeedleEnv.render` frames.
-        max_episode_steps: truncation horizon (300, spec §2.4).
+        step_limit: truncation horizon (300, spec §2.4); ``gym.make`` adds the same ``TimeLimit``.
         randomize: SurgicAI's needle/grasp randomisation plus arm jitter; off gives the nominal scene.
+        camera_dict: return ``pixels`` as ``{"wrist": image}`` instead of the bare image; LeRobot maps that to
+            ``observation.images.wrist`` (a bare array would become ``observation.image``).
     """
 
     skill: str = "approach"
@@ -71,8 +73,9 @@ class NeedleEnvSettings:
     render_mode: str | None = None
     render_height: int = 240
     render_width: int = 320
-    max_episode_steps: int = 300
+    step_limit: int = 300
     randomize: bool = True
+    camera_dict: bool = False
 
     def __post_init__(self) -> None:
         self.skill = S.skill_from_name(self.skill).value
@@ -87,8 +90,8 @@ class NeedleEnvSettings:
             value = getattr(self, name)
             if not 8 <= int(value) <= 2048:
                 raise ValueError(f"{name} must be in [8, 2048], got {value}")
-        if self.max_episode_steps < 1:
-            raise ValueError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
+        if self.step_limit < 1:
+            raise ValueError(f"step_limit must be >= 1, got {self.step_limit}")
 
 
 class NeedleEnv(gym.Env):
@@ -103,10 +106,9 @@ class NeedleEnv(gym.Env):
         self.action_space = gym.spaces.Box(-1.0, 1.0, shape=(7,), dtype=np.float32)
         spaces = {"agent_pos": gym.spaces.Box(-np.inf, np.inf, shape=(STATE_DIM,), dtype=np.float32)}
         if s.obs_type == "pixels_agent_pos":
-            spaces = {
-                "pixels": gym.spaces.Box(0, 255, shape=(s.image_height, s.image_width, 3), dtype=np.uint8),
-                **spaces,
-            }
+            image = gym.spaces.Box(0, 255, shape=(s.image_height, s.image_width, 3), dtype=np.uint8)
+            pixels = gym.spaces.Dict({"wrist": image}) if s.camera_dict else image
+            spaces = {"pixels": pixels, **spaces}
         self.observation_space = gym.spaces.Dict(spaces)
         self._renderer = None
         self._set_skill(Skill(s.skill))
@@ -171,7 +173,7 @@ class NeedleEnv(gym.Env):
             reward = -(d_cm / 100.0 + d_rad / 10.0)
         else:
             reward = 0.0 if success else -1.0
-        truncated = self.elapsed_steps >= self.settings.max_episode_steps and not success
+        truncated = self.elapsed_steps >= self.settings.step_limit and not success
         self._needs_reset = success or truncated
         return self._observation(), float(reward), bool(success), bool(truncated), self._info(d_cm, d_rad, success)
 
@@ -380,7 +382,8 @@ class NeedleEnv(gym.Env):
     def _observation(self) -> dict[str, np.ndarray]:
         obs = {"agent_pos": self._state()}
         if self.settings.obs_type == "pixels_agent_pos":
-            obs["pixels"] = self.render_camera("wrist", self.settings.image_height, self.settings.image_width)
+            image = self.render_camera("wrist", self.settings.image_height, self.settings.image_width)
+            obs["pixels"] = {"wrist": image} if self.settings.camera_dict else image
         return obs
 
     def _info(self, d_cm: float, d_rad: float, success: bool = False) -> dict[str, Any]:
