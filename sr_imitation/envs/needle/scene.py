@@ -30,8 +30,8 @@ SCENE_CAMERA = "scene"
 WRIST_CAMERA_POS = np.array([6.0, 0.0, -12.0]) * MM
 WRIST_CAMERA_TARGET = np.array([0.0, 0.0, 14.0]) * MM
 # Scene camera: above and in front of the wound, looking at the suture site (cf. SAI's endoscope, spec §1.4).
-SCENE_CAMERA_POS = np.array([-8.0, -15.0, 135.0]) * MM
-SCENE_CAMERA_TARGET = np.array([-8.0, 50.0, 78.0]) * MM
+SCENE_CAMERA_POS = np.array([5.0, -35.0, 150.0]) * MM
+SCENE_CAMERA_TARGET = np.array([5.0, 50.0, 86.0]) * MM
 
 
 def _fmt(v) -> str:
@@ -127,7 +127,7 @@ def build_scene_xml(offscreen_width: int = 640, offscreen_height: int = 480) -> 
     {_marker(ENTRY_POSE, "0.1 0.8 0.2 1")}
     {_marker(EXIT_POSE, "0.9 0.8 0.1 1")}
     <camera name="{SCENE_CAMERA}" pos="{_fmt(SCENE_CAMERA_POS)}"
-            xyaxes="{_look_at_xyaxes(SCENE_CAMERA_POS, SCENE_CAMERA_TARGET)}" fovy="45"/>
+            xyaxes="{_look_at_xyaxes(SCENE_CAMERA_POS, SCENE_CAMERA_TARGET)}" fovy="50"/>
     <body name="needle" mocap="true">
       {_needle_geoms()}
     </body>
