@@ -12,6 +12,7 @@ Example::
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import os
 import shutil
@@ -168,6 +169,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
         image_width=cfg.image_size,
         render_mode="rgb_array" if cfg.episode_videos else None,
     )
+    dataset = None
     try:
         dataset = LeRobotDataset.create(
             repo_id=f"{cfg.repo_id_prefix}_{skill}",
@@ -197,6 +199,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
                     write_mp4(tmp / "episode_videos" / f"episode_{bar.n:06d}.mp4", scene, fps=cfg.fps)
                 bar.update(1)
         dataset.finalize()
+        dataset = None
         images = tmp / "dataset" / "images"
         if images.is_dir() and not any(p.is_file() for p in images.rglob("*")):
             shutil.rmtree(images)  # LeRobot's PNG staging folder, empty once episodes are embedded
@@ -207,15 +210,21 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
         return target
     finally:
         env.close()
+        if dataset is not None:  # interrupted: close LeRobot's parquet writers before deleting their files
+            with contextlib.suppress(Exception):
+                dataset.finalize()
+            del dataset
         shutil.rmtree(tmp, ignore_errors=True)
 
 
 def record(cfg: RecordConfig) -> list[Path]:
-    """Record every skill in ``cfg.skills``; refuses up front if a target exists and ``overwrite`` is false."""
+    """Record every skill in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``."""
     if not cfg.overwrite:
         existing = [str(cfg.target(s)) for s in cfg.skills if cfg.target(s).exists()]
         if existing:
-            raise FileExistsError(f"Dataset(s) already exist: {existing}; pass --overwrite=true to replace them")
+            raise FileExistsError(
+                f"Dataset(s) already exist: {existing}; pass --overwrite=true to replace them"
+            )
     return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
 
 

@@ -1,7 +1,7 @@
-"""MuJoCo rebuild of SurgicAI's five-skill needle-suturing stream (see ``shared/notes/surgicai-needle-spec.md``).
+"""MuJoCo rebuild of SurgicAI's five-skill needle-suturing stream (``shared/notes/surgicai-needle-spec.md``).
 
-Importing this package registers one gymnasium id per skill, ``sr_needle/<skill>`` (e.g. ``sr_needle/insert``),
-with SurgicAI's 300-step limit. It does not import LeRobot; the LeRobot ``EnvConfig`` lives in
+Importing this package registers one gymnasium id per skill, ``sr_needle/<skill>``,
+with SurgicAI's 300-step limit. It does not import LeRobot; the LeRobot ``EnvConfig`` is in
 :mod:`sr_imitation.envs.needle.lerobot_config`.
 """
 

@@ -3,7 +3,8 @@
 Interface contract from ``shared/notes/surgicai-needle-spec.md`` §2 and §6.1:
 
 - action ``Box(-1, 1, (7,))`` for the active arm, ``setpoint += action * (1 mm, 3 deg, 0.05)`` in that arm's
-  base frame, order ``[x, y, z, roll, pitch, yaw, jaw]``; out-of-range actions are clipped, non-finite ones raise;
+  base frame, order ``[x, y, z, roll, pitch, yaw, jaw]``; out-of-range actions are clipped,
+  non-finite ones raise;
 - observation ``{"pixels": wrist RGB uint8 (H, W, 3), "agent_pos": float32 (35,)}``, where ``agent_pos`` is
   SurgicAI's ``[observation(21) = cur, goal, goal - cur; achieved_goal(7); desired_goal(7)]`` with xyz in cm;
 - ``info["is_success"]`` every step, termination on success, truncation after ``step_limit`` steps (300).
@@ -175,7 +176,13 @@ class NeedleEnv(gym.Env):
             reward = 0.0 if success else -1.0
         truncated = self.elapsed_steps >= self.settings.step_limit and not success
         self._needs_reset = success or truncated
-        return self._observation(), float(reward), bool(success), bool(truncated), self._info(d_cm, d_rad, success)
+        return (
+            self._observation(),
+            float(reward),
+            bool(success),
+            bool(truncated),
+            self._info(d_cm, d_rad, success),
+        )
 
     def render(self):
         if self.render_mode != "rgb_array":
@@ -185,7 +192,9 @@ class NeedleEnv(gym.Env):
     def render_camera(self, camera: str, height: int, width: int) -> np.ndarray:
         """RGB frame from ``scene`` or ``wrist`` at any size (up to the offscreen buffer)."""
         renderer = self._get_renderer()
-        renderer.set_state(self.needle_pose, tuple(self.tool_poses), (self.setpoints[0][6], self.setpoints[1][6]))
+        renderer.set_state(
+            self.needle_pose, tuple(self.tool_poses), (self.setpoints[0][6], self.setpoints[1][6])
+        )
         return renderer.render(camera, height, width)
 
     def close(self) -> None:
@@ -260,8 +269,10 @@ class NeedleEnv(gym.Env):
             self.needle_pose = self.tool_poses[self.holder] @ self.tool_in_needle_grasp
 
     def _grasp_and_carry(self, arm: int, T_needle_goal: np.ndarray) -> None:
-        """Move the holding ``arm`` so that the needle lands near ``T_needle_goal`` (+ prepositioning noise)."""
-        T_tool = self._jitter_pose(S.carried_tool_pose(T_needle_goal, self.tool_in_needle_grasp), PREPOSITION_JITTER)
+        """Move the holding ``arm`` so the needle lands near ``T_needle_goal`` (+ prepositioning noise)."""
+        T_tool = self._jitter_pose(
+            S.carried_tool_pose(T_needle_goal, self.tool_in_needle_grasp), PREPOSITION_JITTER
+        )
         self._set_tool(arm, T_tool, 0.0)
         self._carry_needle()
 
@@ -323,7 +334,9 @@ class NeedleEnv(gym.Env):
         base_inv = G.invert(G.BASE_POSES[arm])
         local = base_inv @ self.goal_tool_pose()
         self._goal_rot = local[:3, :3].copy()
-        self.goal = np.concatenate([local[:3, 3], G.matrix_to_rpy(local[:3, :3], self.setpoints[arm][3:6]), [0.0]])
+        self.goal = np.concatenate(
+            [local[:3, 3], G.matrix_to_rpy(local[:3, :3], self.setpoints[arm][3:6]), [0.0]]
+        )
         if self.skill is Skill.APPROACH:
             alts = [
                 base_inv @ S.grasp_pose(self.needle_pose, th, S.APPROACH_STANDOFF, G.PSM2)
@@ -333,7 +346,7 @@ class NeedleEnv(gym.Env):
             self._alt_goal_rot = np.array([T[:3, :3] for T in alts])
 
     def _errors(self) -> tuple[float, float]:
-        """Position error (cm) and geodesic rotation error (rad) of the active setpoint to the desired goal."""
+        """Position error (cm) and geodesic rotation error (rad) of the active setpoint to the goal."""
         sp = self.setpoints[self.active_arm]
         d_cm = 100.0 * math.sqrt(float(np.dot(sp[:3] - self.goal[:3], sp[:3] - self.goal[:3])))
         R = G.rpy_to_matrix(sp[3], sp[4], sp[5])

@@ -50,9 +50,11 @@ class ExpertSettings:
 
 
 class NeedleExpert:
-    """Scripted expert for the skill the (unwrapped) env is running; call :meth:`reset` after each env reset."""
+    """Scripted expert for the skill the env is running; call :meth:`reset` after each env reset."""
 
-    def __init__(self, env: NeedleEnv, seed: int | None = None, settings: ExpertSettings | None = None) -> None:
+    def __init__(
+        self, env: NeedleEnv, seed: int | None = None, settings: ExpertSettings | None = None
+    ) -> None:
         self.env = env.unwrapped if hasattr(env, "unwrapped") else env
         self.settings = settings or ExpertSettings()
         self.rng = np.random.default_rng(seed)
@@ -75,7 +77,7 @@ class NeedleExpert:
             # Hover 10 mm back along the tool axis, then descend onto the grasp pose (spec §6.3).
             return [goal @ G.translation(0.0, 0.0, -10.0 * G.MM), goal]
         if skill is Skill.PLACE:
-            # SurgicAI's mid waypoint: (entry.x - 35 mm, entry.y, grasp.z + 25 mm), orientation unchanged (§3.2).
+            # SurgicAI's mid waypoint (entry.x - 35 mm, entry.y, grasp.z + 25 mm), same orientation (§3.2).
             mid = tool.copy()
             mid[:3, 3] = [G.ENTRY_POSE[0, 3] - 35.0 * G.MM, G.ENTRY_POSE[1, 3], tool[2, 3] + 25.0 * G.MM]
             return [mid, goal]
@@ -85,12 +87,16 @@ class NeedleExpert:
             # Arc-following: intermediate needle poses between the current and the goal needle pose (§6.3).
             N1 = S.insert_needle_pose()
             n = self.settings.insert_waypoints
-            return [S.carried_tool_pose(G.interpolate_pose(N0, N1, k / n), grip) for k in range(1, n)] + [goal]
+            return [S.carried_tool_pose(G.interpolate_pose(N0, N1, k / n), grip) for k in range(1, n)] + [
+                goal
+            ]
         # PULLOUT: rotate about the needle centre first (extraction along the arc), then carry to hand-over.
         N1 = S.pullout_needle_pose()
         rotated = G.make_pose(N1[:3, :3], N0[:3, 3])
         n = self.settings.pullout_rotation_waypoints
-        return [S.carried_tool_pose(G.interpolate_pose(N0, rotated, k / n), grip) for k in range(1, n + 1)] + [goal]
+        return [
+            S.carried_tool_pose(G.interpolate_pose(N0, rotated, k / n), grip) for k in range(1, n + 1)
+        ] + [goal]
 
     def act(self) -> np.ndarray:
         """Next action in [-1, 1]^7 for the env's active arm."""

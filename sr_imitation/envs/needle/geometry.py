@@ -144,8 +144,10 @@ NEEDLE_NOMINAL_CENTER = np.array([-20.79, 56.20, 71.17]) * MM  # centre, lying f
 
 
 def needle_point_frame(theta: float) -> np.ndarray:
-    """Frame at arc angle ``theta`` in the needle frame: origin p(theta), x to the centre, y forward tangent."""
-    return make_pose(rot_z(-theta), np.array([-NEEDLE_RADIUS * math.cos(theta), NEEDLE_RADIUS * math.sin(theta), 0.0]))
+    """Frame at arc angle ``theta`` (needle frame): origin p(theta), x to the centre, y forward tangent."""
+    return make_pose(
+        rot_z(-theta), np.array([-NEEDLE_RADIUS * math.cos(theta), NEEDLE_RADIUS * math.sin(theta), 0.0])
+    )
 
 
 # --- Phantom entry / exit (spec §1.2) -------------------------------------------------------------------

@@ -33,7 +33,9 @@ class SceneRenderer:
             for arm in ("psm1", "psm2")
         }
 
-    def set_state(self, needle_pose: np.ndarray, tool_poses: tuple[np.ndarray, ...], jaws: tuple[float, ...]) -> None:
+    def set_state(
+        self, needle_pose: np.ndarray, tool_poses: tuple[np.ndarray, ...], jaws: tuple[float, ...]
+    ) -> None:
         """Place the needle and both tools (world 4x4 poses) and open the jaws, then run kinematics."""
         d = self.data
         for name, T in (("needle", needle_pose), ("psm1", tool_poses[0]), ("psm2", tool_poses[1])):

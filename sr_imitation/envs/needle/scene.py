@@ -26,7 +26,7 @@ JAW_LENGTH = 9.0 * MM
 JAW_HALF_OPENING_PER_UNIT = 0.5  # hinge angle (rad) of each jaw per unit of commanded jaw (0.8 = open)
 WRIST_CAMERA = "wrist"
 SCENE_CAMERA = "scene"
-# Wrist camera on PSM2's tool, in the tool frame: beside the wrist, looking past the jaws (spec §1.4 open question).
+# Wrist camera on PSM2's tool (tool frame): beside the wrist, looking past the jaws (spec §1.4, §7).
 WRIST_CAMERA_POS = np.array([6.0, 0.0, -12.0]) * MM
 WRIST_CAMERA_TARGET = np.array([0.0, 0.0, 14.0]) * MM
 # Scene camera: above and in front of the wound, looking at the suture site (cf. SAI's endoscope, spec §1.4).
@@ -57,7 +57,8 @@ def _needle_geoms() -> str:
         p1 = (-NEEDLE_RADIUS * math.cos(a1), NEEDLE_RADIUS * math.sin(a1), 0.0)
         mat = "tip" if i == NEEDLE_SEGMENTS - 1 else "needle"
         geoms.append(
-            f'<geom type="capsule" fromto="{_fmt(p0)} {_fmt(p1)}" size="{NEEDLE_WIRE_RADIUS}" material="{mat}"/>'
+            f'<geom type="capsule" fromto="{_fmt(p0)} {_fmt(p1)}" size="{NEEDLE_WIRE_RADIUS}" '
+            f'material="{mat}"/>'
         )
     return "\n      ".join(geoms)
 
@@ -85,14 +86,18 @@ def _face_box(pose: np.ndarray, rgba: str) -> str:
     """A ridge face: box whose top face passes through the entry/exit frame with +z its normal."""
     half = np.array([6.0, 30.0, 6.0]) * MM
     centre = pose[:3, 3] - pose[:3, 2] * half[2]
-    return (f'<geom type="box" pos="{_fmt(centre)}" quat="{_fmt(matrix_to_quat(pose[:3, :3]))}" '
-            f'size="{_fmt(half)}" rgba="{rgba}"/>')
+    return (
+        f'<geom type="box" pos="{_fmt(centre)}" quat="{_fmt(matrix_to_quat(pose[:3, :3]))}" '
+        f'size="{_fmt(half)}" rgba="{rgba}"/>'
+    )
 
 
 def _marker(pose: np.ndarray, rgba: str) -> str:
     p = pose[:3, 3] + pose[:3, 2] * 0.05 * MM
-    return (f'<geom type="cylinder" pos="{_fmt(p)}" quat="{_fmt(matrix_to_quat(pose[:3, :3]))}" '
-            f'size="{0.9 * MM} {0.05 * MM}" rgba="{rgba}"/>')
+    return (
+        f'<geom type="cylinder" pos="{_fmt(p)}" quat="{_fmt(matrix_to_quat(pose[:3, :3]))}" '
+        f'size="{0.9 * MM} {0.05 * MM}" rgba="{rgba}"/>'
+    )
 
 
 def build_scene_xml(offscreen_width: int = 640, offscreen_height: int = 480) -> str:
@@ -101,8 +106,10 @@ def build_scene_xml(offscreen_width: int = 640, offscreen_height: int = 480) -> 
     pad_half = np.array([45.0, 45.0, 8.0]) * MM
     pad_centre = np.array([-10.0 * MM, 50.0 * MM, surface_z - pad_half[2]])
     tissue = "0.85 0.55 0.55 1"
-    wrist_camera = (f'<camera name="{WRIST_CAMERA}" pos="{_fmt(WRIST_CAMERA_POS)}" '
-                    f'xyaxes="{_look_at_xyaxes(WRIST_CAMERA_POS, WRIST_CAMERA_TARGET, up=(1.0, 0.0, 0.0))}" fovy="70"/>')
+    wrist_camera = (
+        f'<camera name="{WRIST_CAMERA}" pos="{_fmt(WRIST_CAMERA_POS)}" '
+        f'xyaxes="{_look_at_xyaxes(WRIST_CAMERA_POS, WRIST_CAMERA_TARGET, up=(1.0, 0.0, 0.0))}" fovy="70"/>'
+    )
     return f"""<mujoco model="sr_needle">
   <compiler angle="radian"/>
   <option gravity="0 0 0" timestep="0.005"/>

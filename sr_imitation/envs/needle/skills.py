@@ -7,7 +7,7 @@ Goal recipes follow ``shared/notes/surgicai-needle-spec.md`` §3; thresholds §3
 from __future__ import annotations
 
 from dataclasses import dataclass
-from enum import Enum
+from enum import StrEnum
 
 import numpy as np
 
@@ -28,7 +28,7 @@ from sr_imitation.envs.needle.geometry import (
 )
 
 
-class Skill(str, Enum):
+class Skill(StrEnum):
     """Skills in stream order (spec §6.1)."""
 
     APPROACH = "approach"
@@ -98,17 +98,24 @@ CARRY_ANGLE_RANGE = (10.0 * DEG, 50.0 * DEG)
 REGRASP_ANGLE = 105.0 * DEG
 REGRASP_STANDOFF = 5.0 * MM
 INSERT_ENTRY_STANDOFF = 1.0 * MM
-# R_align for INSERT and PULLOUT: the needle point's tangent along the exit's outward normal (spec §3.3, §3.5).
+# R_align for INSERT and PULLOUT: needle point tangent along the exit's outward normal (spec §3.3, §3.5).
 R_ALIGN = np.array([[-1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
 
 
 def grasp_pose(T_needle: np.ndarray, theta: float, standoff: float, arm: int) -> np.ndarray:
     """World tool pose grasping the needle at arc angle ``theta`` (spec §3 ``grasp(θ, h, arm)``)."""
-    return T_needle @ needle_point_frame(theta) @ translation(0.0, 0.0, standoff) @ rotation(GRASP_ROTATIONS[arm])
+    return (
+        T_needle
+        @ needle_point_frame(theta)
+        @ translation(0.0, 0.0, standoff)
+        @ rotation(GRASP_ROTATIONS[arm])
+    )
 
 
-def needle_pose_for_target(T_target: np.ndarray, theta: float, R_align: np.ndarray | None = None) -> np.ndarray:
-    """Needle pose that puts its ``theta`` frame (times ``R_align``) on ``T_target`` (spec §3 carrying targets)."""
+def needle_pose_for_target(
+    T_target: np.ndarray, theta: float, R_align: np.ndarray | None = None
+) -> np.ndarray:
+    """Needle pose putting its ``theta`` frame (times ``R_align``) on ``T_target`` (spec §3, carrying)."""
     T_align = np.eye(4) if R_align is None else rotation(R_align)
     return T_target @ invert(T_align) @ invert(needle_point_frame(theta))
 
@@ -155,5 +162,3 @@ def threshold_for(preset: str, skill: Skill) -> Threshold:
     if preset not in THRESHOLD_PRESETS:
         raise ValueError(f"Unknown threshold preset {preset!r}; expected one of {sorted(THRESHOLD_PRESETS)}")
     return THRESHOLD_PRESETS[preset][skill]
-
-

@@ -22,7 +22,9 @@ def write_mp4(path: str | Path, frames: Iterable[np.ndarray], fps: int = 30, cod
                     raise ValueError(f"mp4 (yuv420p) needs even frame sizes, got {w}x{h}")
                 stream = container.add_stream(codec, rate=fps)
                 stream.width, stream.height, stream.pix_fmt = w, h, "yuv420p"
-            for packet in stream.encode(av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")):
+            for packet in stream.encode(
+                av.VideoFrame.from_ndarray(np.ascontiguousarray(frame), format="rgb24")
+            ):
                 container.mux(packet)
         if stream is None:
             raise ValueError("write_mp4 got no frames")
