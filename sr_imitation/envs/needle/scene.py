@@ -85,7 +85,7 @@ def _tool_body(name: str, rgba: str, camera: str) -> str:
 
 def _face_box(pose: np.ndarray, rgba: str) -> str:
     """A ridge face: box whose top face passes through the entry/exit frame with +z its normal."""
-    half = np.array([6.0, 30.0, 6.0]) * MM
+    half = np.array([6.0, 10.0, 6.0]) * MM  # a short ridge: tools over it stay outside the tissue
     centre = pose[:3, 3] - pose[:3, 2] * half[2]
     return (
         f'<geom type="box" pos="{_fmt(centre)}" quat="{_fmt(matrix_to_quat(pose[:3, :3]))}" '
