@@ -43,7 +43,9 @@ class RecordConfig:
         num_episodes: successful episodes per skill (failed expert episodes are discarded).
         root: parent folder; each skill's dataset goes to ``<root>/<skill>``.
         repo_id_prefix: LeRobot ``repo_id`` is ``<prefix>_<skill>`` (local only; nothing is pushed).
-        image_size: wrist image height and width (the paper uses 640x480; 96 is the CPU default).
+        image_size: wrist image height, and width unless ``image_width`` is set (96 is the CPU default).
+        image_width: wrist image width when not square, e.g. ``--image_size=480 --image_width=640`` for the
+            paper's 640x480.
         video: store wrist images as mp4 (decode with ``video_backend="pyav"``) instead of PNG in parquet.
         vcodec: video codec when ``video`` is true.
         thresholds: success preset, ``learnable`` or ``surgicai``.
@@ -59,6 +61,7 @@ class RecordConfig:
     root: Path = Path("datasets/needle")
     repo_id_prefix: str = "local/sr_needle"
     image_size: int = 96
+    image_width: int | None = None
     video: bool = False
     vcodec: str = "h264"
     thresholds: str = "learnable"
@@ -76,8 +79,11 @@ class RecordConfig:
             raise ValueError(f"skills must be distinct, got {self.skills}")
         if self.num_episodes < 1:
             raise ValueError(f"num_episodes must be >= 1, got {self.num_episodes}")
-        if not 8 <= self.image_size <= 640:
-            raise ValueError(f"image_size must be in [8, 640], got {self.image_size}")
+        if self.image_width is None:
+            self.image_width = self.image_size
+        for name in ("image_size", "image_width"):
+            if not 8 <= getattr(self, name) <= 1280:
+                raise ValueError(f"{name} must be in [8, 1280], got {getattr(self, name)}")
         if self.vcodec not in VIDEO_CODECS:
             raise ValueError(f"vcodec must be one of {VIDEO_CODECS}, got {self.vcodec!r}")
         if self.fps < 1:
@@ -93,12 +99,12 @@ class RecordConfig:
         return self.root / f"{skill}_episode_videos"
 
 
-def dataset_features(image_size: int, video: bool) -> dict:
+def dataset_features(image_height: int, image_width: int, video: bool) -> dict:
     """LeRobot feature spec of a needle dataset (integration notes §4)."""
     return {
         WRIST_KEY: {
             "dtype": "video" if video else "image",
-            "shape": (image_size, image_size, 3),
+            "shape": (image_height, image_width, 3),
             "names": ["height", "width", "channels"],
         },
         "observation.state": {"dtype": "float32", "shape": (STATE_DIM,), "names": list(STATE_NAMES)},
@@ -166,7 +172,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
         thresholds=cfg.thresholds,
         obs_type="pixels_agent_pos",
         image_height=cfg.image_size,
-        image_width=cfg.image_size,
+        image_width=cfg.image_width,
         render_mode="rgb_array" if cfg.episode_videos else None,
     )
     dataset = None
@@ -174,7 +180,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
         dataset = LeRobotDataset.create(
             repo_id=f"{cfg.repo_id_prefix}_{skill}",
             fps=cfg.fps,
-            features=dataset_features(cfg.image_size, cfg.video),
+            features=dataset_features(cfg.image_size, cfg.image_width, cfg.video),
             root=tmp / "dataset",
             robot_type="sr_needle_psm",
             use_videos=cfg.video,

@@ -45,13 +45,19 @@ def test_record_all_skills_and_load_back(tmp_path, capsys):
 def test_record_video_mode_and_episode_videos(tmp_path):
     root = tmp_path / "needle"
     cfg = rec.RecordConfig(
-        skills=["regrasp"], num_episodes=2, root=root, image_size=SIZE, video=True, episode_videos=True
+        skills=["regrasp"],
+        num_episodes=2,
+        root=root,
+        image_size=SIZE,
+        image_width=48,
+        video=True,
+        episode_videos=True,
     )
     rec.record(cfg)
     ds = _load(root, "regrasp")
     assert ds.meta.video_keys == ["observation.images.wrist"]
     frame = ds[5]["observation.images.wrist"]
-    assert frame.shape == (3, SIZE, SIZE) and float(frame.std()) > 0.0
+    assert frame.shape == (3, SIZE, 48) and float(frame.std()) > 0.0  # non-square images work
     assert sorted(p.name for p in cfg.episode_video_dir("regrasp").iterdir()) == [
         "episode_000000.mp4",
         "episode_000001.mp4",
@@ -103,7 +109,14 @@ def test_interrupted_run_leaves_no_dataset(tmp_path, monkeypatch):
 
 @pytest.mark.parametrize(
     "kwargs",
-    [{"skills": ["suture"]}, {"skills": []}, {"num_episodes": 0}, {"image_size": 4}, {"vcodec": "mp3"}],
+    [
+        {"skills": ["suture"]},
+        {"skills": []},
+        {"num_episodes": 0},
+        {"image_size": 4},
+        {"image_width": 2000},
+        {"vcodec": "mp3"},
+    ],
 )
 def test_invalid_record_config(kwargs):
     with pytest.raises(ValueError):
