@@ -199,3 +199,10 @@ def test_prepositioned_resets_stay_inside_setpoint_limits():
                 sp = env.setpoints[arm]
                 assert np.all(sp >= G.SETPOINT_LOW) and np.all(sp <= G.SETPOINT_HIGH)
             assert np.all(env.goal[:6] >= G.SETPOINT_LOW[:6]) and np.all(env.goal[:6] <= G.SETPOINT_HIGH[:6])
+
+
+def test_randomize_off_gives_the_nominal_scene(make_env):
+    env = make_env(skill="pullout", obs_type="agent_pos", randomize=False)
+    a, _ = env.reset(seed=1)
+    b, _ = env.reset(seed=2)
+    np.testing.assert_array_equal(a["agent_pos"], b["agent_pos"])
