@@ -170,10 +170,8 @@ class NeedleEnv(gym.Env):
         success = self._is_success(d_cm, d_rad)
         if success and self.skill.needs_closed_jaw and self.holder != arm:
             self._attach(arm)  # SurgicAI attaches on APPROACH success (spec §3.1)
-        if self.settings.reward_type == "dense":
-            reward = -(d_cm / 100.0 + d_rad / 10.0)
-        else:
-            reward = 0.0 if success else -1.0
+        dense = -(d_cm / 100.0 + d_rad / 10.0)
+        reward = dense if self.settings.reward_type == "dense" else (0.0 if success else -1.0)
         truncated = self.elapsed_steps >= self.settings.step_limit and not success
         self._needs_reset = success or truncated
         return (
