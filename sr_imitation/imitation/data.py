@@ -120,13 +120,57 @@ def load_stats(path: Path) -> dict:
     return stats
 
 
+class InMemoryChunkDataset(torch.utils.data.Dataset):
+    """A LeRobot dataset decoded once into tensors, serving ACT's items (state, images, action chunk + padding).
+
+    ``LeRobotDataset.__getitem__`` queries Arrow for every frame and its action chunk (~4 ms per item here), which
+    is most of a small ACT step on CPU. Skill datasets are small (a few thousand frames), so they are decoded
+    once: states and actions as float32, images as uint8. Items equal ``LeRobotDataset`` items (tested): the
+    action chunk of frame t is actions[t : t + chunk] within its episode, padded with the episode's last action
+    and flagged in ``action_is_pad`` past the end. Video datasets keep LeRobot's decoder (not materialized).
+    """
+
+    def __init__(self, dataset: LeRobotDataset, keys: Sequence[str], chunk_size: int) -> None:
+        columns = dataset.hf_dataset.select_columns([*keys, ACTION, "episode_index"])
+        data = columns[:]
+        self.keys = list(keys)
+        self.tensors: dict[str, Tensor] = {}
+        for key in keys:
+            stacked = torch.stack(list(data[key]))
+            self.tensors[key] = images_to_uint8(stacked) if key.startswith("observation.images") else stacked.float()
+        actions = torch.stack(list(data[ACTION])).float()
+        episodes = torch.as_tensor([int(e) for e in data["episode_index"]])
+        n = len(episodes)
+        # Last frame index of each frame's episode (frames are stored episode by episode).
+        ends = torch.empty(n, dtype=torch.long)
+        boundaries = torch.nonzero(episodes[1:] != episodes[:-1]).flatten().tolist() + [n - 1]
+        start = 0
+        for end in boundaries:
+            ends[start : end + 1] = end
+            start = end + 1
+        offsets = torch.arange(chunk_size)
+        raw = torch.arange(n)[:, None] + offsets[None, :]
+        self.action_is_pad = raw > ends[:, None]
+        self.chunk_index = torch.minimum(raw, ends[:, None])
+        self.actions = actions
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def __getitem__(self, i: int) -> dict[str, Tensor]:
+        item = {k: (v[i].float() / 255.0 if v.dtype == torch.uint8 else v[i]) for k, v in self.tensors.items()}
+        item[ACTION] = self.actions[self.chunk_index[i]]
+        item["action_is_pad"] = self.action_is_pad[i]
+        return item
+
+
 @dataclass
 class SkillData:
     """One skill's dataset with its episode split (frame indices into ``dataset``)."""
 
     skill: str
     root: Path
-    dataset: LeRobotDataset
+    dataset: torch.utils.data.Dataset
     train_indices: list[int]
     val_indices: list[int]
 
@@ -146,12 +190,16 @@ def load_skill_data(
     val_fraction: float,
     seed: int,
     video_backend: str = "pyav",
+    materialize: bool = True,
 ) -> SkillData:
     """Load a skill's dataset with ACT's action-chunk delta timestamps and split it by episode."""
     meta = load_metadata(root, repo_id)
     check_features(meta, policy_cfg.input_features, policy_cfg.output_features)
     delta = resolve_delta_timestamps(policy_cfg, meta)
     dataset = LeRobotDataset(repo_id, root=root, delta_timestamps=delta, video_backend=video_backend)
+    if materialize and not meta.video_keys:
+        keys = [k for k in policy_cfg.input_features if k in meta.features]
+        dataset = InMemoryChunkDataset(dataset, keys, policy_cfg.chunk_size)
     train_eps, val_eps = episode_split(meta.total_episodes, val_fraction, seed)
     starts = meta.episodes["dataset_from_index"]
     ends = meta.episodes["dataset_to_index"]

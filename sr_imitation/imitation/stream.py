@@ -184,7 +184,8 @@ class StreamTrainer:
     # -- set-up --------------------------------------------------------------------------------------
     def _prepare_output_dir(self) -> None:
         progress_path = self.out / "progress.json"
-        config_now = _config_dict(self.cfg)
+        # Per-invocation flags are not part of the run's identity: a saved config never implies --resume.
+        config_now = {k: v for k, v in _config_dict(self.cfg).items() if k not in ("resume", "overwrite")}
         if self.out.exists() and any(self.out.iterdir()):
             if self.cfg.overwrite:
                 logger.warning("--overwrite: removing %s", self.out)

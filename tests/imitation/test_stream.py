@@ -165,3 +165,22 @@ def test_image_stream_runs_end_to_end(image_datasets, tmp_path):
     memory = load_memory(tmp_path / "img" / "memories" / "skill_1_approach.safetensors")
     assert memory.tensors["input.observation.images.wrist"].dtype == torch.uint8
     assert results["skills"] == SKILLS[:2] and "2.sleep" in results["sleep"]
+
+
+def test_in_memory_dataset_serves_the_same_items_as_lerobot(image_datasets):
+    from sr_imitation.imitation.data import load_skill_data
+    from tests.imitation.helpers import tiny_policy
+
+    cfg = tiny_policy()
+    from tests.imitation.test_policy import _features
+
+    _features(cfg)
+    fast = load_skill_data("place", image_datasets / "place", "local/sr_needle_place", cfg, 0.3, 0)
+    slow = load_skill_data("place", image_datasets / "place", "local/sr_needle_place", cfg, 0.3, 0,
+                           materialize=False)
+    assert fast.train_indices == slow.train_indices and len(fast.dataset) == len(slow.dataset) == 30
+    for i in (0, 5, 8, 9, 10, 29):  # includes the padded chunks at the ends of episodes
+        a, b = fast.dataset[i], slow.dataset[i]
+        for key in ("observation.state", "observation.images.wrist", "action", "action_is_pad"):
+            assert torch.allclose(a[key].float(), b[key].float(), atol=1e-6), (i, key)
+    assert bool(fast.dataset[9]["action_is_pad"][1]) and not bool(fast.dataset[0]["action_is_pad"].any())

@@ -21,7 +21,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor
 
 from lerobot_policy_act_sr.configuration_act_sr import ACTSRConfig
-from sr_imitation.core.memory import Memory
+from sr_imitation.core.memory import Memory, summed_objective
 
 ObservationNormalizer = Callable[[Mapping[str, Tensor]], dict[str, Tensor]]
 
@@ -105,10 +105,8 @@ class ACTSRPolicy(ACTPolicy):
             batch[OBS_ENV_STATE] = batch[OBS_STATE]
         loss, loss_dict = super().forward(batch)
         if self._wake_memories and self._distill_weight > 0.0:
-            distill = sum(
-                m.objective(self.memory_chunk, self.config.distill_batch_size, self._memory_generator)
-                for m in self._wake_memories
-            )
+            distill = summed_objective(self._wake_memories, self.memory_chunk, self.config.distill_batch_size,
+                                       self._memory_generator)
             loss = loss + self._distill_weight * distill
             loss_dict["distill_loss"] = float(distill.detach())
         loss_dict["bc_loss"] = loss_dict["l1_loss"] + self.config.kl_weight * loss_dict.get("kld_loss", 0.0)
