@@ -178,7 +178,7 @@ def test_summed_objective_equals_the_sum_of_per_memory_objectives():
     from sr_imitation.core.memory import summed_objective
 
     net = nn.Linear(4, 3)
-    mems = [OutputDistillationMemory("s%d" % i, {"input.state": torch.randn(20, 4), "target": torch.randn(20, 3)})
+    mems = [OutputDistillationMemory(f"s{i}", {"input.state": torch.randn(20, 4), "target": torch.randn(20, 3)})
             for i in range(3)]
     policy = lambda obs: net(obs["state"])  # noqa: E731
     joint = summed_objective(mems, policy, 5, torch.Generator().manual_seed(0))
