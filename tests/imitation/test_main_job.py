@@ -88,3 +88,17 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     config = json.loads(next(out.rglob("pretrained_model/config.json")).read_text())
     assert config["type"] == "act_sr" and config["sleep"] is True
     shutil.rmtree(out)
+
+
+def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
+    from sr_imitation.imitation.cli import eval_main
+
+    tmp, _ = main_job_run
+    checkpoint = tmp / "run" / "skill_2_place" / "sleep" / "pretrained_model"
+    eval_main([f"--policy.path={checkpoint}", "--skills=[place]", "--eval.n_episodes=1", "--eval.seeds=[3]",
+               "--eval.max_steps=20", "--eval.video_height=64", "--eval.video_width=64", "--progress=false",
+               f"--output_dir={tmp_path}"])
+    record = json.loads((tmp_path / "eval.json").read_text())
+    assert set(record["results"]) == {"place"} and len(list((tmp_path / "videos").glob("*.mp4"))) == 1
+    with pytest.raises(FileNotFoundError, match="no config.json"):
+        eval_main([f"--policy.path={tmp_path}", f"--output_dir={tmp_path}"])
