@@ -102,3 +102,17 @@ def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
     assert set(record["results"]) == {"place"} and len(list((tmp_path / "videos").glob("*.mp4"))) == 1
     with pytest.raises(FileNotFoundError, match="no config.json"):
         eval_main([f"--policy.path={tmp_path}", f"--output_dir={tmp_path}"])
+
+
+def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
+    from sr_imitation.experiments.needle_compare import CompareConfig, run_compare
+
+    tmp, config_path = main_job_run
+    out = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr", "sequential_bc"],
+                                    output_root=tmp_path))
+    assert set(out["summary"]) == {"sr", "sequential_bc"}
+    assert (tmp_path / "summary.md").read_text().count("\n| ") == 3  # header + two variants
+    bc = json.loads((tmp_path / "sequential_bc_seed0" / "results.json").read_text())
+    assert bc["sleep"] == {} and bc["memory_bytes"] == {}  # no sleep, no memories for sequential BC
+    sr = json.loads((tmp_path / "sr_seed0" / "results.json").read_text())
+    assert "2.sleep" in sr["sleep"]
