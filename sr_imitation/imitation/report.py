@@ -130,6 +130,7 @@ def _plots(out: Path, skills: Sequence[str], summaries: dict[str, dict[str, Any]
         ax.plot(ks, mean, marker="o")
         ax.fill_between(ks, mean - sem, mean + sem, alpha=0.25)
         ax.set_title(name.upper())
+        ax.set_ylim(*((-1.05, 0.3) if name == "bwt" else (-0.02, 1.05)))
         ax.set_xlabel("skills learned k")
         ax.set_xticks(ks)
         ax.grid(alpha=0.3)
