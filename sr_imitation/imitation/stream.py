@@ -45,7 +45,6 @@ from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.data import (
-    DatasetMismatchError,
     load_metadata,
     load_skill_data,
     load_stats,
@@ -406,7 +405,4 @@ class StreamTrainer:
 
 def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> dict[str, Any]:
     """Run or resume the stream described by ``cfg``; returns the results dictionary."""
-    try:
-        return StreamTrainer(cfg, make_env).run()
-    except DatasetMismatchError:
-        raise
+    return StreamTrainer(cfg, make_env).run()
