@@ -44,5 +44,5 @@ fi
 # LeRobot's `lerobot_policy_*` discovery imports them; see docs/ARCHITECTURE.md).
 plugins=()
 for d in policies/*/; do [ -f "$d/pyproject.toml" ] && plugins+=(-e "$d"); done
-"$venv/bin/python" -m pip install --quiet --no-deps --no-build-isolation -e . "${plugins[@]}" >&2
+PYTHONWARNINGS=ignore "$venv/bin/python" -m pip install --quiet --no-deps --no-build-isolation -e . "${plugins[@]}" >&2
 echo "$venv"
