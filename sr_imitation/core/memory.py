@@ -30,7 +30,6 @@ from types import MappingProxyType
 from typing import Any, ClassVar
 
 import torch
-import torch.nn.functional as F
 from torch import Tensor
 
 from sr_imitation.core.io import (
@@ -129,6 +128,14 @@ class Memory(ABC):
     def loss(self, policy: Any, batch: Mapping[str, Tensor]) -> Tensor:
         """L_i(theta) on a sampled ``batch`` for the current ``policy``: a differentiable scalar."""
 
+    def segment_losses(self, policy: Any, joint_batch: Mapping[str, Tensor], segments: int) -> Tensor | None:
+        """Losses of ``segments`` equal consecutive parts of a concatenated batch from one policy call.
+
+        Memories of one class and config whose objective is a mean over samples can evaluate several memories'
+        batches in a single forward pass; return ``None`` (the default) where that is not possible.
+        """
+        return None
+
     def objective(self, policy: Any, batch_size: int, generator: torch.Generator | None = None) -> Tensor:
         """L_i(theta) on a fresh uniform batch: ``loss(policy, sample(batch_size))``."""
         return self.loss(policy, self.sample(batch_size, generator))
@@ -180,6 +187,27 @@ def summed_objective(
     if total is None:
         raise ValueError("summed_objective needs at least one memory")
     return total
+
+
+def _group_key(memory: Memory) -> tuple[type, str]:
+    return type(memory), json.dumps(dict(memory.config), sort_keys=True)
+
+
+def per_memory_losses(memories: Sequence[Memory], policy: Any, batches: Sequence[Mapping[str, Tensor]]) -> list[Tensor]:
+    """[L_i(theta) on batches[i]], with one policy call per group of same-kind memories when they allow it."""
+    losses: list[Tensor | None] = [None] * len(memories)
+    groups: dict[tuple[type, str], list[int]] = {}
+    for i, memory in enumerate(memories):
+        groups.setdefault(_group_key(memory), []).append(i)
+    for idx in groups.values():
+        sizes = {len(next(iter(batches[i].values()))) for i in idx}
+        joint_losses = None
+        if len(idx) > 1 and len(sizes) == 1:
+            joint = {k: torch.cat([batches[i][k] for i in idx]) for k in batches[idx[0]]}
+            joint_losses = memories[idx[0]].segment_losses(policy, joint, len(idx))
+        for n, i in enumerate(idx):
+            losses[i] = joint_losses[n] if joint_losses is not None else memories[i].loss(policy, batches[i])
+    return losses  # type: ignore[return-value]
 
 
 def load_memory(path: str | os.PathLike[str], skill: str | None = None) -> Memory:
@@ -259,7 +287,8 @@ class OutputDistillationMemory(Memory):
         tensors["target"] = torch.cat(outs).cpu()
         return cls(skill, tensors, {"reduction": reduction})
 
-    def loss(self, policy: PolicyFn, batch: Mapping[str, Tensor]) -> Tensor:
+    def _per_sample(self, policy: PolicyFn, batch: Mapping[str, Tensor]) -> Tensor:
+        """Squared error per sample: summed (``sum``) or averaged (``mean``) over the output elements."""
         obs = {k.removeprefix("input."): v for k, v in batch.items() if k.startswith("input.")}
         pred = policy(obs)
         target = batch["target"].to(pred.device, pred.dtype)
@@ -268,6 +297,11 @@ class OutputDistillationMemory(Memory):
                 f"memory {self.skill!r}: policy output shape {tuple(pred.shape)} != stored target shape "
                 f"{tuple(target.shape)}"
             )
-        if self.config["reduction"] == "mean":
-            return F.mse_loss(pred, target)
-        return (pred - target).pow(2).flatten(1).sum(dim=1).mean()
+        err = (pred - target).pow(2).flatten(1)
+        return err.mean(dim=1) if self.config["reduction"] == "mean" else err.sum(dim=1)
+
+    def loss(self, policy: PolicyFn, batch: Mapping[str, Tensor]) -> Tensor:
+        return self._per_sample(policy, batch).mean()
+
+    def segment_losses(self, policy: PolicyFn, joint_batch: Mapping[str, Tensor], segments: int) -> Tensor:
+        return self._per_sample(policy, joint_batch).view(segments, -1).mean(dim=1)

@@ -178,3 +178,29 @@ def test_invalid_configs_are_rejected():
         SleepConfig(aggregator="sum")
     assert SleepConfig.surgicai().lr == 1e-5 and SleepConfig.surgicai().fw_iterations == 5
     assert SleepConfig.mt5().anchor_tau == 150.0 and SleepConfig.mt5().max_iterations == 4000
+
+
+def test_batched_gradients_match_one_pass_per_memory(stream):
+    net0, theta_a, _, memories = stream
+    finals = []
+    for batched in (True, False):
+        net = copy.deepcopy(net0)
+        result = sleep_consolidate(list(net.parameters()), _policy(net), memories,
+                                   _config(max_iterations=25, batched_gradients=batched, anchor_strength=0.1),
+                                   anchor_params=theta_a, progress=False)
+        finals.append(([p.detach().clone() for p in net.parameters()], result))
+    (a, ra), (b, rb) = finals
+    for x, y in zip(a, b, strict=True):
+        torch.testing.assert_close(x, y, rtol=1e-4, atol=1e-6)
+    torch.testing.assert_close(torch.tensor(ra.memory_losses), torch.tensor(rb.memory_losses), rtol=1e-5, atol=1e-7)
+
+
+def test_per_memory_losses_equal_separate_losses(stream):
+    from sr_imitation.core.memory import per_memory_losses
+
+    net0, _, _, memories = stream
+    gen = torch.Generator().manual_seed(1)
+    batches = [m.sample(16, gen) for m in memories]
+    joint = per_memory_losses(memories, _policy(net0), batches)
+    separate = [m.loss(_policy(net0), b) for m, b in zip(memories, batches, strict=True)]
+    torch.testing.assert_close(torch.stack(joint), torch.stack(separate))
