@@ -189,7 +189,7 @@ def write_report(
         "success_matrix_per_seed": s_final.tolist(),
         "success_matrix_after_wake": _seed_mean(s_wake).tolist(),
         "metrics": summaries,
-        "metrics_after_wake_only": {name: _summary(c) for name, c in wake_curves.items()},
+        "metrics_after_wake": {name: _summary(c) for name, c in wake_curves.items()},  # same run, before each sleep
         "sleep": sleep_records,
         "memory_bytes": {m.skill: m.nbytes() for m in memories},
         "memory_bytes_total": sum(m.nbytes() for m in memories),
