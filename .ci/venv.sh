@@ -11,16 +11,30 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 py="${SR_PYTHON:-python3.11}"
 command -v "$py" >/dev/null 2>&1 || py=python3
-key=$(cat .ci/constraints.txt pyproject.toml policies/*/pyproject.toml | sha256sum | cut -c1-16)
+# Key: the lock plus the dependency lists of every pyproject (not the whole file, so that adding a console
+# script or a lint rule does not rebuild 8 GB).
+key=$("$py" - <<'PY'
+import glob, hashlib, json, tomllib
+h = hashlib.sha256(open(".ci/constraints.txt", "rb").read())
+for path in ["pyproject.toml", *sorted(glob.glob("policies/*/pyproject.toml"))]:
+    project = tomllib.load(open(path, "rb"))["project"]
+    h.update(json.dumps([path, project.get("dependencies"), project.get("optional-dependencies")]).encode())
+print(h.hexdigest()[:16])
+PY
+)
 venv="${SR_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/sr_imitation/venv-$key}"
 if [ ! -f "$venv/.sr_complete" ]; then
   echo "[venv] building $venv (pins changed or first run)" >&2
   rm -rf "$venv"
   mkdir -p "$(dirname "$venv")"
   "$py" -m venv "$venv"
-  "$venv/bin/python" -m pip install --quiet --upgrade "pip==26.3" "setuptools==80.10.2" "wheel" >&2
+  # pip's index configuration on these machines prints one harmless warning per package: filter it.
+  pip_quiet() { "$venv/bin/python" -m pip install --quiet "$@" 2>&1 | grep -v "is ignored: it is neither" >&2 || true; }
+  pip_quiet --upgrade "pip==26.3" "setuptools==80.10.2" "wheel"
   # Dependencies of the core and of every plugin, resolved against the full lock.
-  "$venv/bin/python" -m pip install --quiet -c .ci/constraints.txt ".[dev]" >&2
+  pip_quiet -c .ci/constraints.txt ".[dev]"
+  "$venv/bin/python" -c "import lerobot, metaworld, mujoco, torch, torchvision" \
+    || { echo "[venv] dependency install failed" >&2; exit 1; }
   "$venv/bin/python" -m pip uninstall --quiet -y sr_imitation >&2
   touch "$venv/.sr_complete"
 else

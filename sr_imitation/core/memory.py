@@ -207,11 +207,12 @@ class OutputDistillationMemory(Memory):
 
     @property
     def buffer_keys(self) -> tuple[str, ...]:  # type: ignore[override]
-        inputs = sorted(k for k in self._tensors if k.startswith("input."))
-        return ("target", *inputs)
+        return self._buffer_keys
 
     def _validate(self) -> None:
-        if not any(k.startswith("input.") for k in self._tensors):
+        inputs = sorted(k for k in self._tensors if k.startswith("input."))
+        object.__setattr__(self, "_buffer_keys", ("target", *inputs))
+        if not inputs:
             raise ValueError(f"OutputDistillationMemory({self.skill!r}) stores no 'input.*' tensors")
         super()._validate()
 

@@ -189,14 +189,9 @@ def anchor_coefficient(
 
 def _flat_grads(loss: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
     grads = torch.autograd.grad(loss, params, allow_unused=True)
-    offset = 0
-    for p, g in zip(params, grads, strict=True):
-        n = p.numel()
-        if g is None:
-            out[offset : offset + n].zero_()
-        else:
-            out[offset : offset + n].copy_(g.reshape(-1))
-        offset += n
+    flat = [g.reshape(-1) if g is not None else torch.zeros(p.numel(), dtype=out.dtype, device=out.device)
+            for p, g in zip(params, grads, strict=True)]
+    torch.cat(flat, out=out)
 
 
 def sleep_consolidate(
@@ -234,7 +229,8 @@ def sleep_consolidate(
     k = len(memories)
     skills = [m.skill for m in memories]
     device = params[0].device
-    n_params = sum(p.numel() for p in params)
+    sizes = [p.numel() for p in params]
+    n_params = sum(sizes)
     aggregator = aggregator or config.make_aggregator()
 
     if anchor_params is not None:
@@ -247,7 +243,7 @@ def sleep_consolidate(
         lam, distances = 0.0, [parameter_distance(params, s) for s in wake_snapshots]
 
     generator = torch.Generator().manual_seed(config.seed)
-    optimizer = torch.optim.Adam(params, lr=config.lr)
+    optimizer = torch.optim.Adam(params, lr=config.lr, fused=True)
     jac = torch.zeros(k, n_params, device=device, dtype=params[0].dtype)
     result = SleepResult(skills, lam, distances, stop_iteration=0, stop_reason="max_iterations")
     window = config.early_stop_window
@@ -256,14 +252,16 @@ def sleep_consolidate(
     logger.info("sleep over %s: lambda=%g (distances %s), %s", skills, lam,
                 [round(d, 3) for d in distances], aggregator)
     for it in bar:
-        losses = torch.zeros(k, dtype=torch.float64)
+        losses = [0.0] * k
         for i, memory in enumerate(memories):
             loss = memory.objective(policy, config.batch_size, generator)
             losses[i] = float(loss.detach())
             if math.isfinite(losses[i]):
                 _flat_grads(loss, params, jac[i])
-        finite_rows = torch.isfinite(losses) & torch.isfinite(jac).all(dim=1).cpu()
-        if not bool(finite_rows.all()):
+        gram = (jac @ jac.T).double().cpu().numpy()
+        # A NaN or Inf anywhere in g_i makes ||g_i||^2 = G_ii non-finite: one check on k numbers, not k x P.
+        finite_rows = np.isfinite(losses) & np.isfinite(np.diag(gram))
+        if not finite_rows.all():
             bad = [skills[i] for i in range(k) if not finite_rows[i]]
             result.skipped_steps.append({"iteration": it, "memories": bad})
             consecutive_bad += 1
@@ -276,38 +274,34 @@ def sleep_consolidate(
                 )
             continue
         consecutive_bad = 0
-        gram = (jac @ jac.T).double().cpu().numpy()
         gram = 0.5 * (gram + gram.T)  # float32 GEMM is not exactly symmetric
         agg = aggregator(gram)
-        weights = torch.as_tensor(agg.weights, dtype=jac.dtype, device=device)
-        direction = weights @ jac
+        direction = torch.as_tensor(agg.weights, dtype=jac.dtype, device=device) @ jac
+        grads = list(torch.split(direction, sizes))
+        grads = [g.view_as(p) for g, p in zip(grads, params, strict=True)]
         anchor_term = 0.0
-        offset = 0
-        with torch.no_grad():
-            for j, p in enumerate(params):
-                n = p.numel()
-                g = direction[offset : offset + n].view_as(p)
-                if lam > 0.0:
-                    diff = p - anchor_params[j]
-                    anchor_term += float(diff.pow(2).sum())
-                    g = g + lam * diff
-                p.grad = g.clone()
-                offset += n
+        if lam > 0.0:
+            with torch.no_grad():
+                diffs = torch._foreach_sub(params, anchor_params)
+                anchor_term = float(torch.stack(torch._foreach_norm(diffs)).pow(2).sum())
+                torch._foreach_add_(grads, diffs, alpha=lam)
+        for p, g in zip(params, grads, strict=True):
+            p.grad = g
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
         if step_callback is not None:
             step_callback(it)
 
         alpha = agg.alpha
-        objective = float(np.dot(alpha, losses.numpy())) + 0.5 * lam * anchor_term
+        objective = float(np.dot(alpha, losses)) + 0.5 * lam * anchor_term
         result.alpha.append([float(a) for a in alpha])
         result.grad_norms.append([float(x) for x in np.sqrt(np.clip(np.diag(gram), 0, None))])
-        result.memory_losses.append([float(x) for x in losses])
+        result.memory_losses.append(losses)
         result.sleep_objective.append(objective)
         result.solver_iterations.append(int(agg.iterations))
         result.stop_iteration = it + 1
         if progress and it % 10 == 0:
-            bar.set_postfix(obj=f"{objective:.4g}", worst=f"{float(losses.max()):.4g}")
+            bar.set_postfix(obj=f"{objective:.4g}", worst=f"{max(losses):.4g}")
         hist = result.sleep_objective
         if len(hist) >= 2 * window and len(hist) % window == 0:
             cur, prev = float(np.mean(hist[-window:])), float(np.mean(hist[-2 * window : -window]))
