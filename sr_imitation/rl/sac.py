@@ -289,7 +289,8 @@ class SACAgent(nn.Module):
         if excitability_rate > 0.0:
             update_excitability(self.actor, excitability_rate)
 
-        return UpdateInfo(float(critic_loss), float(actor_loss), float(alpha), float(alpha_loss),
+        return UpdateInfo(float(critic_loss.detach()), float(actor_loss.detach()), float(alpha),
+                          float(alpha_loss.detach()),
                           float(q1.detach().mean()), float(-log_prob.detach().mean()))
 
     def critic_only_update(self, batch: dict[str, Tensor]) -> float:
@@ -308,7 +309,7 @@ class SACAgent(nn.Module):
         with torch.no_grad():
             for p, tp in zip(self.critic.parameters(), self.critic_target.parameters(), strict=True):
                 tp.lerp_(p, self.cfg.tau)
-        return float(loss)
+        return float(loss.detach())
 
     @torch.no_grad()
     def bellman_residual(self, batch: dict[str, Tensor]) -> float:
