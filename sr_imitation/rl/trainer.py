@@ -285,11 +285,22 @@ class StreamTrainer:
             "method": "sleeping_robots" if self.cfg.sleep_enabled else "wake_only",
             "pairs": [list(p) for p in pairs],
             "success_matrix": [[None if np.isnan(x) else float(x) for x in row] for row in matrix],
-            "metrics": metrics,
+            "metrics": _nan_to_none(metrics),
             "memory_nbytes_total": int(sum(m.nbytes() for m in memories)),
             "stages": records,
             "config": self.cfg.fingerprint_dict(),
         }
+
+
+def _nan_to_none(obj: Any) -> Any:
+    """Strict JSON: NaN (undefined metric, e.g. PRS at k = 1) becomes null."""
+    if isinstance(obj, dict):
+        return {k: _nan_to_none(v) for k, v in obj.items()}
+    if isinstance(obj, list):
+        return [_nan_to_none(v) for v in obj]
+    if isinstance(obj, float) and np.isnan(obj):
+        return None
+    return obj
 
 
 def _diff_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
@@ -314,8 +325,9 @@ def render_report(results: dict[str, Any]) -> str:
     lines += ["", "| metric | final | per stage |", "|---|---|---|"]
     for key in ("afsr", "prs", "bwt", "spi"):
         if key in m:
-            curve = ", ".join(f"{x:.3f}" for x in m[f"{key}_curve"])
-            lines.append(f"| {key.upper()} | {m[key]:.3f} | {curve} |")
+            curve = ", ".join("-" if x is None else f"{x:.3f}" for x in m[f"{key}_curve"])
+            final = "-" if m[key] is None else f"{m[key]:.3f}"
+            lines.append(f"| {key.upper()} | {final} | {curve} |")
     lines += ["", f"Memory stored: {results['memory_nbytes_total'] / 1e6:.2f} MB", ""]
     return "\n".join(lines)
 
@@ -345,7 +357,7 @@ def write_plots(results: dict[str, Any], plot_dir: Path) -> None:
     m = results["metrics"]
     fig, axes = plt.subplots(1, 4, figsize=(14, 3))
     for ax, key in zip(axes, ("afsr", "prs", "bwt", "spi"), strict=True):
-        curve = m.get(f"{key}_curve", [])
+        curve = [np.nan if x is None else x for x in m.get(f"{key}_curve", [])]
         ax.plot(range(1, len(curve) + 1), curve, marker="o")
         ax.set_title(key.upper())
         ax.set_xlabel("stage k")
