@@ -139,7 +139,7 @@ def test_sac_update_is_finite_and_alpha_clamped():
     info = agent.update(rb.batch(rb.indices(16, np.random.default_rng(0))))
     assert np.isfinite([info.critic_loss, info.actor_loss, info.alpha_loss]).all()
     assert float(agent.log_alpha.detach()) <= SMALL.log_alpha_max
-    assert float(agent.actor.fc_log_std.bias.mean()) == pytest.approx(-1.0, abs=0.01)
+    assert float(agent.actor.fc_log_std.bias.detach().mean()) == pytest.approx(-1.0, abs=0.01)
 
 
 def test_critic_validation_and_late_state_sampling():

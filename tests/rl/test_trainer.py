@@ -11,6 +11,7 @@ import pytest
 from sr_imitation.core.io import CorruptFileError
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
+from sr_imitation.rl.report import summarize
 from sr_imitation.rl.trainer import StreamTrainer
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -42,6 +43,7 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     assert len(full["stages"][1]["sleep"]["frozen_critic_value_change"]) == 2
     assert (tmp_path / "full" / "plots" / "success_matrix.png").is_file()
     assert (tmp_path / "full" / "report.md").is_file()
+    assert "| full | sleeping_robots | 3 |" in summarize([tmp_path / "full"])
 
     def kill_after_first(stage):
         if stage == 0:
