@@ -198,10 +198,13 @@ class StreamTrainer:
             if result.sleep_objective else None,
         }
 
-    def _evaluate(self, k: int, agent: SACAgent) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+    def _evaluate(self, k: int, agent: SACAgent, only_current: bool = False
+                  ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
         cfg = self.cfg
         rows, trajectories = [], {}
         for i, skill in enumerate(self.skills[: k + 1]):
+            if only_current and i < k:
+                continue
             env = self._eval_envs.get(skill)
             if env is None:
                 env = self._eval_envs[skill] = SkillEnv(skill, seed=0, max_episode_steps=cfg.max_episode_steps)
@@ -247,7 +250,7 @@ class StreamTrainer:
             record: dict[str, Any] = {"stage": k, "skill": skill, "wake": wake.summary(),
                                       "memory": {"states": memory.size, "nbytes": memory.nbytes()}}
             if cfg.eval.after_wake:
-                record["eval_after_wake"] = self._evaluate(k, agent)[0][-1]
+                record["eval_after_wake"] = self._evaluate(k, agent, only_current=True)[0][-1]
             if k >= 1 and cfg.sleep_enabled:
                 record["sleep"] = self._sleep(k, agent, memories, anchor, wake_snapshots)
             record["eval"], trajectories = self._evaluate(k, agent)

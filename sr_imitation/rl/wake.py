@@ -143,13 +143,10 @@ def train_skill(
                 result.env_steps, result.updates, result.stop_reason)
 
     result.critic_validation = validate_critic(agent, holdout, replay, memory_cfg, rng)
-    # replay and holdout are disjoint: the memory's states come from the training replay's late episodes
-    states = sample_late_states(replay, _replay_episode_starts(episode_starts, replay), memory_cfg, rng)
+    # episode starts were recorded as replay positions (held-out transitions never enter the replay)
+    starts = [min(s, replay.total - 1) for s in episode_starts]
+    states = sample_late_states(replay, starts, memory_cfg, rng)
     memory = CriticMemory.from_agent(env.skill.removesuffix("-v3"), agent, states)
     result.seconds = time.perf_counter() - t0
     return result, memory
 
-
-def _replay_episode_starts(starts: list[int], replay: ReplayBuffer) -> list[int]:
-    """Episode starts are recorded as replay positions already (holdout transitions are not in the replay)."""
-    return [min(s, replay.total - 1) for s in starts]
