@@ -1,0 +1,1 @@
+"""Benchmark scripts (``python -m sr_imitation.benchmarks.<name>``); they print their results."""

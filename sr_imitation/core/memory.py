@@ -21,9 +21,10 @@ their substrates and register themselves with :func:`register_memory`.
 
 from __future__ import annotations
 
+import json
 import os
 from abc import ABC, abstractmethod
-from collections.abc import Callable, Mapping
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from types import MappingProxyType
 from typing import Any, ClassVar
@@ -156,6 +157,29 @@ class Memory(ABC):
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(skill={self.skill!r}, size={self.size}, nbytes={self.nbytes()})"
+
+
+def summed_objective(
+    memories: Sequence[Memory], policy: Any, batch_size: int, generator: torch.Generator | None = None
+) -> Tensor:
+    """sum_i L_i(theta), each on its own fresh batch of ``batch_size``, with one policy call per memory kind.
+
+    Every ``loss`` averages over its batch, so for memories of one class and config the sum of k losses on
+    k batches equals k times the loss on the concatenated batch: one forward/backward instead of k (used by
+    wake-time distillation, where the per-memory gradients are not needed separately).
+    """
+    groups: dict[tuple[type, str], list[Memory]] = {}
+    for memory in memories:
+        groups.setdefault((type(memory), json.dumps(dict(memory.config), sort_keys=True)), []).append(memory)
+    total: Tensor | None = None
+    for group in groups.values():
+        batches = [m.sample(batch_size, generator) for m in group]
+        joint = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}
+        term = group[0].loss(policy, joint) * len(group)
+        total = term if total is None else total + term
+    if total is None:
+        raise ValueError("summed_objective needs at least one memory")
+    return total
 
 
 def load_memory(path: str | os.PathLike[str], skill: str | None = None) -> Memory:

@@ -188,10 +188,19 @@ def anchor_coefficient(
 
 
 def _flat_grads(loss: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
+    """Write d loss / d params, flattened, into ``out``; parameters the loss does not use get zeros."""
     grads = torch.autograd.grad(loss, params, allow_unused=True)
-    flat = [g.reshape(-1) if g is not None else torch.zeros(p.numel(), dtype=out.dtype, device=out.device)
-            for p, g in zip(params, grads, strict=True)]
-    torch.cat(flat, out=out)
+    if all(g is not None for g in grads):
+        torch.cat([g.reshape(-1) for g in grads], out=out)
+        return
+    offset = 0
+    for p, g in zip(params, grads, strict=True):
+        n = p.numel()
+        if g is None:
+            out[offset : offset + n].zero_()
+        else:
+            out[offset : offset + n].copy_(g.reshape(-1))
+        offset += n
 
 
 def sleep_consolidate(

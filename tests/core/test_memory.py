@@ -172,3 +172,18 @@ def test_atomic_write_keeps_the_old_file_when_the_rename_fails(tmp_path, monkeyp
         atomic_write_bytes(target, b"new")
     assert target.read_bytes() == b"old"
     assert [p.name for p in tmp_path.iterdir()] == ["ckpt.bin"]
+
+
+def test_summed_objective_equals_the_sum_of_per_memory_objectives():
+    from sr_imitation.core.memory import summed_objective
+
+    net = nn.Linear(4, 3)
+    mems = [OutputDistillationMemory(f"s{i}", {"input.state": torch.randn(20, 4), "target": torch.randn(20, 3)})
+            for i in range(3)]
+    policy = lambda obs: net(obs["state"])  # noqa: E731
+    joint = summed_objective(mems, policy, 5, torch.Generator().manual_seed(0))
+    gen = torch.Generator().manual_seed(0)
+    separate = sum(m.objective(policy, 5, gen) for m in mems)
+    torch.testing.assert_close(joint, separate)
+    with pytest.raises(ValueError, match="at least one"):
+        summed_objective([], policy, 5)

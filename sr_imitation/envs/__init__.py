@@ -1,0 +1,1 @@
+"""Simulated environments of sr_imitation."""

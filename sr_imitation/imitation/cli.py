@@ -1,0 +1,104 @@
+"""Command-line entry points ``sr-train`` and ``sr-eval`` (draccus, LeRobot's flag style).
+
+    sr-train --config_path=configs/needle_cpu.json
+    sr-train --policy.type=act_sr --policy.sleep=true --stream.skills=[approach,place,insert] \\
+             --stream.dataset_root=datasets/needle --output_dir=outputs/run1
+    sr-train --config_path=outputs/run1/train_config.json --resume=true
+    sr-eval --policy.path=outputs/run1/skill_5_pullout/sleep/pretrained_model --skills=[approach,pullout]
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import draccus
+
+import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
+from sr_imitation.core.io import atomic_write_json
+from sr_imitation.core.metrics import SURGICAI_SKILLS
+from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
+from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+
+
+def _split_config_path(args: list[str]) -> tuple[str | None, list[str]]:
+    path, rest = None, []
+    for arg in args:
+        if arg.startswith("--config_path="):
+            path = arg.split("=", 1)[1]
+        else:
+            rest.append(arg)
+    return path, rest
+
+
+def _setup_logging() -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+
+
+def train_main(args: list[str] | None = None) -> None:
+    """``sr-train``: run (or resume) a wake-sleep stream."""
+    _setup_logging()
+    config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
+    cfg = draccus.parse(TrainStreamConfig, config_path=config_path, args=rest)
+    results = train_stream(cfg)
+    m = results["metrics"]
+    print(f"results: {cfg.output_dir / 'results.json'} (plots: metrics.png, success_matrix.png; videos: videos/)")
+    print("final " + ", ".join(f"{k.upper()}={m[k]['final_mean']:.3f}" for k in ("afsr", "prs", "bwt", "spi")
+                               if m[k]["final_mean"] is not None))
+
+
+@dataclass
+class PolicyPath:
+    path: Path = Path("")
+
+
+@dataclass
+class EvalCommandConfig:
+    """``sr-eval`` configuration."""
+
+    policy: PolicyPath = field(default_factory=PolicyPath)
+    skills: list[str] = field(default_factory=lambda: list(SURGICAI_SKILLS))
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    output_dir: Path = Path("outputs/eval")
+    device: str = "cpu"
+    progress: bool = True
+
+
+def eval_main(args: list[str] | None = None) -> None:
+    """``sr-eval``: evaluate any ACT-SR (or ACT) checkpoint on a set of needle skills, with videos."""
+    _setup_logging()
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
+    config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
+    cfg = draccus.parse(EvalCommandConfig, config_path=config_path, args=rest)
+    path = Path(cfg.policy.path)
+    if not (path / "config.json").is_file():
+        raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
+    policy_cfg = PreTrainedConfig.from_pretrained(path)
+    policy_cfg.device = cfg.device
+    policy = get_policy_class(policy_cfg.type).from_pretrained(path, config=policy_cfg)
+    pre, post = make_pre_post_processors(policy_cfg, pretrained_path=str(path))
+    images = list(policy_cfg.image_features)
+    size = None
+    if images:
+        shape = policy_cfg.image_features[images[0]].shape
+        size = (int(shape[1]), int(shape[2]))
+    results = evaluate_skills(policy, pre, post, cfg.skills, [SURGICAI_SKILLS.index(s) if s in SURGICAI_SKILLS
+                                                              else i for i, s in enumerate(cfg.skills)],
+                              needle_env_factory(size, cfg.eval), cfg.eval, cfg.output_dir / "videos",
+                              cfg.progress)
+    record = {s: {"success": r.success, "success_per_seed": r.success_per_seed, "videos": r.videos}
+              for s, r in results.items()}
+    atomic_write_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})
+    print(json.dumps({s: r["success"] for s, r in record.items()}, indent=2))
+    print(f"written: {cfg.output_dir / 'eval.json'}, videos in {cfg.output_dir / 'videos'}")
+
+
+if __name__ == "__main__":
+    train_main()

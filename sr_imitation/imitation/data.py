@@ -1,0 +1,228 @@
+"""Skill datasets of a stream: loading, feature checks, the fixed stream statistics, splits and memory buffers.
+
+A stream is a list of LeRobot datasets, one per skill (``<dataset_root>/<skill>`` by default, as ``sr-record``
+writes them), so users can run it on their own recordings.
+
+Statistics policy. LeRobot re-fits normalization statistics per dataset; a snapshot's outputs and the current
+policy's would then live in different action spaces. The stream fixes one set for its whole length: the
+statistics of the *first* skill's dataset (nothing from later skills is peeked at), with a floor on every
+standard deviation so that a dimension that is constant in the first skill cannot blow up later skills' inputs.
+They are saved once per run (``stream_stats.safetensors``) and written into every stage checkpoint's processors.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.datasets.factory import resolve_delta_timestamps
+from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
+from lerobot.datasets.utils import dataset_to_policy_features
+from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
+from torch import Tensor
+
+from sr_imitation.core.io import load_checked_safetensors, save_checked_safetensors
+from sr_imitation.imitation.actor_memory import images_to_uint8
+
+logger = logging.getLogger(__name__)
+
+STATS_KEYS = ("mean", "std", "min", "max")
+
+
+class DatasetMismatchError(ValueError):
+    """A stream dataset is missing, empty, or its features do not match the policy."""
+
+
+def dataset_info_path(root: Path) -> Path:
+    return Path(root) / "meta" / "info.json"
+
+
+def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
+    """Load a local dataset's metadata, failing loudly (never reaching for the Hub)."""
+    root = Path(root)
+    if not dataset_info_path(root).is_file():
+        raise DatasetMismatchError(f"{root}: not a LeRobot dataset (missing {dataset_info_path(root)})")
+    meta = LeRobotDatasetMetadata(repo_id, root=root)
+    if meta.total_episodes == 0 or meta.total_frames == 0:
+        raise DatasetMismatchError(f"{root}: dataset is empty ({meta.total_episodes} episodes)")
+    return meta
+
+
+def policy_features(meta: LeRobotDatasetMetadata, use_images: bool) -> tuple[dict, dict]:
+    """Input and output features for the policy from the first skill's dataset.
+
+    In state-only mode the cameras are dropped and the state is also declared as
+    ``observation.environment_state`` (ACT needs an image or an environment state).
+    """
+    features = dataset_to_policy_features(meta.features)
+    outputs = {k: f for k, f in features.items() if f.type is FeatureType.ACTION}
+    inputs = {k: f for k, f in features.items() if f.type is not FeatureType.ACTION}
+    if ACTION not in outputs:
+        raise DatasetMismatchError(f"{dataset_info_path(meta.root)}: no '{ACTION}' feature")
+    if OBS_STATE not in inputs:
+        raise DatasetMismatchError(f"{dataset_info_path(meta.root)}: no '{OBS_STATE}' feature")
+    if not use_images:
+        inputs = {k: f for k, f in inputs.items() if f.type is not FeatureType.VISUAL}
+        inputs[OBS_ENV_STATE] = PolicyFeature(type=FeatureType.ENV, shape=inputs[OBS_STATE].shape)
+    elif not any(f.type is FeatureType.VISUAL for f in inputs.values()):
+        raise DatasetMismatchError(
+            f"{dataset_info_path(meta.root)}: no camera feature; use --policy.use_images=false for state-only ACT"
+        )
+    return inputs, outputs
+
+
+def check_features(meta: LeRobotDatasetMetadata, input_features: dict, output_features: dict) -> None:
+    """Every policy feature must exist in the dataset with the same shape (error names file and key)."""
+    info = dataset_info_path(meta.root)
+    available = dataset_to_policy_features(meta.features)
+    for key, feature in {**input_features, **output_features}.items():
+        if key == OBS_ENV_STATE and key not in available:
+            key, feature = OBS_STATE, input_features[key]  # state-only mode: fed from the state
+        if key not in available:
+            raise DatasetMismatchError(f"{info}: missing feature '{key}' that the policy needs")
+        if tuple(available[key].shape) != tuple(feature.shape):
+            raise DatasetMismatchError(
+                f"{info}: feature '{key}' has shape {tuple(available[key].shape)}, the policy expects "
+                f"{tuple(feature.shape)}"
+            )
+
+
+def stream_stats(meta: LeRobotDatasetMetadata, input_features: dict, min_std: float = 1e-2) -> dict:
+    """The fixed statistics of the stream: the first dataset's, with ``std >= min_std`` (module docstring)."""
+    stats: dict[str, dict[str, Tensor]] = {}
+    for key, values in meta.stats.items():
+        if key not in input_features and key != ACTION:
+            continue
+        entry = {name: torch.as_tensor(np.asarray(values[name]), dtype=torch.float32) for name in STATS_KEYS}
+        entry["std"] = entry["std"].clamp_min(min_std)
+        stats[key] = entry
+    if OBS_ENV_STATE in input_features and OBS_ENV_STATE not in stats:
+        stats[OBS_ENV_STATE] = {k: v.clone() for k, v in stats[OBS_STATE].items()}
+    return stats
+
+
+def save_stats(path: Path, stats: dict) -> None:
+    flat = {f"{key}/{name}": t for key, entry in stats.items() for name, t in entry.items()}
+    save_checked_safetensors(path, flat, {"format": "sr_imitation.stream_stats", "format_version": 1})
+
+
+def load_stats(path: Path) -> dict:
+    flat, _ = load_checked_safetensors(path)
+    stats: dict[str, dict[str, Tensor]] = {}
+    for name, t in flat.items():
+        key, stat = name.rsplit("/", 1)
+        stats.setdefault(key, {})[stat] = t
+    return stats
+
+
+class InMemoryChunkDataset(torch.utils.data.Dataset):
+    """A LeRobot dataset decoded once into tensors, serving ACT's items (state, images, action chunk + padding).
+
+    ``LeRobotDataset.__getitem__`` queries Arrow for every frame and its action chunk (~4 ms per item here), which
+    is most of a small ACT step on CPU. Skill datasets are small (a few thousand frames), so they are decoded
+    once: states and actions as float32, images as uint8. Items equal ``LeRobotDataset`` items (tested): the
+    action chunk of frame t is actions[t : t + chunk] within its episode, padded with the episode's last action
+    and flagged in ``action_is_pad`` past the end. Video datasets keep LeRobot's decoder (not materialized).
+    """
+
+    def __init__(self, dataset: LeRobotDataset, keys: Sequence[str], chunk_size: int) -> None:
+        columns = dataset.hf_dataset.select_columns([*keys, ACTION, "episode_index"])
+        data = columns[:]
+        self.keys = list(keys)
+        self.tensors: dict[str, Tensor] = {}
+        for key in keys:
+            stacked = torch.stack(list(data[key]))
+            self.tensors[key] = images_to_uint8(stacked) if key.startswith("observation.images") else stacked.float()
+        actions = torch.stack(list(data[ACTION])).float()
+        episodes = torch.as_tensor([int(e) for e in data["episode_index"]])
+        n = len(episodes)
+        # Last frame index of each frame's episode (frames are stored episode by episode).
+        ends = torch.empty(n, dtype=torch.long)
+        boundaries = torch.nonzero(episodes[1:] != episodes[:-1]).flatten().tolist() + [n - 1]
+        start = 0
+        for end in boundaries:
+            ends[start : end + 1] = end
+            start = end + 1
+        offsets = torch.arange(chunk_size)
+        raw = torch.arange(n)[:, None] + offsets[None, :]
+        self.action_is_pad = raw > ends[:, None]
+        self.chunk_index = torch.minimum(raw, ends[:, None])
+        self.actions = actions
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    def __getitem__(self, i: int) -> dict[str, Tensor]:
+        item = {k: (v[i].float() / 255.0 if v.dtype == torch.uint8 else v[i]) for k, v in self.tensors.items()}
+        item[ACTION] = self.actions[self.chunk_index[i]]
+        item["action_is_pad"] = self.action_is_pad[i]
+        return item
+
+
+@dataclass
+class SkillData:
+    """One skill's dataset with its episode split (frame indices into ``dataset``)."""
+
+    skill: str
+    root: Path
+    dataset: torch.utils.data.Dataset
+    train_indices: list[int]
+    val_indices: list[int]
+
+
+def episode_split(num_episodes: int, val_fraction: float, seed: int) -> tuple[list[int], list[int]]:
+    """Random split of episode ids; at least one training episode, and one validation episode if possible."""
+    order = np.random.default_rng(seed).permutation(num_episodes).tolist()
+    n_val = min(max(1, round(val_fraction * num_episodes)), num_episodes - 1) if num_episodes > 1 else 0
+    return sorted(order[n_val:]), sorted(order[:n_val])
+
+
+def load_skill_data(
+    skill: str,
+    root: Path,
+    repo_id: str,
+    policy_cfg,
+    val_fraction: float,
+    seed: int,
+    video_backend: str = "pyav",
+    materialize: bool = True,
+) -> SkillData:
+    """Load a skill's dataset with ACT's action-chunk delta timestamps and split it by episode."""
+    meta = load_metadata(root, repo_id)
+    check_features(meta, policy_cfg.input_features, policy_cfg.output_features)
+    delta = resolve_delta_timestamps(policy_cfg, meta)
+    dataset = LeRobotDataset(repo_id, root=root, delta_timestamps=delta, video_backend=video_backend)
+    if materialize and not meta.video_keys:
+        keys = [k for k in policy_cfg.input_features if k in meta.features]
+        dataset = InMemoryChunkDataset(dataset, keys, policy_cfg.chunk_size)
+    train_eps, val_eps = episode_split(meta.total_episodes, val_fraction, seed)
+    starts = meta.episodes["dataset_from_index"]
+    ends = meta.episodes["dataset_to_index"]
+
+    def frames(eps: Sequence[int]) -> list[int]:
+        return [i for e in eps for i in range(int(starts[e]), int(ends[e]))]
+
+    logger.info("skill %s: %d episodes (%d train / %d val), %d frames from %s", skill, meta.total_episodes,
+                len(train_eps), len(val_eps), meta.total_frames, root)
+    return SkillData(skill, Path(root), dataset, frames(train_eps), frames(val_eps))
+
+
+def sample_observation_buffer(data: SkillData, size: int, keys: Sequence[str], seed: int) -> dict[str, Tensor]:
+    """|B_k| unordered observations drawn uniformly without replacement (with replacement if too few frames).
+
+    Images are stored as uint8; actions are never stored.
+    """
+    pool = data.train_indices + data.val_indices
+    rng = np.random.default_rng(seed)
+    picks = rng.choice(pool, size=size, replace=len(pool) < size)
+    items = [data.dataset[int(i)] for i in picks]
+    out: dict[str, Tensor] = {}
+    for key in keys:
+        stacked = torch.stack([item[key] for item in items])
+        out[key] = images_to_uint8(stacked) if key.startswith("observation.images") else stacked.float()
+    return out

@@ -1,0 +1,158 @@
+"""Wake phase for ACT-SR (Appendix A.2, "Wake training"): behaviour cloning on the current skill's data, plus the
+policy's own distillation term when earlier memories are attached; AdamW from ACT's optimizer preset (lr 1e-4,
+backbone 1e-5, weight decay 1e-4); up to ``max_epochs`` epochs; early stopping on an l1 validation plateau after
+``min_epochs``; the best-l1 weights restored at the end.
+
+Each step is LeRobot's own ``update_policy`` (forward, backward, gradient clipping, optimizer step).
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import torch
+from accelerate import Accelerator
+from lerobot.scripts.lerobot_train import update_policy
+from lerobot.utils.constants import ACTION
+from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
+from torch.utils.data import DataLoader, Subset
+from tqdm.auto import tqdm
+
+from sr_imitation.imitation.data import SkillData
+
+logger = logging.getLogger(__name__)
+
+
+class NonFiniteLossError(FloatingPointError):
+    """A wake loss became NaN or Inf; training stops before the weights are touched by it."""
+
+
+@dataclass
+class WakeConfig:
+    """Wake budget (paper: up to 100 epochs, early stopping after at least 30, batch 8).
+
+    Attributes:
+        max_epochs / min_epochs: epoch budget and the minimum before early stopping may trigger.
+        patience: epochs without a new best validation l1 after which training stops ("plateau").
+        batch_size: wake batch size (8).
+        val_fraction: share of each skill's episodes held out for the l1 validation loss.
+        max_steps_per_epoch: cap on optimizer steps per epoch (CPU presets); ``None`` = full epochs.
+        grad_clip_norm: gradient clipping, as in lerobot-train (10).
+        num_workers: DataLoader workers (0-1 on a 2-core CPU).
+    """
+
+    max_epochs: int = 100
+    min_epochs: int = 30
+    patience: int = 10
+    batch_size: int = 8
+    val_fraction: float = 0.1
+    max_steps_per_epoch: int | None = None
+    grad_clip_norm: float = 10.0
+    num_workers: int = 0
+
+    def __post_init__(self) -> None:
+        if not 1 <= self.min_epochs <= self.max_epochs:
+            raise ValueError(f"need 1 <= min_epochs <= max_epochs, got {self.min_epochs}, {self.max_epochs}")
+        if self.patience < 1 or self.batch_size < 1:
+            raise ValueError("patience and batch_size must be >= 1")
+        if not 0.0 <= self.val_fraction < 1.0:
+            raise ValueError(f"val_fraction must be in [0, 1), got {self.val_fraction}")
+        if self.max_steps_per_epoch is not None and self.max_steps_per_epoch < 1:
+            raise ValueError(f"max_steps_per_epoch must be >= 1 or null, got {self.max_steps_per_epoch}")
+
+
+@dataclass
+class WakeResult:
+    skill: str
+    epochs: int
+    best_epoch: int
+    best_val_l1: float
+    steps: int
+    history: list[dict[str, float]] = field(default_factory=list)
+
+
+def masked_chunk_l1(policy: Any, batch: dict[str, torch.Tensor]) -> tuple[float, int]:
+    """Sum and count of the deterministic chunk's l1 error on non-padded steps (normalized actions)."""
+    with torch.no_grad():
+        pred = policy.action_chunk(batch)
+        err = (pred - batch[ACTION]).abs() * (~batch["action_is_pad"]).unsqueeze(-1)
+        return float(err.sum()), int((~batch["action_is_pad"]).sum()) * pred.shape[-1]
+
+
+def validation_l1(policy: Any, preprocessor: Any, loader: DataLoader) -> float:
+    total, count = 0.0, 0
+    for raw in loader:
+        s, c = masked_chunk_l1(policy, preprocessor(raw))
+        total, count = total + s, count + c
+    return total / max(count, 1)
+
+
+def _loader(data: SkillData, indices: list[int], batch_size: int, shuffle: bool, seed: int, workers: int):
+    return DataLoader(
+        Subset(data.dataset, indices), batch_size=batch_size, shuffle=shuffle, num_workers=workers,
+        generator=torch.Generator().manual_seed(seed), drop_last=False,
+    )
+
+
+def wake_train(
+    policy: Any,
+    preprocessor: Any,
+    data: SkillData,
+    cfg: WakeConfig,
+    seed: int,
+    progress: bool = True,
+) -> WakeResult:
+    """Train ``policy`` in place on one skill; returns the history and the restored best epoch."""
+    device = policy.config.device
+    accelerator = Accelerator(cpu=device == "cpu")
+    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
+    train_loader = _loader(data, data.train_indices, cfg.batch_size, True, seed, cfg.num_workers)
+    val_indices = data.val_indices or data.train_indices  # a one-episode dataset validates on its training data
+    val_loader = _loader(data, val_indices, cfg.batch_size, False, seed, cfg.num_workers)
+    steps_per_epoch = len(train_loader)
+    if cfg.max_steps_per_epoch is not None:
+        steps_per_epoch = min(steps_per_epoch, cfg.max_steps_per_epoch)
+    tracker = MetricsTracker(cfg.batch_size, len(data.train_indices), max(1, len(data.train_indices)),
+                             {"loss": AverageMeter("loss", ":.3f"), "grad_norm": AverageMeter("grdn", ":.3f"),
+                              "lr": AverageMeter("lr", ":0.1e"), "update_s": AverageMeter("updt_s", ":.3f")})
+    result = WakeResult(data.skill, 0, -1, math.inf, 0)
+    best_state: dict[str, torch.Tensor] | None = None
+    bar = tqdm(total=cfg.max_epochs * steps_per_epoch, desc=f"wake {data.skill}", disable=not progress,
+               leave=False)
+    for epoch in range(cfg.max_epochs):
+        sums: dict[str, float] = {}
+        for step, raw in enumerate(train_loader):
+            if step >= steps_per_epoch:
+                break
+            batch = preprocessor(raw)
+            try:
+                tracker, out = update_policy(tracker, policy, batch, optimizer, cfg.grad_clip_norm, accelerator)
+            except FloatingPointError as exc:
+                raise NonFiniteLossError(
+                    f"wake on skill {data.skill!r} ({data.root}): epoch {epoch} step {step}: {exc}"
+                ) from exc
+            for key, value in out.items():
+                sums[key] = sums.get(key, 0.0) + float(value)
+            result.steps += 1
+            bar.update(1)
+        val_l1 = validation_l1(policy, preprocessor, val_loader)
+        record = {"epoch": epoch, "val_l1": val_l1, **{k: v / steps_per_epoch for k, v in sums.items()}}
+        result.history.append(record)
+        result.epochs = epoch + 1
+        if val_l1 < result.best_val_l1:
+            result.best_val_l1, result.best_epoch = val_l1, epoch
+            best_state = copy.deepcopy(policy.state_dict())
+        bar.set_postfix(val_l1=f"{val_l1:.4f}", best=f"{result.best_val_l1:.4f}")
+        logger.info("wake %s epoch %d: %s", data.skill, epoch, {k: round(v, 5) for k, v in record.items()})
+        if epoch + 1 >= cfg.min_epochs and epoch - result.best_epoch >= cfg.patience:
+            logger.info("wake %s: l1 plateau, stopping after epoch %d (best %d)", data.skill, epoch,
+                        result.best_epoch)
+            break
+    bar.close()
+    if best_state is not None:
+        policy.load_state_dict(best_state)
+    return result

@@ -1,0 +1,251 @@
+"""``sr-record``: record scripted-expert demos of the needle skills into LeRobot v3 datasets.
+
+One dataset per skill at ``<root>/<skill>`` (features ``observation.images.wrist``, ``observation.state``,
+``action``, plus ``next.reward``/``next.success``/``next.done``; task string = skill name), successful
+episodes only. Each dataset is written to a hidden temporary directory next to the target and renamed into
+place when complete, so an interrupted run never leaves a loadable half dataset at the target path.
+
+Example::
+
+    sr-record --skills=[approach,place] --num_episodes=100 --root=datasets/needle --image_size=96
+"""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import draccus
+import numpy as np
+from tqdm import tqdm
+
+from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
+from sr_imitation.envs.needle.expert import NeedleExpert
+from sr_imitation.envs.needle.skills import SKILL_NAMES, skill_from_name
+
+logger = logging.getLogger(__name__)
+
+WRIST_KEY = "observation.images.wrist"
+VIDEO_CODECS = ("h264", "hevc", "libsvtav1")
+
+
+@dataclass
+class RecordConfig:
+    """Options of ``sr-record``.
+
+    Args:
+        skills: skills to record, in stream order by default.
+        num_episodes: successful episodes per skill (failed expert episodes are discarded).
+        root: parent folder; each skill's dataset goes to ``<root>/<skill>``.
+        repo_id_prefix: LeRobot ``repo_id`` is ``<prefix>_<skill>`` (local only; nothing is pushed).
+        image_size: wrist image height, and width unless ``image_width`` is set (96 is the CPU default).
+        image_width: wrist image width when not square, e.g. ``--image_size=480 --image_width=640`` for the
+            paper's 640x480.
+        video: store wrist images as mp4 (decode with ``video_backend="pyav"``) instead of PNG in parquet.
+        vcodec: video codec when ``video`` is true.
+        thresholds: success preset, ``learnable`` or ``surgicai``.
+        seed: base seed; episode ``k`` of skill ``i`` uses env seed ``seed * 1_000_000 + i * 10_000 + k``.
+        fps: dataset frame rate.
+        overwrite: replace existing datasets at the targets.
+        episode_videos: also write one scene-camera mp4 per episode to ``<root>/<skill>_episode_videos``.
+        max_failures: give up on a skill after this many failed expert episodes.
+    """
+
+    skills: list[str] = field(default_factory=lambda: list(SKILL_NAMES))
+    num_episodes: int = 100
+    root: Path = Path("datasets/needle")
+    repo_id_prefix: str = "local/sr_needle"
+    image_size: int = 96
+    image_width: int | None = None
+    video: bool = False
+    vcodec: str = "h264"
+    thresholds: str = "learnable"
+    seed: int = 0
+    fps: int = 30
+    overwrite: bool = False
+    episode_videos: bool = False
+    max_failures: int = 50
+
+    def __post_init__(self) -> None:
+        if not self.skills:
+            raise ValueError("skills must not be empty")
+        self.skills = [skill_from_name(s).value for s in self.skills]
+        if len(set(self.skills)) != len(self.skills):
+            raise ValueError(f"skills must be distinct, got {self.skills}")
+        if self.num_episodes < 1:
+            raise ValueError(f"num_episodes must be >= 1, got {self.num_episodes}")
+        if self.image_width is None:
+            self.image_width = self.image_size
+        for name in ("image_size", "image_width"):
+            if not 8 <= getattr(self, name) <= 1280:
+                raise ValueError(f"{name} must be in [8, 1280], got {getattr(self, name)}")
+        if self.vcodec not in VIDEO_CODECS:
+            raise ValueError(f"vcodec must be one of {VIDEO_CODECS}, got {self.vcodec!r}")
+        if self.fps < 1:
+            raise ValueError(f"fps must be >= 1, got {self.fps}")
+        if self.max_failures < 0:
+            raise ValueError(f"max_failures must be >= 0, got {self.max_failures}")
+        self.root = Path(self.root)
+
+    def target(self, skill: str) -> Path:
+        return self.root / skill
+
+    def episode_video_dir(self, skill: str) -> Path:
+        return self.root / f"{skill}_episode_videos"
+
+
+def dataset_features(image_height: int, image_width: int, video: bool) -> dict:
+    """LeRobot feature spec of a needle dataset (integration notes §4)."""
+    return {
+        WRIST_KEY: {
+            "dtype": "video" if video else "image",
+            "shape": (image_height, image_width, 3),
+            "names": ["height", "width", "channels"],
+        },
+        "observation.state": {"dtype": "float32", "shape": (STATE_DIM,), "names": list(STATE_NAMES)},
+        "action": {"dtype": "float32", "shape": (7,), "names": list(ACTION_NAMES)},
+        "next.reward": {"dtype": "float32", "shape": (1,), "names": None},
+        "next.success": {"dtype": "bool", "shape": (1,), "names": None},
+        "next.done": {"dtype": "bool", "shape": (1,), "names": None},
+    }
+
+
+def episode_seed(base_seed: int, skill_index: int, attempt: int) -> int:
+    return base_seed * 1_000_000 + skill_index * 10_000 + attempt
+
+
+def run_demo(env: NeedleEnv, seed: int, scene_video: bool) -> tuple[list[dict], list[np.ndarray], bool]:
+    """One expert episode; returns (frames for the dataset, scene-camera frames, success)."""
+    obs, _ = env.reset(seed=seed)
+    expert = NeedleExpert(env, seed=seed)
+    expert.reset()
+    frames: list[dict] = []
+    scene: list[np.ndarray] = [env.render()] if scene_video else []
+    while True:
+        action = expert.act()
+        next_obs, reward, terminated, truncated, info = env.step(action)
+        frames.append(
+            {
+                WRIST_KEY: obs["pixels"],
+                "observation.state": obs["agent_pos"],
+                "action": action.astype(np.float32),
+                "next.reward": np.array([reward], dtype=np.float32),
+                "next.success": np.array([info["is_success"]], dtype=bool),
+                "next.done": np.array([terminated or truncated], dtype=bool),
+                "task": env.task,
+            }
+        )
+        if scene_video:
+            scene.append(env.render())
+        obs = next_obs
+        if terminated or truncated:
+            return frames, scene, bool(info["is_success"])
+
+
+def _replace_dir(src: Path, dst: Path) -> None:
+    """Move the finished ``src`` to ``dst``; an existing ``dst`` is swapped out first, then deleted."""
+    old = None
+    if dst.exists():
+        old = dst.with_name(f".{dst.name}.old-{os.getpid()}")
+        dst.rename(old)
+    src.rename(dst)
+    if old is not None:
+        shutil.rmtree(old, ignore_errors=True)
+
+
+def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
+    """Record ``cfg.num_episodes`` successful demos of ``skill``; returns the dataset path."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from sr_imitation.envs.needle.video import write_mp4
+
+    target = cfg.target(skill)
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{skill}.tmp-", dir=target.parent))
+    env = NeedleEnv(
+        skill=skill,
+        thresholds=cfg.thresholds,
+        obs_type="pixels_agent_pos",
+        image_height=cfg.image_size,
+        image_width=cfg.image_width,
+        render_mode="rgb_array" if cfg.episode_videos else None,
+    )
+    dataset = None
+    try:
+        dataset = LeRobotDataset.create(
+            repo_id=f"{cfg.repo_id_prefix}_{skill}",
+            fps=cfg.fps,
+            features=dataset_features(cfg.image_size, cfg.image_width, cfg.video),
+            root=tmp / "dataset",
+            robot_type="sr_needle_psm",
+            use_videos=cfg.video,
+            vcodec=cfg.vcodec,
+        )
+        failures, attempt = 0, 0
+        with tqdm(total=cfg.num_episodes, desc=f"record {skill}", unit="ep") as bar:
+            while bar.n < cfg.num_episodes:
+                seed = episode_seed(cfg.seed, skill_index, attempt)
+                attempt += 1
+                frames, scene, success = run_demo(env, seed, cfg.episode_videos)
+                if not success:
+                    failures += 1
+                    logger.warning("%s: expert failed on seed %d (%d failures)", skill, seed, failures)
+                    if failures > cfg.max_failures:
+                        raise RuntimeError(f"{skill}: more than {cfg.max_failures} failed expert episodes")
+                    continue
+                for frame in frames:
+                    dataset.add_frame(frame)
+                dataset.save_episode()
+                if cfg.episode_videos:
+                    write_mp4(tmp / "episode_videos" / f"episode_{bar.n:06d}.mp4", scene, fps=cfg.fps)
+                bar.update(1)
+        dataset.finalize()
+        dataset = None
+        images = tmp / "dataset" / "images"
+        if images.is_dir() and not any(p.is_file() for p in images.rglob("*")):
+            shutil.rmtree(images)  # LeRobot's PNG staging folder, empty once episodes are embedded
+        _replace_dir(tmp / "dataset", target)
+        if cfg.episode_videos:
+            _replace_dir(tmp / "episode_videos", cfg.episode_video_dir(skill))
+        logger.info("%s: %d episodes (%d expert failures) -> %s", skill, cfg.num_episodes, failures, target)
+        return target
+    finally:
+        env.close()
+        if dataset is not None:  # interrupted: close LeRobot's parquet writers before deleting their files
+            with contextlib.suppress(Exception):
+                dataset.finalize()
+            del dataset
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def record(cfg: RecordConfig) -> list[Path]:
+    """Record every skill in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``."""
+    if not cfg.overwrite:
+        existing = [str(cfg.target(s)) for s in cfg.skills if cfg.target(s).exists()]
+        if existing:
+            raise FileExistsError(
+                f"Dataset(s) already exist: {existing}; pass --overwrite=true to replace them"
+            )
+    return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console entry point ``sr-record`` (draccus flags, LeRobot style)."""
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    cfg = draccus.parse(RecordConfig, args=args)
+    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    try:
+        paths = record(cfg)
+    except FileExistsError as e:
+        raise SystemExit(f"sr-record: {e}") from None
+    for path in paths:
+        print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
+
+
+if __name__ == "__main__":
+    main()

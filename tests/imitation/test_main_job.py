@@ -1,0 +1,118 @@
+"""End to end on the real needle environment: sr-main (record -> stream -> report) and stock lerobot-train."""
+
+from __future__ import annotations
+
+import json
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from sr_imitation.imitation.cli import train_main
+from sr_imitation.main_job import main as main_job
+
+TINY_POLICY = {
+    "type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2, "dim_feedforward": 64,
+    "n_encoder_layers": 1, "n_vae_encoder_layers": 1, "chunk_size": 8, "n_action_steps": 8,
+    "memory_buffer_size": 32, "sleep_max_iterations": 4, "sleep_batch_size": 4, "sleep_early_stop_window": 2,
+}
+
+
+@pytest.fixture(scope="module")
+def main_job_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("main_job")
+    config = {
+        "record": {"num_episodes": 2, "root": str(tmp / "datasets"), "image_size": 32},
+        "train": {
+            "policy": TINY_POLICY,
+            "stream": {"skills": ["approach", "place"]},
+            "wake": {"max_epochs": 1, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 2},
+            "eval": {"n_episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 1,
+                     "video_height": 64, "video_width": 64},
+            "output_dir": str(tmp / "run"),
+            "progress": False,
+        },
+    }
+    path = tmp / "config.json"
+    path.write_text(json.dumps(config))
+    main_job([f"--config_path={path}"])
+    return tmp, path
+
+
+def test_main_job_records_trains_evaluates_and_reports(main_job_run):
+    tmp, _ = main_job_run
+    run = tmp / "run"
+    assert (tmp / "datasets" / "approach" / "meta" / "info.json").is_file()
+    results = json.loads((run / "results.json").read_text())
+    assert results["skills"] == ["approach", "place"] and len(results["success_matrix"]) == 2
+    for name in ("metrics.png", "success_matrix.png", "results.md", "expert_suture.mp4"):
+        assert (run / name).stat().st_size > 0, name
+    videos = list((run / "videos").rglob("*.mp4"))
+    assert len(videos) == 1 + 2 + 2  # wake 1: one skill; wake 2 and sleep 2: two skills each
+    assert all(v.stat().st_size > 1000 for v in videos)
+
+
+def test_sr_train_resumes_a_finished_run_without_redoing_work(main_job_run):
+    tmp, _ = main_job_run
+    run = tmp / "run"
+    before = (run / "progress.json").read_text()
+    stamp = (run / "skill_2_place" / "sleep" / "pretrained_model" / "model.safetensors").stat().st_mtime_ns
+    train_main([f"--config_path={run / 'train_config.json'}", "--resume=true"])
+    assert (run / "progress.json").read_text() == before
+    assert (run / "skill_2_place" / "sleep" / "pretrained_model" / "model.safetensors").stat().st_mtime_ns == stamp
+
+
+def test_sr_train_refuses_to_overwrite_an_existing_run(main_job_run):
+    tmp, _ = main_job_run
+    with pytest.raises(FileExistsError, match="--resume=true"):
+        train_main([f"--config_path={tmp / 'run' / 'train_config.json'}"])
+
+
+def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
+    tmp, _ = main_job_run
+    exe = Path(sys.executable).parent / "lerobot-train"
+    if not exe.exists():
+        pytest.fail(f"lerobot-train is not installed next to {sys.executable}")
+    out = tmp_path / "lerobot_out"
+    cmd = [str(exe), "--policy.type=act_sr", "--policy.sleep=true", "--policy.device=cpu",
+           "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64",
+           "--policy.n_encoder_layers=1", "--policy.n_vae_encoder_layers=1", "--policy.chunk_size=8",
+           "--policy.n_action_steps=8", "--dataset.repo_id=local/sr_needle_approach",
+           f"--dataset.root={tmp / 'datasets' / 'approach'}", "--dataset.video_backend=pyav", "--steps=2",
+           "--batch_size=2", "--num_workers=0", "--eval_freq=0", "--save_freq=2", "--wandb.enable=false",
+           f"--output_dir={out}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    config = json.loads(next(out.rglob("pretrained_model/config.json")).read_text())
+    assert config["type"] == "act_sr" and config["sleep"] is True
+    shutil.rmtree(out)
+
+
+def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
+    from sr_imitation.imitation.cli import eval_main
+
+    tmp, _ = main_job_run
+    checkpoint = tmp / "run" / "skill_2_place" / "sleep" / "pretrained_model"
+    eval_main([f"--policy.path={checkpoint}", "--skills=[place]", "--eval.n_episodes=1", "--eval.seeds=[3]",
+               "--eval.max_steps=20", "--eval.video_height=64", "--eval.video_width=64", "--progress=false",
+               f"--output_dir={tmp_path}"])
+    record = json.loads((tmp_path / "eval.json").read_text())
+    assert set(record["results"]) == {"place"} and len(list((tmp_path / "videos").glob("*.mp4"))) == 1
+    with pytest.raises(FileNotFoundError, match="no config.json"):
+        eval_main([f"--policy.path={tmp_path}", f"--output_dir={tmp_path}"])
+
+
+def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
+    from sr_imitation.experiments.needle_compare import CompareConfig, run_compare
+
+    tmp, config_path = main_job_run
+    out = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr", "sequential_bc"],
+                                    output_root=tmp_path))
+    assert set(out["summary"]) == {"sr", "sequential_bc"}
+    assert (tmp_path / "summary.md").read_text().count("\n| ") == 3  # header + two variants
+    bc = json.loads((tmp_path / "sequential_bc_seed0" / "results.json").read_text())
+    assert bc["sleep"] == {} and bc["memory_bytes"] == {}  # no sleep, no memories for sequential BC
+    sr = json.loads((tmp_path / "sr_seed0" / "results.json").read_text())
+    assert "2.sleep" in sr["sleep"]

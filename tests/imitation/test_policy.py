@@ -1,0 +1,149 @@
+"""ACT-SR policy: LeRobot discovery, config defaults, save/load, wake distillation, actor memories."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import pytest
+import torch
+from lerobot.configs.policies import PreTrainedConfig
+from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.policies.factory import get_policy_class
+
+from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from sr_imitation.core.memory import load_memory
+from sr_imitation.imitation.actor_memory import ActorMemory
+from tests.imitation.helpers import ACTION_DIM, IMAGE, STATE_DIM, tiny_policy
+
+
+def _features(cfg: ACTSRConfig, images: bool = True) -> ACTSRConfig:
+    cfg.input_features = {"observation.state": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    if images:
+        cfg.input_features["observation.images.wrist"] = PolicyFeature(FeatureType.VISUAL, (3, IMAGE, IMAGE))
+    else:
+        cfg.input_features["observation.environment_state"] = PolicyFeature(FeatureType.ENV, (STATE_DIM,))
+    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
+    return cfg
+
+
+def _batch(n: int = 4, images: bool = True, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    out = {"observation.state": torch.randn(n, STATE_DIM, generator=g),
+           "action": torch.randn(n, 4, ACTION_DIM, generator=g), "action_is_pad": torch.zeros(n, 4, dtype=torch.bool)}
+    if images:
+        out["observation.images.wrist"] = torch.rand(n, 3, IMAGE, IMAGE, generator=g)
+    return out
+
+
+def test_paper_defaults_and_validation():
+    cfg = ACTSRConfig(device="cpu")
+    assert (cfg.chunk_size, cfg.latent_dim, cfg.kl_weight, cfg.vision_backbone) == (16, 32, 10.0, "resnet18")
+    assert cfg.pretrained_backbone_weights is None  # nothing downloads at run time
+    assert (cfg.optimizer_lr, cfg.optimizer_lr_backbone, cfg.optimizer_weight_decay) == (1e-4, 1e-5, 1e-4)
+    assert [cfg.distill_weight(k) for k in (1, 2, 3, 5)] == [0.0, 1.0, 0.5, 0.5]
+    sleep = cfg.sleep_config()
+    assert (sleep.lr, sleep.max_iterations, sleep.batch_size, sleep.fw_iterations) == (1e-5, 1000, 8, 5)
+    assert (sleep.anchor_strength, sleep.early_stop_tol, cfg.memory_buffer_size) == (1e-2, 1e-3, 1024)
+    with pytest.raises(ValueError, match="aggregator"):
+        ACTSRConfig(device="cpu", aggregator="sum")
+    with pytest.raises(ValueError, match="sleep_lr"):
+        ACTSRConfig(device="cpu", sleep_lr=0.0)
+
+
+def test_lerobot_factory_finds_the_policy_and_draccus_parses_flags():
+    assert get_policy_class("act_sr") is ACTSRPolicy
+    code = (
+        "import draccus\n"
+        "from lerobot.configs.train import TrainPipelineConfig\n"
+        "from lerobot.utils.import_utils import register_third_party_plugins\n"
+        "register_third_party_plugins()\n"
+        "cfg = draccus.parse(TrainPipelineConfig, args=['--policy.type=act_sr', '--policy.sleep=false',\n"
+        "    '--policy.aggregator=mean', '--policy.device=cpu', '--dataset.repo_id=x/y'])\n"
+        "assert type(cfg.policy).__name__ == 'ACTSRConfig' and cfg.policy.sleep is False\n"
+        "assert cfg.policy.aggregator == 'mean' and cfg.policy.type == 'act_sr'\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
+
+
+def test_save_and_load_round_trip(tmp_path):
+    policy = ACTSRPolicy(_features(tiny_policy(sleep=False, aggregator="pcgrad")))
+    policy.save_pretrained(tmp_path)
+    cfg = PreTrainedConfig.from_pretrained(tmp_path)
+    assert isinstance(cfg, ACTSRConfig) and cfg.type == "act_sr"
+    assert cfg.sleep is False and cfg.aggregator == "pcgrad"
+    loaded = ACTSRPolicy.from_pretrained(tmp_path, config=cfg)
+    batch = _batch()
+    torch.testing.assert_close(loaded.predict_action_chunk(batch), policy.predict_action_chunk(batch))
+
+
+def test_action_chunk_is_deterministic_differentiable_and_keeps_the_mode():
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    policy.train()
+    batch = _batch()
+    a, b = policy.action_chunk(batch), policy.action_chunk(batch)
+    torch.testing.assert_close(a, b)
+    assert a.shape == (4, 4, ACTION_DIM) and a.requires_grad and policy.training
+
+
+def _memory_for(policy: ACTSRPolicy, seed: int) -> ActorMemory:
+    obs = {k: v for k, v in _batch(16, seed=seed).items() if k.startswith("observation")}
+    return ActorMemory.from_observations("approach", policy.memory_chunk, obs, snapshot="skill_1/wake")
+
+
+def test_wake_distillation_adds_a_gradient_toward_the_snapshot():
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    policy.set_observation_normalizer(lambda raw: {k: (v.float() / 255 if v.dtype == torch.uint8 else v)
+                                                   for k, v in raw.items()})
+    memory = _memory_for(policy, seed=1)
+    assert memory.tensors["input.observation.images.wrist"].dtype == torch.uint8
+    # The snapshot itself: zero distillation loss.
+    assert memory.objective(policy.memory_chunk, 8).item() == pytest.approx(0.0, abs=1e-10)
+    assert memory.verify_targets(policy.memory_chunk) < 1e-6
+    with torch.no_grad():  # move away from the snapshot
+        for p in policy.model.action_head.parameters():
+            p.add_(0.5)
+    with pytest.raises(ValueError, match="differ"):
+        memory.verify_targets(policy.memory_chunk)
+    policy.train()
+    _, plain = policy.forward(_batch())
+    policy.set_wake_memories([memory], weight=0.5, seed=0)
+    loss, info = policy.forward(_batch())
+    assert info["distill_loss"] > 0
+    assert loss.item() == pytest.approx(info["bc_loss"] + 0.5 * info["distill_loss"], rel=1e-4)
+    policy.zero_grad()
+    distill_only = memory.objective(policy.memory_chunk, 8)
+    distill_only.backward()
+    assert policy.model.action_head.weight.grad.abs().sum() > 0
+    assert "distill_loss" not in plain
+
+
+def test_memories_need_a_normalizer_and_non_finite_losses_fail_loudly():
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    with pytest.raises(RuntimeError, match="normalizer"):
+        policy.set_wake_memories([object()], 1.0)  # type: ignore[list-item]
+    bad = _batch()
+    bad["action"][0, 0, 0] = float("nan")
+    with pytest.raises(FloatingPointError, match="non-finite ACT-SR loss"):
+        policy.forward(bad)
+
+
+def test_actor_memory_file_round_trip(tmp_path):
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    policy.set_observation_normalizer(lambda raw: {k: (v.float() / 255 if v.dtype == torch.uint8 else v)
+                                                   for k, v in raw.items()})
+    memory = _memory_for(policy, seed=2)
+    loaded = load_memory(memory.save(tmp_path / "m.safetensors"), skill="approach")
+    assert isinstance(loaded, ActorMemory) and loaded.fingerprint() == memory.fingerprint()
+    assert loaded.config["snapshot"] == "skill_1/wake"
+    assert loaded.verify_targets(policy.memory_chunk) < 1e-6
+
+
+def test_state_only_mode_feeds_the_state_as_environment_state():
+    policy = ACTSRPolicy(_features(tiny_policy(use_images=False), images=False))
+    batch = _batch(images=False)
+    chunk = policy.predict_action_chunk({k: v for k, v in batch.items() if k.startswith("observation")})
+    assert chunk.shape == (4, 4, ACTION_DIM)
+    policy.train()
+    loss, _ = policy.forward(batch)
+    assert torch.isfinite(loss)

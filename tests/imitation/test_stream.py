@@ -1,0 +1,186 @@
+"""The wake-sleep stream trainer on tiny synthetic datasets: outputs, stats policy, resume, bad input."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from sr_imitation.core.io import CorruptFileError
+from sr_imitation.core.memory import load_memory
+from sr_imitation.imitation.data import DatasetMismatchError
+from sr_imitation.imitation.stream import StreamTrainer, train_stream
+from sr_imitation.imitation.wake import NonFiniteLossError
+from tests.imitation.conftest import SKILLS
+from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
+
+
+def _weights(path: Path) -> dict[str, torch.Tensor]:
+    return load_file(str(path / "pretrained_model" / "model.safetensors"))
+
+
+@pytest.fixture(scope="module")
+def finished_run(state_datasets, tmp_path_factory):
+    out = tmp_path_factory.mktemp("run") / "stream"
+    results = train_stream(tiny_stream_config(state_datasets, out, SKILLS, use_images=False), fake_env_factory)
+    return out, results
+
+
+def test_a_stream_writes_every_stage_memory_and_report(finished_run):
+    out, results = finished_run
+    for k, skill in enumerate(SKILLS, start=1):
+        stage = out / f"skill_{k}_{skill}"
+        assert (stage / "wake" / "pretrained_model" / "config.json").is_file()
+        assert (stage / "wake" / "eval.json").is_file() and (stage / "wake" / "trajectories.npz").is_file()
+        assert (stage / "sleep").is_dir() == (k >= 2)
+        memory = load_memory(out / "memories" / f"skill_{k}_{skill}.safetensors", skill=skill)
+        assert memory.size == 16 and memory.config["snapshot"] == f"skill_{k}_{skill}/wake"
+    for name in ("results.json", "results.md", "metrics.png", "success_matrix.png", "progress.json"):
+        assert (out / name).is_file(), name
+    s = results["success_matrix"]
+    assert len(s) == 3 and s[0][1] is None and all(0.0 <= x <= 1.0 for x in s[2])
+    assert set(results["metrics"]) == {"afsr", "prs", "bwt", "spi"}
+    assert results["metrics"]["prs"]["mean_curve"][0] is None  # PRS only for k >= 2
+    sleeps = results["sleep"]
+    assert set(sleeps) == {"2.sleep", "3.sleep"} and all(r["stop_iteration"] >= 1 for r in sleeps.values())
+    diag = json.loads((out / "skill_3_insert" / "sleep" / "sleep_diagnostics.json").read_text())
+    assert diag["skills"] == SKILLS and len(diag["alpha"][0]) == 3
+    assert results["memory_bytes_total"] == sum(results["memory_bytes"].values()) > 0
+    # Videos of the first evaluation episode per skill and stage.
+    assert list((out / "videos" / "skill_2_place" / "sleep").glob("approach_episode0_*.mp4"))
+
+
+def test_stream_statistics_are_fixed_for_the_whole_stream(finished_run):
+    out, _ = finished_run
+    states = []
+    for stage in sorted(out.glob("skill_*/*/pretrained_model")):
+        files = list(stage.glob("policy_preprocessor_step_*_normalizer_processor.safetensors"))
+        assert len(files) == 1, stage
+        states.append(load_file(str(files[0])))
+    assert len(states) == 5
+    for state in states[1:]:
+        assert state.keys() == states[0].keys()
+        assert all(torch.equal(state[k], states[0][k]) for k in state)
+
+
+def test_sleep_changes_the_policy_and_memories_stay_frozen(finished_run):
+    out, _ = finished_run
+    wake, sleep = _weights(out / "skill_2_place" / "wake"), _weights(out / "skill_2_place" / "sleep")
+    assert any(not torch.equal(wake[k], sleep[k]) for k in wake)
+    memory = load_memory(out / "memories" / "skill_1_approach.safetensors")
+    assert memory.fingerprint() == load_memory(out / "memories" / "skill_1_approach.safetensors").fingerprint()
+
+
+def test_resume_after_a_kill_reaches_the_same_results(finished_run, state_datasets, tmp_path, monkeypatch):
+    reference_out, reference = finished_run
+    out = tmp_path / "stream"
+    cfg = tiny_stream_config(state_datasets, out, SKILLS, use_images=False)
+    calls = {"n": 0}
+    original = StreamTrainer._sleep
+
+    def killed_during_second_sleep(self, index):
+        calls["n"] += 1
+        if calls["n"] == 2:
+            raise KeyboardInterrupt("simulated kill")
+        return original(self, index)
+
+    monkeypatch.setattr(StreamTrainer, "_sleep", killed_during_second_sleep)
+    with pytest.raises(KeyboardInterrupt):
+        train_stream(cfg, fake_env_factory)
+    monkeypatch.setattr(StreamTrainer, "_sleep", original)
+    progress = json.loads((out / "progress.json").read_text())["completed"]
+    assert "3.wake.eval" in progress and "3.sleep" not in progress
+    assert not (out / "results.json").exists()
+    # Without --resume nothing is overwritten.
+    with pytest.raises(FileExistsError, match="--resume=true"):
+        train_stream(cfg, fake_env_factory)
+    cfg.resume = True
+    resumed = train_stream(cfg, fake_env_factory)
+    assert resumed["success_matrix_per_seed"] == reference["success_matrix_per_seed"]
+    assert resumed["metrics"] == reference["metrics"]
+    final, ref = _weights(out / "skill_3_insert" / "sleep"), _weights(reference_out / "skill_3_insert" / "sleep")
+    assert all(torch.equal(final[k], ref[k]) for k in ref)
+
+
+def test_resume_refuses_changed_settings_and_missing_files(finished_run, tmp_path):
+    reference_out, _ = finished_run
+    out = tmp_path / "copy"
+    shutil.copytree(reference_out, out)
+    cfg = tiny_stream_config(Path(json.loads((out / "train_config.json").read_text())["stream"]["dataset_root"]),
+                             out, SKILLS, use_images=False)
+    cfg.resume = True
+    cfg.seed = 8
+    with pytest.raises(ValueError, match="cannot resume with different settings: \\['seed'\\]"):
+        train_stream(cfg, fake_env_factory)
+    cfg.seed = 7
+    progress = json.loads((out / "progress.json").read_text())
+    del progress["completed"]["3.sleep.eval"]
+    (out / "progress.json").write_text(json.dumps(progress))
+    (out / "memories" / "skill_2_place.safetensors").unlink()
+    with pytest.raises(FileNotFoundError, match="skill_2_place.safetensors"):
+        train_stream(cfg, fake_env_factory)
+    (out / "memories" / "skill_2_place.safetensors").write_bytes(b"garbage")
+    with pytest.raises(CorruptFileError, match="skill_2_place.safetensors"):
+        train_stream(cfg, fake_env_factory)
+
+
+def test_dataset_problems_are_named(image_datasets, state_datasets, tmp_path):
+    # The policy expects a camera (first skill has one); the second skill's dataset has none.
+    mixed = tmp_path / "mixed"
+    shutil.copytree(image_datasets / "approach", mixed / "approach")
+    shutil.copytree(state_datasets / "place", mixed / "place")
+    with pytest.raises(DatasetMismatchError, match=r"place/meta/info.json: missing feature 'observation.images.wrist'"):
+        train_stream(tiny_stream_config(mixed, tmp_path / "o1", ["approach", "place"]), fake_env_factory)
+    # Another action size.
+    other = tmp_path / "other"
+    shutil.copytree(state_datasets / "approach", other / "approach")
+    make_skill_dataset(other, "place", 1, image=False, action_dim=5)
+    with pytest.raises(DatasetMismatchError, match=r"feature 'action' has shape \(5,\), the policy expects \(7,\)"):
+        train_stream(tiny_stream_config(other, tmp_path / "o2", ["approach", "place"], use_images=False),
+                     fake_env_factory)
+    # Missing dataset.
+    with pytest.raises(DatasetMismatchError, match="not a LeRobot dataset"):
+        train_stream(tiny_stream_config(tmp_path / "nowhere", tmp_path / "o3", ["approach"]), fake_env_factory)
+    # State-only training on a dataset without cameras asks for images: clear hint.
+    with pytest.raises(DatasetMismatchError, match="use_images=false"):
+        train_stream(tiny_stream_config(state_datasets, tmp_path / "o4", ["approach"]), fake_env_factory)
+
+
+def test_non_finite_loss_stops_wake_with_the_dataset_named(state_datasets, tmp_path):
+    root = tmp_path / "nan"
+    make_skill_dataset(root, "approach", 0, image=False)
+    cfg = tiny_stream_config(root, tmp_path / "o", ["approach"], use_images=False)
+    cfg.policy.optimizer_lr = float("inf")
+    with pytest.raises(NonFiniteLossError, match=r"skill 'approach' \(.*nan/approach\)"):
+        train_stream(cfg, fake_env_factory)
+
+
+def test_image_stream_runs_end_to_end(image_datasets, tmp_path):
+    cfg = tiny_stream_config(image_datasets, tmp_path / "img", SKILLS[:2])
+    results = train_stream(cfg, fake_env_factory)
+    memory = load_memory(tmp_path / "img" / "memories" / "skill_1_approach.safetensors")
+    assert memory.tensors["input.observation.images.wrist"].dtype == torch.uint8
+    assert results["skills"] == SKILLS[:2] and "2.sleep" in results["sleep"]
+
+
+def test_in_memory_dataset_serves_the_same_items_as_lerobot(image_datasets):
+    from sr_imitation.imitation.data import load_skill_data
+    from tests.imitation.helpers import tiny_policy
+
+    cfg = tiny_policy()
+    from tests.imitation.test_policy import _features
+
+    _features(cfg)
+    fast = load_skill_data("place", image_datasets / "place", "local/sr_needle_place", cfg, 0.3, 0)
+    slow = load_skill_data("place", image_datasets / "place", "local/sr_needle_place", cfg, 0.3, 0,
+                           materialize=False)
+    assert fast.train_indices == slow.train_indices and len(fast.dataset) == len(slow.dataset) == 30
+    for i in (0, 5, 8, 9, 10, 29):  # includes the padded chunks at the ends of episodes
+        a, b = fast.dataset[i], slow.dataset[i]
+        for key in ("observation.state", "observation.images.wrist", "action", "action_is_pad"):
+            assert torch.allclose(a[key].float(), b[key].float(), atol=1e-6), (i, key)
+    assert bool(fast.dataset[9]["action_is_pad"][1]) and not bool(fast.dataset[0]["action_is_pad"].any())
