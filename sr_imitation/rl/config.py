@@ -1,0 +1,243 @@
+"""Hyperparameters of the SAC substrate, all in one place (Appendix A.1, Tables "SAC hyperparameters",
+"Wake-phase budgets", "Homeostatic excitability", "Sleep-consolidation hyperparameters").
+
+Defaults are the paper preset. The CPU preset (``configs/sac_mt5_cpu.json``) changes only what the CPU cannot
+afford (episode budgets through ``wake.budget_scale``, episode length, update-to-data ratio, batch size, warm-up
+and evaluation episodes) and keeps every architectural and optimizer setting.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.rl.envs import STREAMS
+
+
+@dataclass
+class SACConfig:
+    """Table "SAC hyperparameters for Meta-World MT5 wake training" and the architecture paragraph."""
+
+    hidden_dim: int = 256
+    """Actor and each critic: two hidden layers of 256 units."""
+    actor_log_std_bias_init: float = -1.0
+    """Initial bias of the Gaussian head's log-std output."""
+    log_std_min: float = -5.0
+    """Clamp of the actor's log-std (CleanRL default; the paper gives none)."""
+    log_std_max: float = 2.0
+    critic_layer_norm: bool = True
+    """Twin Q-networks with LayerNorm."""
+    actor_lr: float = 3e-4
+    critic_lr: float = 3e-4
+    alpha_lr: float = 3e-4
+    """Entropy optimizer: Adam 3e-4, alpha automatically tuned."""
+    target_entropy: float = -2.0
+    log_alpha_min: float = -10.0
+    log_alpha_max: float = 4.0
+    """log alpha clamp [-10, 4]."""
+    initial_log_alpha: float = 0.0
+    reward_scale: float = 1.0
+    buffer_size: int = 1_000_000
+    utd_ratio: float = 5.0
+    """Update-to-data ratio: gradient updates per environment step (fractions: one update every 1/utd steps)."""
+    batch_size: int = 256
+    gamma: float = 0.99
+    tau: float = 0.005
+    """Target-network Polyak rate."""
+    warmup_steps: int = 5000
+    """Uniform random actions at the start of every skill."""
+    normalize_observations: bool = True
+    """Running mean/std observation normalizer (the paper's normalizer nu; snapshot stored with each memory)."""
+
+    def __post_init__(self) -> None:
+        checks = {
+            "hidden_dim": self.hidden_dim >= 1,
+            "actor_lr": self.actor_lr > 0,
+            "critic_lr": self.critic_lr > 0,
+            "alpha_lr": self.alpha_lr > 0,
+            "log_alpha range": self.log_alpha_min < self.log_alpha_max,
+            "log_std range": self.log_std_min < self.log_std_max,
+            "buffer_size": self.buffer_size >= self.batch_size >= 1,
+            "utd_ratio": self.utd_ratio > 0,
+            "gamma": 0 <= self.gamma < 1,
+            "tau": 0 < self.tau <= 1,
+            "warmup_steps": self.warmup_steps >= 0,
+            "reward_scale": self.reward_scale > 0,
+        }
+        bad = [k for k, ok in checks.items() if not ok]
+        if bad:
+            raise ValueError(f"invalid SACConfig values: {bad}")
+
+
+@dataclass
+class SkillBudget:
+    """One row of Table "Wake-phase budgets and early-stopping configuration for MT5" (episodes)."""
+
+    max_episodes: int
+    min_episodes: int
+    patience: int
+
+
+PAPER_BUDGETS: dict[str, SkillBudget] = {
+    "reach": SkillBudget(1500, 500, 500),
+    "door-open": SkillBudget(4000, 1000, 1000),
+    "drawer-open": SkillBudget(3000, 1000, 1000),
+    "window-close": SkillBudget(2000, 500, 500),
+    "button-press-topdown": SkillBudget(2500, 800, 800),
+}
+"""Paper Table "Wake-phase budgets"; MT8's extra skills have no published budget (see ``default_budget``)."""
+
+
+@dataclass
+class WakeConfig:
+    """Wake budgets and early stopping (Appendix A.1, "Wake budgets and early stopping").
+
+    Training on a skill stops at ``max_episodes`` or, after ``min_episodes``, when the ``rolling_window``-episode
+    rolling mean reward has not improved by more than ``improvement`` (2%) over the last ``patience`` episodes.
+    ``budget_scale`` multiplies every episode count (max, min, patience, rolling window and the excitability
+    novelty period) so the CPU preset keeps the paper's proportions.
+    """
+
+    budget_scale: float = 1.0
+    rolling_window: int = 100
+    improvement: float = 0.02
+    early_stopping: bool = True
+    budgets: dict[str, SkillBudget] = field(default_factory=lambda: dict(PAPER_BUDGETS))
+    default_budget: SkillBudget = field(default_factory=lambda: SkillBudget(2500, 800, 800))
+    """Budget for skills without a table row (the MT8 extension; our choice: the table's median row)."""
+
+    def __post_init__(self) -> None:
+        if self.budget_scale <= 0:
+            raise ValueError(f"wake.budget_scale must be > 0, got {self.budget_scale}")
+        if self.rolling_window < 1 or self.improvement < 0:
+            raise ValueError("wake.rolling_window must be >= 1 and wake.improvement >= 0")
+        for name, b in {**self.budgets, "default": self.default_budget}.items():
+            if isinstance(b, dict):  # draccus/JSON may hand us plain dicts
+                b = SkillBudget(**b)
+                if name == "default":
+                    self.default_budget = b
+                else:
+                    self.budgets[name] = b
+            if not 1 <= b.min_episodes <= b.max_episodes or b.patience < 1:
+                raise ValueError(f"wake budget for {name!r} needs 1 <= min <= max and patience >= 1, got {b}")
+
+    def scaled(self, count: int) -> int:
+        return max(1, int(math.ceil(count * self.budget_scale)))
+
+    def budget_for(self, skill: str) -> SkillBudget:
+        """The scaled budget of ``skill`` (Meta-World id or bare name)."""
+        name = skill.removesuffix("-v3")
+        b = self.budgets.get(name, self.default_budget)
+        return SkillBudget(self.scaled(b.max_episodes), self.scaled(b.min_episodes), self.scaled(b.patience))
+
+    @property
+    def scaled_window(self) -> int:
+        return self.scaled(self.rolling_window)
+
+
+@dataclass
+class CriticMemoryConfig:
+    """Frozen critic memories (Appendix A.1, "Sleep consolidation", "Frozen critic validation", "Memory cost")."""
+
+    buffer_size: int = 1000
+    """States per memory, sampled uniformly from the final ``late_fraction`` of wake episodes."""
+    late_fraction: float = 0.2
+    holdout_fraction: float = 0.05
+    """Share of wake transitions never trained on, used to validate the critic (our choice; unspecified)."""
+    holdout_batch: int = 1024
+    validation_threshold: float = 0.5
+    """Max normalized Bellman residual RMSE(TD) / std(target) before freezing (our choice; unspecified)."""
+    validation_chunk: int = 500
+    """Extra critic-only updates per failed validation."""
+    validation_max_rounds: int = 4
+
+    def __post_init__(self) -> None:
+        if self.buffer_size < 1 or not 0 < self.late_fraction <= 1 or not 0 <= self.holdout_fraction < 1:
+            raise ValueError("memory.buffer_size >= 1, 0 < late_fraction <= 1, 0 <= holdout_fraction < 1")
+        if self.validation_threshold <= 0 or self.validation_chunk < 0 or self.validation_max_rounds < 0:
+            raise ValueError("memory validation settings must be positive")
+
+
+@dataclass
+class EvalConfig:
+    """Evaluation protocol (Appendix A.1: N = 100 episodes per learned skill after each stage)."""
+
+    episodes: int = 100
+    success_mode: str = "any_step"
+    stop_on_success: bool = True
+    deterministic: bool = True
+    """Evaluate the Gaussian mean (tanh) action."""
+    after_wake: bool = False
+    """Also evaluate the current skill right after wake (diagnostic, costs time)."""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ValueError(f"eval.episodes must be >= 1, got {self.episodes}")
+        if self.success_mode not in ("any_step", "final_step"):
+            raise ValueError(f"eval.success_mode must be any_step or final_step, got {self.success_mode!r}")
+
+
+@dataclass
+class RLTrainConfig:
+    """Everything one ``sr-rl-train`` run needs; loadable with ``--config_path=configs/sac_mt5_*.json``."""
+
+    output_dir: Path = Path("outputs/sac_mt5")
+    seed: int = 0
+    stream: str = "mt5"
+    skills: list[str] | None = None
+    """Explicit skill list (Meta-World v3 ids); overrides ``stream``."""
+    max_episode_steps: int = 500
+    """Meta-World's time limit (max_path_length)."""
+    sleep_enabled: bool = True
+    """False gives the "SR Wake-Only" ablation."""
+    sac: SACConfig = field(default_factory=SACConfig)
+    wake: WakeConfig = field(default_factory=WakeConfig)
+    excitability: ExcitabilityConfig = field(default_factory=ExcitabilityConfig)
+    sleep: SleepConfig = field(default_factory=SleepConfig.mt5)
+    memory: CriticMemoryConfig = field(default_factory=CriticMemoryConfig)
+    eval: EvalConfig = field(default_factory=EvalConfig)
+    device: str = "cpu"
+    torch_threads: int = 1
+    resume: bool = False
+    overwrite: bool = False
+    progress: bool = True
+    plots: bool = True
+
+    def __post_init__(self) -> None:
+        self.output_dir = Path(self.output_dir)
+        if self.skills is None and self.stream not in STREAMS:
+            raise ValueError(f"unknown stream {self.stream!r}; choose from {sorted(STREAMS)}")
+        if self.skills is not None and len(self.skills) == 0:
+            raise ValueError("skills must not be empty")
+        if self.max_episode_steps < 1:
+            raise ValueError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
+        if self.resume and self.overwrite:
+            raise ValueError("--resume and --overwrite are mutually exclusive")
+        if self.torch_threads < 1:
+            raise ValueError(f"torch_threads must be >= 1, got {self.torch_threads}")
+
+    @property
+    def stream_skills(self) -> list[str]:
+        return list(self.skills) if self.skills is not None else list(STREAMS[self.stream])
+
+    def fingerprint_dict(self) -> dict:
+        """The settings that must match for ``--resume`` (everything except run-control flags)."""
+        from dataclasses import asdict
+
+        d = asdict(self)
+        for key in ("resume", "overwrite", "progress", "plots", "output_dir", "device", "torch_threads"):
+            d.pop(key, None)
+        return _jsonable(d)
+
+
+def _jsonable(obj):
+    if isinstance(obj, dict):
+        return {str(k): _jsonable(v) for k, v in obj.items()}
+    if isinstance(obj, list | tuple):
+        return [_jsonable(v) for v in obj]
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj

@@ -1,0 +1,152 @@
+"""Wake phase: SAC on one skill with the paper's episode budgets and early stopping (Appendix A.1, "Wake budgets
+and early stopping"; Algorithm 1, line 3), then the skill's frozen critic memory (line 4).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
+from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
+from sr_imitation.rl.envs import SkillEnv
+from sr_imitation.rl.sac import ReplayBuffer, SACAgent
+
+logger = logging.getLogger(__name__)
+
+
+def rolling_means(rewards: list[float], window: int) -> np.ndarray:
+    """Mean of the last ``window`` episode rewards after each episode (fewer at the start)."""
+    r = np.asarray(rewards, dtype=np.float64)
+    c = np.concatenate([[0.0], np.cumsum(r)])
+    idx = np.arange(1, len(r) + 1)
+    lo = np.maximum(0, idx - window)
+    return (c[idx] - c[lo]) / (idx - lo)
+
+
+def should_stop_early(rewards: list[float], budget: SkillBudget, window: int, improvement: float) -> bool:
+    """Early-stopping rule: after ``min_episodes``, stop when the best rolling mean reward of the last
+    ``patience`` episodes is not more than ``improvement`` (2%) above the best rolling mean before them."""
+    n = len(rewards)
+    if n < budget.min_episodes or n <= budget.patience:
+        return False
+    rolling = rolling_means(rewards, window)
+    before = float(rolling[: n - budget.patience].max())
+    recent = float(rolling[n - budget.patience :].max())
+    return recent <= before + improvement * abs(before)
+
+
+@dataclass
+class WakeResult:
+    skill: str
+    episodes: int
+    env_steps: int
+    updates: int
+    stop_reason: str
+    episode_rewards: list[float] = field(default_factory=list)
+    episode_successes: list[bool] = field(default_factory=list)
+    critic_validation: dict[str, Any] = field(default_factory=dict)
+    seconds: float = 0.0
+    last_update: dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> dict[str, Any]:
+        k = max(1, len(self.episode_rewards) // 10)
+        return {
+            "skill": self.skill, "episodes": self.episodes, "env_steps": self.env_steps, "updates": self.updates,
+            "stop_reason": self.stop_reason, "seconds": round(self.seconds, 2),
+            "final_train_reward": float(np.mean(self.episode_rewards[-k:])) if self.episode_rewards else None,
+            "final_train_success": float(np.mean(self.episode_successes[-k:])) if self.episode_successes else None,
+            "critic_validation": self.critic_validation, "last_update": self.last_update,
+        }
+
+
+def train_skill(
+    agent: SACAgent,
+    env: SkillEnv,
+    skill_index: int,
+    sac_cfg: SACConfig,
+    wake_cfg: WakeConfig,
+    exc_cfg: ExcitabilityConfig,
+    memory_cfg: CriticMemoryConfig,
+    seed: int,
+    progress: bool = True,
+) -> tuple[WakeResult, CriticMemory]:
+    """Train ``agent`` on one skill and freeze its critic memory.
+
+    Fresh replay buffer and optimizer states per skill (no earlier transitions are available); ``warmup_steps``
+    uniform random actions first; then ``utd_ratio`` SAC updates per environment step, each followed by the
+    actor's homeostatic update at the wake rate (the novelty rate during the first, scaled, 500 episodes of the
+    first skill). Stops at the scaled ``max_episodes`` or by :func:`should_stop_early`.
+    """
+    t0 = time.perf_counter()
+    rng = np.random.default_rng(seed)
+    env.seed(seed)
+    budget = wake_cfg.budget_for(env.skill)
+    window = wake_cfg.scaled_window
+    exc_cfg = dataclasses.replace(exc_cfg, novelty_episodes=wake_cfg.scaled(exc_cfg.novelty_episodes)
+                                  if exc_cfg.novelty_episodes > 0 else 0)
+    replay = ReplayBuffer(sac_cfg.buffer_size)
+    holdout = ReplayBuffer(max(1, int(memory_cfg.holdout_batch)))
+    agent.reset_optimizers(reset_alpha=True)
+    result = WakeResult(env.skill, 0, 0, 0, "max_episodes")
+    episode_starts: list[int] = []
+    update_credit = 0.0
+    bar = tqdm(range(budget.max_episodes), desc=f"wake {env.skill}", disable=not progress, leave=False)
+    for episode in bar:
+        episode_starts.append(replay.total)
+        rate = exc_cfg.rate("wake", skill_index, episode)
+        obs = env.reset()
+        total, success = 0.0, False
+        while True:
+            if result.env_steps < sac_cfg.warmup_steps:
+                action = rng.uniform(-1.0, 1.0, size=4).astype(np.float32)
+            else:
+                action = agent.act(obs)
+            step = env.step(action)
+            agent.normalizer.update(obs)
+            if rng.random() < memory_cfg.holdout_fraction:
+                holdout.add(obs, action, step.reward, step.obs, step.terminated)
+            else:
+                replay.add(obs, action, step.reward, step.obs, step.terminated)
+            result.env_steps += 1
+            total += step.reward
+            success |= step.success
+            obs = step.obs
+            if result.env_steps >= sac_cfg.warmup_steps and len(replay) >= sac_cfg.batch_size:
+                update_credit += sac_cfg.utd_ratio
+                while update_credit >= 1.0:
+                    info = agent.update(replay.batch(replay.indices(sac_cfg.batch_size, rng), agent.device), rate)
+                    result.updates += 1
+                    update_credit -= 1.0
+            if step.terminated or step.truncated:
+                break
+        result.episodes += 1
+        result.episode_rewards.append(total)
+        result.episode_successes.append(bool(success))
+        if progress and episode % 5 == 0:
+            bar.set_postfix(reward=f"{total:.1f}", success=int(success), alpha=f"{agent.alpha:.3g}")
+        if wake_cfg.early_stopping and should_stop_early(result.episode_rewards, budget, window,
+                                                         wake_cfg.improvement):
+            result.stop_reason = "early_stopping"
+            break
+    bar.close()
+    if result.updates:
+        result.last_update = dataclasses.asdict(info)
+    logger.info("wake %s: %d episodes, %d steps, %d updates, stop: %s", env.skill, result.episodes,
+                result.env_steps, result.updates, result.stop_reason)
+
+    result.critic_validation = validate_critic(agent, holdout, replay, memory_cfg, rng)
+    # episode starts were recorded as replay positions (held-out transitions never enter the replay)
+    starts = [min(s, replay.total - 1) for s in episode_starts]
+    states = sample_late_states(replay, starts, memory_cfg, rng)
+    memory = CriticMemory.from_agent(env.skill.removesuffix("-v3"), agent, states)
+    result.seconds = time.perf_counter() - t0
+    return result, memory
+
