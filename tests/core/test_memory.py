@@ -187,3 +187,11 @@ def test_summed_objective_equals_the_sum_of_per_memory_objectives():
     torch.testing.assert_close(joint, separate)
     with pytest.raises(ValueError, match="at least one"):
         summed_objective([], policy, 5)
+
+
+def test_scalar_tensors_save_and_load(tmp_path):
+    from sr_imitation.core.io import load_checked_safetensors
+
+    save_checked_safetensors(tmp_path / "s.safetensors", {"log_alpha": torch.tensor(-1.5)}, {"format": "x"})
+    tensors, _ = load_checked_safetensors(tmp_path / "s.safetensors")
+    assert tensors["log_alpha"].shape == () and tensors["log_alpha"].item() == -1.5
