@@ -58,9 +58,9 @@ class SleepConfig:
         anchor_after_final: apply the anchor in the sleep after the final skill (MT5: no).
         max_nonfinite_steps: consecutive skipped (non-finite) steps before raising.
         seed: seeds the memory batch sampler (and PCGrad's projection order).
-        batched_gradients: evaluate same-kind memories in one forward pass and get the k per-memory gradients
-            from one vmapped backward (``is_grads_batched``); same values as k separate passes, faster. Off:
-            one forward+backward per memory.
+        joint_forward: evaluate same-kind memories in one forward pass on their concatenated batches, then take
+            the k gradients by k backward passes (same values as one pass per memory). Off by default: on 2 CPU
+            cores it was not faster (docs/BENCHMARKS.md).
     """
 
     lr: float = 5e-4
@@ -77,7 +77,7 @@ class SleepConfig:
     anchor_after_final: bool = False
     max_nonfinite_steps: int = 10
     seed: int = 0
-    batched_gradients: bool = True
+    joint_forward: bool = False
 
     def __post_init__(self) -> None:
         checks = {
@@ -191,20 +191,6 @@ def anchor_coefficient(
     return (float(strength) if min(distances) < tau else 0.0), distances
 
 
-def _batched_grads(losses: Tensor, params: Sequence[Tensor], out: Tensor) -> bool:
-    """All k per-memory gradients in one vmapped backward pass (rows of ``out``); False if autograd can't."""
-    k = losses.shape[0]
-    try:
-        grads = torch.autograd.grad(losses, params, grad_outputs=torch.eye(k, dtype=losses.dtype, device=losses.device),
-                                    is_grads_batched=True, allow_unused=True, retain_graph=True)
-    except RuntimeError as exc:  # an op without a batching rule
-        logger.debug("batched backward unavailable (%s); using k backward passes", exc)
-        return False
-    torch.cat([g.reshape(k, -1) if g is not None else torch.zeros(k, p.numel(), dtype=out.dtype, device=out.device)
-               for p, g in zip(params, grads, strict=True)], dim=1, out=out)
-    return True
-
-
 def _flat_grads(loss: Tensor, params: Sequence[Tensor], out: Tensor, retain_graph: bool = False) -> None:
     """Write d loss / d params, flattened, into ``out``; parameters the loss does not use get zeros."""
     grads = torch.autograd.grad(loss, params, allow_unused=True, retain_graph=retain_graph)
@@ -280,14 +266,12 @@ def sleep_consolidate(
                 [round(d, 3) for d in distances], aggregator)
     for it in bar:
         batches = [memory.sample(config.batch_size, generator) for memory in memories]
-        if config.batched_gradients:
-            # One forward per memory kind and one vmapped backward for all k gradients; falls back to k passes.
+        if config.joint_forward:
+            # One forward per memory kind on the concatenated batches, then k backward passes through it.
             loss_list = per_memory_losses(memories, policy, batches)
-            stacked = torch.stack(loss_list)
-            losses = stacked.detach().double().cpu().tolist()
-            if not _batched_grads(stacked, params, jac):
-                for i, loss in enumerate(loss_list):
-                    _flat_grads(loss, params, jac[i], retain_graph=i < k - 1)
+            losses = [float(x.detach()) for x in loss_list]
+            for i, loss in enumerate(loss_list):
+                _flat_grads(loss, params, jac[i], retain_graph=i < k - 1)
         else:
             losses = [0.0] * k
             for i, (memory, batch) in enumerate(zip(memories, batches, strict=True)):

@@ -180,13 +180,13 @@ def test_invalid_configs_are_rejected():
     assert SleepConfig.mt5().anchor_tau == 150.0 and SleepConfig.mt5().max_iterations == 4000
 
 
-def test_batched_gradients_match_one_pass_per_memory(stream):
+def test_joint_forward_matches_one_pass_per_memory(stream):
     net0, theta_a, _, memories = stream
     finals = []
-    for batched in (True, False):
+    for joint in (True, False):
         net = copy.deepcopy(net0)
         result = sleep_consolidate(list(net.parameters()), _policy(net), memories,
-                                   _config(max_iterations=25, batched_gradients=batched, anchor_strength=0.1),
+                                   _config(max_iterations=25, joint_forward=joint, anchor_strength=0.1),
                                    anchor_params=theta_a, progress=False)
         finals.append(([p.detach().clone() for p in net.parameters()], result))
     (a, ra), (b, rb) = finals
