@@ -7,10 +7,7 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
-venv="$(bash .ci/venv.sh | tail -n 1)"
-export HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1
-export HF_HOME="${HF_HOME:-$root/.cache/hf}" MESA_SHADER_CACHE_DIR="${MESA_SHADER_CACHE_DIR:-$root/.cache/mesa}"
-export MUJOCO_GL="${MUJOCO_GL:-egl}" PYOPENGL_PLATFORM="${PYOPENGL_PLATFORM:-egl}"
+source .ci/env.sh
 has_config=false
 for arg in "$@"; do case "$arg" in --config_path=*) has_config=true ;; esac; done
 if [ "$has_config" = true ]; then

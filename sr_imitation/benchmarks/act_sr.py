@@ -16,30 +16,18 @@ from __future__ import annotations
 import argparse
 import copy
 import platform
-import statistics
 import time
-from collections.abc import Callable
 
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.memory import summed_objective
 from sr_imitation.core.sleep import SleepConfig, sleep_consolidate
 from sr_imitation.imitation.actor_memory import ActorMemory
 
 STATE_DIM, ACTION_DIM, BATCH, K = 35, 7, 8, 5
-
-
-def _median_ms(fn: Callable[[], object], repeats: int, warmup: int = 2) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
 
 
 def _policy(image_size: int, dim_model: int) -> ACTSRPolicy:
@@ -121,12 +109,12 @@ def main() -> None:
         loss.backward()
         optimizer.step()
 
-    plain = _median_ms(train_step, args.repeats)
-    floor = _median_ms(floor_step, args.repeats)
+    plain = median_ms(train_step, args.repeats)
+    floor = median_ms(floor_step, args.repeats)
     policy.set_wake_memories(memories, weight=0.5)
-    cached = _median_ms(train_step, args.repeats)
+    cached = median_ms(train_step, args.repeats)
     policy.set_wake_memories([], 0.0)
-    recomputed = _median_ms(recomputing_step, args.repeats)
+    recomputed = median_ms(recomputing_step, args.repeats)
 
     params = [p for p in policy.parameters() if p.requires_grad]
     all_memories = [*memories, ActorMemory.from_observations("s4", policy.memory_chunk,
@@ -137,7 +125,7 @@ def main() -> None:
         for m in all_memories:
             torch.autograd.grad(m.objective(policy.memory_chunk, BATCH, gen), params, allow_unused=True)
 
-    passes = _median_ms(k_passes, args.repeats)
+    passes = median_ms(k_passes, args.repeats)
     t0 = time.perf_counter()
     sleep_consolidate(params, policy.memory_chunk, all_memories, sleep_cfg, anchor_params=[p.detach().clone()
                       for p in params], progress=False)

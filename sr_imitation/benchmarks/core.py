@@ -17,29 +17,17 @@ from __future__ import annotations
 import argparse
 import platform
 import statistics
-import time
-from collections.abc import Callable
 
 import numpy as np
 import torch
 from torch import nn
 
+from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.aggregation import NashAggregator
 from sr_imitation.core.memory import OutputDistillationMemory
 from sr_imitation.core.sleep import SleepConfig, sleep_consolidate
 
 STATE_DIM, ACTION_DIM, HIDDEN, BATCH = 39, 4, 256, 64
-
-
-def _median_ms(fn: Callable[[], object], repeats: int, warmup: int = 5) -> float:
-    for _ in range(warmup):
-        fn()
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return 1e3 * statistics.median(times)
 
 
 def mlp_actor(hidden: int = HIDDEN) -> nn.Module:
@@ -59,13 +47,13 @@ def bench_nash(repeats: int) -> list[dict[str, float]]:
         row: dict[str, float] = {"k": k}
         for iters in (5, 50):
             cold = NashAggregator(iterations=iters, tol=0.0, warm_start=False)
-            row[f"cold_{iters}"] = _median_ms(lambda a=cold, g=gram: a(g), repeats)
+            row[f"cold_{iters}"] = median_ms(lambda a=cold, g=gram: a(g), repeats, warmup=5)
             warm = NashAggregator(iterations=iters)
             # Warm start as in sleep: consecutive Gram matrices from noisy minibatch gradients.
             grams = [(jac + 0.3 * rng.normal(size=jac.shape)) for _ in range(repeats + 5)]
             grams = [g @ g.T for g in grams]
             it = iter(grams)
-            row[f"warm_{iters}"] = _median_ms(lambda a=warm, it=it: a(next(it)), repeats)
+            row[f"warm_{iters}"] = median_ms(lambda a=warm, it=it: a(next(it)), repeats, warmup=5)
         rows.append(row)
     return rows
 
@@ -78,7 +66,7 @@ def bench_actor_step(repeats: int) -> float:
         actor.zero_grad(set_to_none=True)
         nn.functional.mse_loss(actor(x), y).backward()
 
-    return _median_ms(step, repeats)
+    return median_ms(step, repeats, warmup=5)
 
 
 def bench_sleep(k: int, iterations: int, hidden: int = HIDDEN, batch: int = BATCH, rounds: int = 5) -> dict:
@@ -124,7 +112,7 @@ def bench_sleep(k: int, iterations: int, hidden: int = HIDDEN, batch: int = BATC
     times: dict[str, list[float]] = {"floor": [], "floor_step": [], "sleep": []}
     for _ in range(rounds):
         for name, fn in (("floor", floor), ("floor_step", floor_step), ("sleep", sleep)):
-            times[name].append(_median_ms(fn, 1, warmup=0) / iterations)
+            times[name].append(median_ms(fn, 1, warmup=0) / iterations)
     return {"k": k, **{name: statistics.median(v) for name, v in times.items()}}
 
 
