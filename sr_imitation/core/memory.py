@@ -171,22 +171,12 @@ def summed_objective(
 ) -> Tensor:
     """sum_i L_i(theta), each on its own fresh batch of ``batch_size``, with one policy call per memory kind.
 
-    Every ``loss`` averages over its batch, so for memories of one class and config the sum of k losses on
-    k batches equals k times the loss on the concatenated batch: one forward/backward instead of k (used by
-    wake-time distillation, where the per-memory gradients are not needed separately).
+    Used by wake-time distillation, where only the sum's gradient is needed (see :func:`per_memory_losses`).
     """
-    groups: dict[tuple[type, str], list[Memory]] = {}
-    for memory in memories:
-        groups.setdefault((type(memory), json.dumps(dict(memory.config), sort_keys=True)), []).append(memory)
-    total: Tensor | None = None
-    for group in groups.values():
-        batches = [m.sample(batch_size, generator) for m in group]
-        joint = {k: torch.cat([b[k] for b in batches]) for k in batches[0]}
-        term = group[0].loss(policy, joint) * len(group)
-        total = term if total is None else total + term
-    if total is None:
+    if not memories:
         raise ValueError("summed_objective needs at least one memory")
-    return total
+    batches = [m.sample(batch_size, generator) for m in memories]
+    return torch.stack(per_memory_losses(memories, policy, batches)).sum()
 
 
 def _group_key(memory: Memory) -> tuple[type, str]:
