@@ -144,12 +144,14 @@ class SleepResult:
     def summary(self) -> dict[str, Any]:
         """Compact view for logs and results tables."""
         last = lambda rows: rows[-1] if rows else None  # noqa: E731
+        first = lambda rows: rows[0] if rows else None  # noqa: E731
         return {
             "skills": self.skills,
             "stop_iteration": self.stop_iteration,
             "stop_reason": self.stop_reason,
             "anchor_lambda": self.anchor_lambda,
             "final_alpha": last(self.alpha),
+            "initial_memory_losses": first(self.memory_losses),
             "final_memory_losses": last(self.memory_losses),
             "skipped_steps": len(self.skipped_steps),
         }

@@ -3,6 +3,10 @@
 The buffer B_k holds |B_k| unordered observations of skill k (wrist images as uint8, robot state as float32),
 never actions. The objective is the paper's L_k^pi(theta) = E_{o ~ B_k} ||pi_theta(o) - pi_{theta_k^wake}(o)||^2
 with pi(o) the deterministic action chunk (zero latent), compared in the stream's fixed normalized action space.
+By default the squared difference is averaged over the chunk's elements (``reduction="mean"``, the "mean squared
+difference" of the issue, on the same per-element scale as ACT's l1 loss); ``"sum"`` is the literal squared norm,
+16 x 7 = 112 times larger for a 16-step chunk of 7-d actions, which at the paper's distillation weights lets the
+distillation term dominate the wake loss (docs/RESULTS.md).
 
 The wake-end snapshot never changes, so its chunks on the buffer are computed once when the memory is created
 and stored as ``target``; neither wake distillation nor sleep runs the snapshot again (the saving is measured
@@ -32,7 +36,7 @@ def images_to_uint8(images: Tensor) -> Tensor:
 
 @register_memory
 class ActorMemory(OutputDistillationMemory):
-    """Frozen ACT actor snapshot + unordered observation buffer (reduction: squared l2 summed over the chunk)."""
+    """Frozen ACT actor snapshot + unordered observation buffer (squared error, mean or sum over the chunk)."""
 
     kind = "act_actor"
 
@@ -44,16 +48,19 @@ class ActorMemory(OutputDistillationMemory):
         observations: Mapping[str, Tensor],
         snapshot: str = "",
         batch_size: int = 64,
+        reduction: str = "mean",
     ) -> ActorMemory:
         """Store ``observations`` (keys like ``observation.state``; images as uint8) and the snapshot's chunks.
 
         ``chunk_fn`` maps a dict of raw buffered observations to the snapshot's normalized action chunks
-        (B, chunk, action_dim); it is evaluated once, here.
+        (B, chunk, action_dim); it is evaluated once, here. ``reduction``: ``"mean"`` or ``"sum"`` over the chunk.
         """
+        if reduction not in ("mean", "sum"):
+            raise ValueError(f"reduction must be 'mean' or 'sum', got {reduction!r}")
         obs = {k: images_to_uint8(v) if k.startswith("observation.images") else v.float()
                for k, v in observations.items()}
         base = OutputDistillationMemory.from_snapshot(skill, chunk_fn, obs, batch_size=batch_size)
-        return cls(skill, dict(base.tensors), {"reduction": "sum", "snapshot": snapshot})
+        return cls(skill, dict(base.tensors), {"reduction": reduction, "snapshot": snapshot})
 
     def observations(self) -> dict[str, Tensor]:
         """The buffered observations, keyed as in the dataset."""

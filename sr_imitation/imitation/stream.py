@@ -164,7 +164,7 @@ def _config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:
 _RESUME_KEYS = ("method", "seed", "stream", "wake", "eval")
 _RESUME_POLICY_KEYS = ("sleep", "aggregator", "use_images", "chunk_size", "dim_model", "sleep_max_iterations",
                        "sleep_lr", "memory_buffer_size", "anchor_strength", "distill_weight_second",
-                       "distill_weight_later")
+                       "distill_weight_later", "distill_reduction")
 
 
 class StreamTrainer:
@@ -328,7 +328,8 @@ class StreamTrainer:
         buffer = sample_observation_buffer(data, self.policy_cfg.memory_buffer_size, self.buffer_keys,
                                            self._phase_seed(index, "memory"))
         snapshot = str(self._checkpoint_dir(index, "wake").relative_to(self.out))
-        memory = ActorMemory.from_observations(skill, self.policy.memory_chunk, buffer, snapshot=snapshot)
+        memory = ActorMemory.from_observations(skill, self.policy.memory_chunk, buffer, snapshot=snapshot,
+                                               reduction=self.policy_cfg.distill_reduction)
         memory.save(self._memory_path(index))
         self.memories.append(memory)
         return {"bytes": memory.nbytes(), "size": memory.size}

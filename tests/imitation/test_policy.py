@@ -118,6 +118,29 @@ def test_wake_distillation_adds_a_gradient_toward_the_snapshot():
     assert "distill_loss" not in plain
 
 
+def test_memory_reduction_mean_is_the_per_element_mean_of_the_squared_chunk_difference():
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    policy.set_observation_normalizer(lambda raw: {k: (v.float() / 255 if v.dtype == torch.uint8 else v)
+                                                   for k, v in raw.items()})
+    obs = {k: v for k, v in _batch(16, seed=3).items() if k.startswith("observation")}
+    mean = ActorMemory.from_observations("approach", policy.memory_chunk, obs)
+    total = ActorMemory.from_observations("approach", policy.memory_chunk, obs, reduction="sum")
+    assert mean.config["reduction"] == "mean" and total.config["reduction"] == "sum"
+    with torch.no_grad():
+        for p in policy.model.action_head.parameters():
+            p.add_(0.1)
+    batch = {k: v[:8] for k, v in mean.tensors.items()}
+    chunk = policy.memory_chunk({k.removeprefix("input."): v for k, v in batch.items() if k.startswith("input.")})
+    expected = (chunk - batch["target"]).pow(2).mean()
+    assert mean.loss(policy.memory_chunk, batch).item() == pytest.approx(expected.item(), rel=1e-5)
+    elements = chunk.shape[1] * chunk.shape[2]
+    assert total.loss(policy.memory_chunk, batch).item() == pytest.approx(elements * expected.item(), rel=1e-5)
+    with pytest.raises(ValueError, match="reduction"):
+        ActorMemory.from_observations("approach", policy.memory_chunk, obs, reduction="max")
+    with pytest.raises(ValueError, match="distill_reduction"):
+        ACTSRConfig(device="cpu", distill_reduction="max")
+
+
 def test_memories_need_a_normalizer_and_non_finite_losses_fail_loudly():
     policy = ACTSRPolicy(_features(tiny_policy()))
     with pytest.raises(RuntimeError, match="normalizer"):

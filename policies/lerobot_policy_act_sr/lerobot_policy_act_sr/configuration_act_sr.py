@@ -28,6 +28,9 @@ class ACTSRConfig(ACTConfig):
         distill_weight_second: gamma_2, wake distillation weight when learning the second skill.
         distill_weight_later: gamma_k for k >= 3.
         distill_batch_size: observations drawn from each earlier memory per wake step.
+        distill_reduction: how a memory reduces the squared chunk difference over the chunk's elements: ``mean``
+            (the "mean squared difference", on the per-element scale of ACT's l1 loss; default) or ``sum`` (the
+            literal squared norm of the paper's equation, 112x larger for 16-step chunks of 7-d actions).
         memory_buffer_size: |B_k|, observations stored per skill memory.
         sleep_lr, sleep_max_iterations, sleep_batch_size: eta_sleep, N_sleep and the sleep batch per memory.
         sleep_early_stop_tol, sleep_early_stop_window: delta and the window of the plateau rule.
@@ -58,6 +61,7 @@ class ACTSRConfig(ACTConfig):
     distill_weight_second: float = 1.0
     distill_weight_later: float = 0.5
     distill_batch_size: int = 8
+    distill_reduction: str = "mean"
     memory_buffer_size: int = 1024
     sleep_lr: float = 1e-5
     sleep_max_iterations: int = 1000
@@ -96,6 +100,8 @@ class ACTSRConfig(ACTConfig):
             bad.append(f"anchor_tau={self.anchor_tau}")
         if bad:
             raise ValueError(f"invalid ACT-SR settings: {', '.join(bad)}")
+        if self.distill_reduction not in ("mean", "sum"):
+            raise ValueError(f"distill_reduction must be 'mean' or 'sum', got {self.distill_reduction!r}")
         if self.aggregator not in AGGREGATORS:
             raise ValueError(f"aggregator must be one of {sorted(AGGREGATORS)}, got {self.aggregator!r}")
 
