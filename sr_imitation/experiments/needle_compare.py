@@ -5,8 +5,9 @@
 
 Every (variant, seed) is an ordinary ``sr-train`` run in ``<output_root>/<variant>_seed<seed>`` on the same
 recorded datasets (recorded once, as by ``sr-main``); an interrupted comparison resumes each run where it stopped.
-The summary (``summary.json``, ``summary.md``) reports the final AFSR, PRS, BWT and SPI as mean +- standard error
-over training seeds (each seed's value is itself the mean over its evaluation seeds).
+The summary (``summary.json``, ``summary.md``, ``summary.png``) reports the final AFSR, PRS, BWT and SPI, the final
+success per skill and the success right after each skill's own wake as mean +- standard error over training seeds
+(each seed's value is itself the mean over its evaluation seeds).
 """
 
 from __future__ import annotations
@@ -14,12 +15,15 @@ from __future__ import annotations
 import copy
 import json
 import logging
+import math
 import os
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import draccus
+import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, atomic_write_json
 from sr_imitation.core.metrics import mean_sem
@@ -58,8 +62,7 @@ def run_compare(cfg: CompareConfig) -> dict:
     missing = [s for s in rec.skills if not rec.target(s).exists()]
     if missing:
         record(RecordConfig(**{**vars(rec), "skills": missing}))
-    finals: dict[str, dict[str, list[float]]] = {v: {m: [] for m in METRICS} for v in cfg.variants}
-    runs = {}
+    runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
     for variant in cfg.variants:
         for seed in cfg.seeds:
             train = copy.deepcopy(base.train)
@@ -69,29 +72,96 @@ def run_compare(cfg: CompareConfig) -> dict:
             train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
             train.resume = (train.output_dir / "progress.json").exists()
             logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
-            results = train_stream(train)
-            runs[f"{variant}_seed{seed}"] = str(train.output_dir / "results.json")
-            for m in METRICS:
-                finals[variant][m].append(results["metrics"][m]["final_mean"])
-    summary = {v: {m: dict(zip(("mean", "sem"), mean_sem([x for x in vals if x is not None]), strict=True))
-                   | {"per_seed": vals} for m, vals in per.items()} for v, per in finals.items()}
-    out = {"seeds": cfg.seeds, "runs": runs, "summary": summary}
-    atomic_write_json(cfg.output_root / "summary.json", out)
-    lines = [f"Final metrics after the full stream, mean +- SE over training seeds {cfg.seeds}:", "",
-             "| variant | AFSR | PRS | BWT | SPI |", "|---|---|---|---|---|"]
-    for v in cfg.variants:
-        cells = [f"{summary[v][m]['mean']:.3f} +- {summary[v][m]['sem']:.3f}" for m in METRICS]
-        lines.append(f"| {v} | " + " | ".join(cells) + " |")
-    atomic_write_bytes(cfg.output_root / "summary.md", ("\n".join(lines) + "\n").encode())
-    return out
+            train_stream(train)
+            runs[variant][str(seed)] = train.output_dir / "results.json"
+    return summarize(runs, cfg.output_root)
+
+
+def _mean_sem_dict(values: list[float | None]) -> dict[str, Any]:
+    present = [float(x) for x in values if x is not None and math.isfinite(x)]
+    mean, sem = mean_sem(present) if present else (float("nan"), float("nan"))
+    return {"mean": mean, "sem": sem, "per_seed": values}
+
+
+def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
+    """Mean +- SE over training seeds of the final metrics, the final success per skill and the success right
+    after each skill's own wake; writes ``summary.json``, ``summary.md`` and ``summary.png``."""
+    summary: dict[str, Any] = {}
+    skills: list[str] = []
+    for variant, per_seed in runs.items():
+        results = {seed: json.loads(Path(path).read_text()) for seed, path in per_seed.items()}
+        skills = next(iter(results.values()))["skills"]
+        finals = {m: [r["metrics"][m]["final_mean"] for r in results.values()] for m in METRICS}
+        final_success = np.array([r["success_matrix"][-1] for r in results.values()], dtype=float)
+        after_wake = np.array([np.diag(np.array(r["success_matrix_after_wake"], dtype=float))
+                               for r in results.values()])
+        summary[variant] = {
+            "seeds": list(per_seed),
+            "runs": {seed: str(path) for seed, path in per_seed.items()},
+            **{m: _mean_sem_dict(finals[m]) for m in METRICS},
+            "final_success": {s: _mean_sem_dict(final_success[:, i].tolist()) for i, s in enumerate(skills)},
+            "success_after_own_wake": {s: _mean_sem_dict(after_wake[:, i].tolist())
+                                       for i, s in enumerate(skills)},
+        }
+    atomic_write_json(output_root / "summary.json", {"skills": skills, "summary": summary})
+    fmt = lambda d: f"{d['mean']:.3f} +- {d['sem']:.3f}"  # noqa: E731
+    lines = ["Final metrics after the full stream, mean +- SE over training seeds:", "",
+             "| variant | seeds | AFSR | PRS | BWT | SPI |", "|---|---|---|---|---|---|"]
+    for v, row in summary.items():
+        lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(fmt(row[m]) for m in METRICS) + " |")
+    for key, title in (("final_success", "Final success per skill (after the last stage)"),
+                       ("success_after_own_wake", "Success right after each skill's own wake phase")):
+        lines += ["", f"{title}, mean +- SE over training seeds:", "",
+                  "| variant | " + " | ".join(skills) + " |", "|---" * (len(skills) + 1) + "|"]
+        for v, row in summary.items():
+            lines.append(f"| {v} | " + " | ".join(fmt(row[key][s]) for s in skills) + " |")
+    atomic_write_bytes(output_root / "summary.md", ("\n".join(lines) + "\n").encode())
+    _plot(summary, skills, output_root / "summary.png")
+    return summary
+
+
+def _plot(summary: dict[str, Any], skills: list[str], path: Path) -> None:
+    """Bars: mean over training seeds with +- SE; dots: the individual seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    variants = list(summary)
+    panels = [(m.upper(), [summary[v][m] for v in variants]) for m in METRICS]
+    fig, axes = plt.subplots(1, len(panels) + 1, figsize=(4 * (len(panels) + 1), 3.6))
+    x = np.arange(len(variants))
+    for ax, (title, cells) in zip(axes, panels, strict=False):
+        ax.bar(x, [c["mean"] for c in cells], yerr=[c["sem"] for c in cells], capsize=4, color="#8fb3d9")
+        for i, c in enumerate(cells):
+            ys = [y for y in c["per_seed"] if y is not None]
+            ax.scatter([i] * len(ys), ys, color="k", s=10, zorder=3)
+        ax.set_xticks(x, variants, rotation=20)
+        ax.set_title(title)
+        ax.axhline(0.0, color="grey", lw=0.5)
+    ax = axes[-1]
+    width = 0.8 / max(len(variants), 1)
+    for j, v in enumerate(variants):
+        cells = [summary[v]["final_success"][s] for s in skills]
+        ax.bar(np.arange(len(skills)) + j * width, [c["mean"] for c in cells], width,
+               yerr=[c["sem"] for c in cells], capsize=2, label=v)
+    ax.set_xticks(np.arange(len(skills)) + 0.4 - width / 2, skills, rotation=20)
+    ax.set_ylim(0, 1.05)
+    ax.set_title("final success per skill")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    tmp = path.with_suffix(".tmp.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
 
 
 def main(args: list[str] | None = None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = draccus.parse(CompareConfig, args=list(sys.argv[1:] if args is None else args))
-    result = run_compare(cfg)
-    print(json.dumps(result["summary"], indent=2))  # noqa: T201
+    summary = run_compare(cfg)
+    print(json.dumps({v: {m: row[m]["mean"] for m in METRICS} for v, row in summary.items()}, indent=2))  # noqa: T201
     print(f"written {cfg.output_root / 'summary.md'}")  # noqa: T201
 
 

@@ -371,11 +371,16 @@ class StreamTrainer:
         return {"seconds": time.perf_counter() - t0, **result.summary()}
 
     # -- driver ----------------------------------------------------------------------------------------
-    def run(self) -> dict[str, Any]:
+    def run(self, stop_after: int | None = None) -> dict[str, Any]:
+        """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
+        instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``)."""
+        last = len(self.skills) if stop_after is None else stop_after
+        if not 1 <= last <= len(self.skills):
+            raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
         self._prepare_output_dir()
         self._setup_policy()
         pending_load: Path | None = None
-        for index in range(len(self.skills)):
+        for index in range(last):
             number = index + 1
             phases: list[tuple[str, Callable[[int], dict[str, Any]]]] = [("wake", self._wake)]
             if self.method.stores_memories:
@@ -398,6 +403,8 @@ class StreamTrainer:
                 logger.info("stage %d (%s): %s", number, self.skills[index], phase)
                 record = run_phase(index)
                 self._mark(index, phase, record)
+        if last < len(self.skills):
+            return dict(self.progress)
         return write_report(self.out, self.skills, self.cfg.stream.pairs, self.progress, _config_dict(self.cfg),
                             [self._stage_final_checkpoint(i) for i in range(len(self.skills))],
                             [self._checkpoint_dir(i, "wake") for i in range(len(self.skills))],

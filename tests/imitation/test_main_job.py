@@ -108,11 +108,38 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
     from sr_imitation.experiments.needle_compare import CompareConfig, run_compare
 
     tmp, config_path = main_job_run
-    out = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr", "sequential_bc"],
-                                    output_root=tmp_path))
-    assert set(out["summary"]) == {"sr", "sequential_bc"}
-    assert (tmp_path / "summary.md").read_text().count("\n| ") == 3  # header + two variants
+    summary = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr", "sequential_bc"],
+                                        output_root=tmp_path))
+    assert set(summary) == {"sr", "sequential_bc"}
+    # three tables (metrics, final success, success after own wake), each a header + two variants
+    assert (tmp_path / "summary.md").read_text().count("\n| ") == 9
+    assert (tmp_path / "summary.png").stat().st_size > 0
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    sr_final = json.loads((tmp_path / "sr_seed0" / "results.json").read_text())["metrics"]["afsr"]["final_mean"]
+    assert saved["summary"]["sr"]["afsr"]["per_seed"] == [sr_final]
+    assert set(saved["summary"]["sr"]["final_success"]) == set(saved["skills"])
     bc = json.loads((tmp_path / "sequential_bc_seed0" / "results.json").read_text())
     assert bc["sleep"] == {} and bc["memory_bytes"] == {}  # no sleep, no memories for sequential BC
     sr = json.loads((tmp_path / "sr_seed0" / "results.json").read_text())
     assert "2.sleep" in sr["sleep"]
+
+
+def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_job_run, tmp_path):
+    from sr_imitation.experiments.sleep_replay import SleepOverrides, SleepReplayConfig, replay
+
+    tmp, _ = main_job_run
+    run = tmp / "run"
+    same = replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "same", progress=False))
+    # Same settings, same phase seeds: the replayed sleep is the original one, loss for loss.
+    assert same["replay"] == same["original"]
+    assert same["replay"]["final_memory_losses"] is not None
+    off = replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "off", progress=False,
+                                   set=SleepOverrides(anchor_strength=0.0)))
+    assert off["original"]["anchor_lambda"] > 0 and off["replay"]["anchor_lambda"] == 0.0
+    assert json.loads((tmp_path / "off" / "train_config.json").read_text())["policy"]["anchor_strength"] == 0.0
+    # The source run is untouched, and an existing replay is not overwritten without the flag.
+    assert "2.sleep" in json.loads((run / "progress.json").read_text())["completed"]
+    with pytest.raises(FileExistsError, match="--overwrite"):
+        replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "off", progress=False))
+    with pytest.raises(ValueError, match="stage 1 has no sleep"):
+        replay(SleepReplayConfig(run=run, stage=1, output_dir=tmp_path / "bad", progress=False))

@@ -1,0 +1,133 @@
+"""Re-run one sleep phase of a finished stream with other sleep settings (sleep ablations without new wakes).
+
+    python -m sr_imitation.experiments.sleep_replay --run=outputs/needle_compare/sr_seed0 --stage=3 \\
+        --output_dir=outputs/replay/noanchor_s0_k3 --set.anchor_strength=0
+
+The replay copies what stage k's sleep starts from (the stream statistics, memories M_1..M_k, the checkpoints of
+stages < k and stage k's wake checkpoint, and their ``progress.json`` entries) into ``output_dir``, applies the
+``--set.*`` overrides to the policy's sleep settings, and resumes the stream there: stage k's sleep and its
+evaluation run exactly as in the original run except for the overrides (same phase seeds). ``replay.json``
+puts the original and the replayed sleep side by side: memory losses at the first and last sleep iteration,
+stop reason, and success after sleep per skill.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import shutil
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+
+from sr_imitation.core.io import CorruptFileError, atomic_write_json
+from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stage_name
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass
+class SleepOverrides:
+    """Policy sleep settings to change (``None``: keep the original run's value)."""
+
+    sleep_lr: float | None = None
+    sleep_max_iterations: int | None = None
+    sleep_batch_size: int | None = None
+    anchor_strength: float | None = None
+    aggregator: str | None = None
+    sleep_fw_iterations: int | None = None
+
+    def as_dict(self) -> dict[str, Any]:
+        return {k: v for k, v in vars(self).items() if v is not None}
+
+
+@dataclass
+class SleepReplayConfig:
+    run: Path = Path("outputs/needle_cpu")
+    stage: int = 2
+    output_dir: Path = Path("outputs/sleep_replay")
+    set: SleepOverrides = field(default_factory=SleepOverrides)
+    overwrite: bool = False
+    progress: bool = True
+
+
+def _read_json(path: Path) -> dict[str, Any]:
+    try:
+        return json.loads(path.read_text())
+    except FileNotFoundError as exc:
+        raise FileNotFoundError(f"{path}: not found (is {path.parent} an sr-train output directory?)") from exc
+    except json.JSONDecodeError as exc:
+        raise CorruptFileError(path, f"invalid JSON: {exc}") from exc
+
+
+def prepare_replay(cfg: SleepReplayConfig) -> TrainStreamConfig:
+    """Copy the state before stage ``cfg.stage``'s sleep into ``cfg.output_dir``; return the replay's config."""
+    src, out, k = Path(cfg.run), Path(cfg.output_dir), cfg.stage
+    saved = _read_json(src / "train_config.json")
+    progress = _read_json(src / "progress.json")
+    skills = saved["stream"]["skills"]
+    if not 2 <= k <= len(skills):
+        raise ValueError(f"--stage must be in 2..{len(skills)} (stage 1 has no sleep), got {k}")
+    needed = [f"{k}.wake", f"{k}.memory"]
+    missing = [key for key in needed if key not in progress["completed"]]
+    if missing:
+        raise ValueError(f"{src / 'progress.json'}: stage {k} has not finished {missing}; nothing to replay")
+    if out.exists() and any(out.iterdir()):
+        if not cfg.overwrite:
+            raise FileExistsError(f"{out} already exists; pass --overwrite=true to replace it")
+        shutil.rmtree(out)
+    out.mkdir(parents=True, exist_ok=True)
+    shutil.copy2(src / "stream_stats.safetensors", out / "stream_stats.safetensors")
+    (out / "memories").mkdir()
+    for i in range(k):
+        name = stage_name(i, skills[i])
+        shutil.copy2(src / "memories" / f"{name}.safetensors", out / "memories" / f"{name}.safetensors")
+        phases = ["wake"] if i == k - 1 else [p for p in ("wake", "sleep") if (src / name / p).is_dir()]
+        for phase in phases:
+            shutil.copytree(src / name / phase, out / name / phase)
+    keep = {key: rec for key, rec in progress["completed"].items()
+            if int(key.split(".")[0]) < k or key in (f"{k}.wake", f"{k}.memory", f"{k}.wake.eval")}
+    atomic_write_json(out / "progress.json", {**progress, "completed": keep})
+    saved["policy"].update(cfg.set.as_dict())
+    saved["output_dir"] = str(out)
+    atomic_write_json(out / "train_config.json", saved)
+    train = draccus.parse(TrainStreamConfig, config_path=str(out / "train_config.json"), args=[])
+    train.resume, train.progress = True, cfg.progress
+    return train
+
+
+def replay(cfg: SleepReplayConfig) -> dict[str, Any]:
+    """Run the replay and write ``replay.json`` (original vs replayed sleep of stage ``cfg.stage``)."""
+    train = prepare_replay(cfg)
+    StreamTrainer(train).run(stop_after=cfg.stage)
+    progress = _read_json(Path(cfg.output_dir) / "progress.json")
+    original = _read_json(Path(cfg.run) / "progress.json")["completed"]
+    key = f"{cfg.stage}"
+
+    def view(done: dict[str, Any]) -> dict[str, Any]:
+        sleep, ev = done.get(f"{key}.sleep", {}), done.get(f"{key}.sleep.eval", {})
+        return {name: sleep.get(name) for name in ("stop_iteration", "stop_reason", "anchor_lambda",
+                                                      "initial_memory_losses", "final_memory_losses")} | {
+            "success_after_wake": done.get(f"{key}.wake.eval", {}).get("success"),
+            "success_after_sleep": ev.get("success"),
+        }
+
+    result = {"run": str(cfg.run), "stage": cfg.stage, "overrides": cfg.set.as_dict(),
+              "original": view(original), "replay": view(progress["completed"])}
+    atomic_write_json(Path(cfg.output_dir) / "replay.json", result)
+    return result
+
+
+def main(args: list[str] | None = None) -> None:
+    os.environ.setdefault("MUJOCO_GL", "egl")
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    cfg = draccus.parse(SleepReplayConfig, args=list(sys.argv[1:] if args is None else args))
+    print(json.dumps(replay(cfg), indent=2))  # noqa: T201
+
+
+if __name__ == "__main__":
+    main()
