@@ -15,6 +15,7 @@ from pathlib import Path
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.envs import STREAMS
+from sr_imitation.rl.video import CAMERAS, DEFAULT_CAMERA, check_video_size
 
 
 @dataclass
@@ -172,12 +173,28 @@ class EvalConfig:
     """Evaluate the Gaussian mean (tanh) action."""
     after_wake: bool = False
     """Also evaluate the current skill right after wake (diagnostic, costs time)."""
+    videos_per_skill: int = 1
+    """After every stage, record the first N evaluation episodes of each learned skill as mp4 (0: no videos)."""
+    video_height: int = 240
+    video_width: int = 320
+    """Frame size in pixels (multiples of 16)."""
+    video_camera: str = DEFAULT_CAMERA
+    """Meta-World camera of the videos."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
             raise ValueError(f"eval.episodes must be >= 1, got {self.episodes}")
         if self.success_mode not in ("any_step", "final_step"):
             raise ValueError(f"eval.success_mode must be any_step or final_step, got {self.success_mode!r}")
+        if not isinstance(self.videos_per_skill, int) or self.videos_per_skill < 0:
+            raise ValueError(f"eval.videos_per_skill must be an integer >= 0 (0 disables videos), "
+                             f"got {self.videos_per_skill!r}")
+        try:
+            check_video_size(self.video_height, self.video_width)
+        except ValueError as exc:
+            raise ValueError(f"eval.{exc}") from None
+        if self.video_camera not in CAMERAS:
+            raise ValueError(f"eval.video_camera must be one of {CAMERAS}, got {self.video_camera!r}")
 
 
 @dataclass
@@ -230,7 +247,13 @@ class RLTrainConfig:
         d = asdict(self)
         for key in ("resume", "overwrite", "progress", "plots", "output_dir", "device", "torch_threads"):
             d.pop(key, None)
+        for key in VIDEO_KEYS:  # videos never change results; runs started before they existed stay resumable
+            d["eval"].pop(key, None)
         return _jsonable(d)
+
+
+VIDEO_KEYS = ("videos_per_skill", "video_height", "video_width", "video_camera")
+"""EvalConfig fields left out of the resume fingerprint."""
 
 
 def _jsonable(obj):

@@ -122,6 +122,21 @@ class SkillEnv:
             success=bool(info.get("success", 0.0)),
         )
 
+    @property
+    def mj_model(self) -> Any:
+        """The underlying ``mujoco.MjModel`` (for offscreen rendering, :mod:`sr_imitation.rl.video`)."""
+        return self._env.model
+
+    @property
+    def mj_data(self) -> Any:
+        """The underlying ``mujoco.MjData`` (read-only use: writing to it changes the rollout)."""
+        return self._env.data
+
+    @property
+    def fps(self) -> float:
+        """Control steps per simulated second (Meta-World's ``render_fps``: 80), the real-time video rate."""
+        return float(self._env.metadata.get("render_fps", 80))
+
     def close(self) -> None:
         self._env.close()
 

@@ -8,6 +8,11 @@ success on every MT5 skill and the random policy stays near 0 (``tests/rl/test_e
 Success: ``any_step`` (the episode succeeds if Meta-World reports success at any step, the Continual World /
 Meta-World convention) or ``final_step`` (success at the last step). With ``any_step`` an episode may stop at the
 first success (``stop_on_success``) without changing the success rate.
+
+Videos: with a :class:`~sr_imitation.rl.video.VideoSpec` the first ``spec.episodes`` episodes are also rendered
+offscreen (the frame after reset, then one per step) into ``<skill>_episode<i>_<success|failure>.mp4``. Rendering
+only reads the simulation state, so the outcome is identical with and without videos
+(``tests/rl/test_video.py``).
 """
 
 from __future__ import annotations
@@ -15,10 +20,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from sr_imitation.core.metrics import canonical_skill
 from sr_imitation.rl.envs import ACT_DIM, SkillEnv
+from sr_imitation.rl.video import SkillRenderer, VideoSpec, VideoWriter
 
 logger = logging.getLogger(__name__)
 
@@ -37,6 +45,8 @@ class EvalResult:
     returns: list[float]
     lengths: list[int]
     trajectories: list[np.ndarray] = field(default_factory=list, repr=False)
+    videos: list[Path] = field(default_factory=list)
+    """mp4 files of the recorded episodes (episode order)."""
 
     @property
     def success_rate(self) -> float:
@@ -61,6 +71,7 @@ def evaluate_policy(
     stop_on_success: bool = True,
     record_trajectories: bool = False,
     configurations: Sequence[int] | None = None,
+    video: VideoSpec | None = None,
 ) -> EvalResult:
     """Roll out ``act`` for ``episodes`` episodes on ``env`` (configurations drawn from ``seed``).
 
@@ -74,6 +85,7 @@ def evaluate_policy(
         record_trajectories: keep each episode's observations (T x 39) for SPI.
         configurations: evaluate exactly these configuration indices, one episode each, instead of sampling
             (``range(50)`` gives the population success rate of the uniform protocol).
+        video: record the first ``video.episodes`` episodes as mp4 into ``video.directory`` (None: no videos).
     """
     if configurations is not None:
         episodes = len(configurations)
@@ -84,28 +96,63 @@ def evaluate_policy(
     stop_early = stop_on_success and success_mode == "any_step"
     env.seed(seed)
     result = EvalResult(env.skill, [], [], [])
-    for episode in range(episodes):
-        obs = env.reset(None if configurations is None else int(configurations[episode]))
-        observations = [obs]
-        total, any_success, step = 0.0, False, None
-        _t = 0
-        for _t in range(env.max_episode_steps):  # noqa: B007 (_t is the episode length below)
-            step = env.step(act(obs))
-            obs = step.obs
-            total += step.reward
-            any_success |= step.success
+    n_videos = min(video.episodes, episodes) if video is not None else 0
+    renderer = SkillRenderer(env, video.height, video.width, video.camera) if video is not None and n_videos else None
+    try:
+        for episode in range(episodes):
+            configuration = None if configurations is None else int(configurations[episode])
+            if renderer is None or episode >= n_videos:
+                success, total, length, observations = _rollout(
+                    act, env, configuration, success_mode, stop_early, record_trajectories)
+            else:
+                assert video is not None
+                with VideoWriter(video.directory, f"{canonical_skill(env.skill)}_episode{episode}", env.fps) as w:
+                    success, total, length, observations = _rollout(
+                        act, env, configuration, success_mode, stop_early, record_trajectories,
+                        on_frame=lambda w=w: w.append(renderer.frame()))
+                    result.videos.append(w.finish("success" if success else "failure"))
+            result.successes.append(success)
+            result.returns.append(total)
+            result.lengths.append(length)
             if record_trajectories:
-                observations.append(obs)
-            if (stop_early and any_success) or step.terminated or step.truncated:
-                break
-        success = any_success if success_mode == "any_step" else bool(step is not None and step.success)
-        result.successes.append(bool(success))
-        result.returns.append(total)
-        result.lengths.append(_t + 1)
-        if record_trajectories:
-            result.trajectories.append(np.stack(observations).astype(np.float32))
-    logger.info("eval %s: success %.3f over %d episodes", env.skill, result.success_rate, episodes)
+                result.trajectories.append(np.stack(observations).astype(np.float32))
+    finally:
+        if renderer is not None:
+            renderer.close()
+    logger.info("eval %s: success %.3f over %d episodes%s", env.skill, result.success_rate, episodes,
+                f", {len(result.videos)} video(s) in {video.directory}" if video is not None and n_videos else "")
     return result
+
+
+def _rollout(
+    act: ActFn,
+    env: SkillEnv,
+    configuration: int | None,
+    success_mode: str,
+    stop_early: bool,
+    keep_observations: bool,
+    on_frame: Callable[[], None] | None = None,
+) -> tuple[bool, float, int, list[np.ndarray]]:
+    """One episode: (success, return, length, observations); ``on_frame`` runs after reset and after every step."""
+    obs = env.reset(configuration)
+    if on_frame is not None:
+        on_frame()
+    observations = [obs]
+    total, any_success, step = 0.0, False, None
+    _t = 0
+    for _t in range(env.max_episode_steps):  # noqa: B007 (_t is the episode length below)
+        step = env.step(act(obs))
+        obs = step.obs
+        total += step.reward
+        any_success |= step.success
+        if keep_observations:
+            observations.append(obs)
+        if on_frame is not None:
+            on_frame()
+        if (stop_early and any_success) or step.terminated or step.truncated:
+            break
+    success = any_success if success_mode == "any_step" else bool(step is not None and step.success)
+    return bool(success), total, _t + 1, observations
 
 
 def scripted_policy(skill: str) -> ActFn:

@@ -10,6 +10,8 @@ Output layout (every file written atomically; ``stage.json`` is written last and
 
     <output_dir>/config.json
     <output_dir>/stages/01_reach/{agent.safetensors, memory.safetensors, trajectories.safetensors, stage.json}
+    <output_dir>/videos/stage_01_reach/reach_episode0_success.mp4   (eval.videos_per_skill per learned skill)
+    <output_dir>/videos/stage_02_door-open/{reach,door-open}_episode0_<success|failure>.mp4
     ...
     <output_dir>/results.json, report.md, plots/*.png
 
@@ -46,6 +48,7 @@ from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.evaluate import evaluate_policy
 from sr_imitation.rl.sac import SACAgent
+from sr_imitation.rl.video import VideoSpec, rendering_unavailable
 from sr_imitation.rl.wake import train_skill
 
 logger = logging.getLogger(__name__)
@@ -82,6 +85,7 @@ class StreamTrainer:
         self.out = Path(cfg.output_dir)
         self.after_stage = after_stage
         self._eval_envs: dict[str, SkillEnv] = {}
+        self._videos = cfg.eval.videos_per_skill > 0
 
     # -- output directory ----------------------------------------------------------------------------------
     def _prepare_output_dir(self) -> int:
@@ -160,6 +164,10 @@ class StreamTrainer:
         record = json.loads((d / "stage.json").read_text())
         return memory, snapshot, record
 
+    def video_dir(self, k: int) -> Path:
+        """Videos of the evaluation after stage ``k`` (every learned skill), named like the stage directory."""
+        return self.out / "videos" / f"stage_{k + 1:02d}_{canonical_skill(self.skills[k])}"
+
     def _load_trajectories(self, k: int) -> dict[str, np.ndarray]:
         tensors, _ = load_checked_safetensors(self.stage_dir(k) / "trajectories.safetensors")
         return {n.removeprefix("traj."): t.numpy() for n, t in tensors.items()}
@@ -198,10 +206,17 @@ class StreamTrainer:
             if result.sleep_objective else None,
         }
 
-    def _evaluate(self, k: int, agent: SACAgent, only_current: bool = False
+    def _evaluate(self, k: int, agent: SACAgent, only_current: bool = False, videos: bool = False
                   ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+        """Evaluate every skill learned so far; with ``videos`` each row also lists its mp4 files (relative to
+        the output directory)."""
         cfg = self.cfg
         rows, trajectories = [], {}
+        spec = None
+        if videos and self._videos:
+            spec = VideoSpec(self.video_dir(k), cfg.eval.videos_per_skill, cfg.eval.video_height,
+                             cfg.eval.video_width, cfg.eval.video_camera)
+            shutil.rmtree(spec.directory, ignore_errors=True)  # leftovers of a killed attempt at this stage
         for i, skill in enumerate(self.skills[: k + 1]):
             if only_current and i < k:
                 continue
@@ -211,9 +226,11 @@ class StreamTrainer:
             res = evaluate_policy(
                 lambda obs: agent.act(obs, deterministic=cfg.eval.deterministic), env, cfg.eval.episodes,
                 seed=stage_seed(cfg.seed, k, 100 + i) % (2**31), success_mode=cfg.eval.success_mode,
-                stop_on_success=cfg.eval.stop_on_success, record_trajectories=True,
+                stop_on_success=cfg.eval.stop_on_success, record_trajectories=True, video=spec,
             )
             rows.append(res.summary())
+            if spec is not None:
+                rows[-1]["videos"] = [p.relative_to(self.out).as_posix() for p in res.videos]
             trajectories[skill] = np.concatenate(res.trajectories)
         return rows, trajectories
 
@@ -234,6 +251,10 @@ class StreamTrainer:
             records.append(record)
         if start_stage:
             logger.info("resuming %s after %d completed stage(s)", self.out, start_stage)
+        if self._videos and start_stage < len(self.skills) and (reason := rendering_unavailable()) is not None:
+            logger.warning("no evaluation videos: offscreen rendering is unavailable (%s); set MUJOCO_GL=egl "
+                           "or eval.videos_per_skill=0", reason)
+            self._videos = False
 
         for k in range(start_stage, len(self.skills)):
             skill = self.skills[k]
@@ -253,7 +274,7 @@ class StreamTrainer:
                 record["eval_after_wake"] = self._evaluate(k, agent, only_current=True)[0][-1]
             if k >= 1 and cfg.sleep_enabled:
                 record["sleep"] = self._sleep(k, agent, memories, anchor, wake_snapshots)
-            record["eval"], trajectories = self._evaluate(k, agent)
+            record["eval"], trajectories = self._evaluate(k, agent, videos=True)
             record["seconds"] = time.perf_counter() - t0
             self._save_stage(k, agent, memory, wake_snapshots[-1], trajectories, record)
             records.append(record)

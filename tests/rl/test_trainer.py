@@ -24,7 +24,7 @@ def tiny_config(out: Path, **overrides) -> RLTrainConfig:
         "wake": WakeConfig(budget_scale=0.002),
         "sleep": SleepConfig.mt5(max_iterations=12, early_stop_window=5, fw_iterations=5, batch_size=16),
         "memory": CriticMemoryConfig(buffer_size=32, validation_chunk=5, validation_max_rounds=1),
-        "eval": EvalConfig(episodes=2), "progress": False, "plots": False,
+        "eval": EvalConfig(episodes=2, video_height=64, video_width=64), "progress": False, "plots": False,
     }
     base.update(overrides)
     return RLTrainConfig(**base)
@@ -44,6 +44,10 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     assert (tmp_path / "full" / "plots" / "success_matrix.png").is_file()
     assert (tmp_path / "full" / "report.md").is_file()
     assert "| full | sleeping_robots | 3 |" in summarize([tmp_path / "full"])
+    videos = [[row["videos"] for row in stage["eval"]] for stage in full["stages"]]  # one per learned skill
+    assert [[len(v) for v in stage] for stage in videos] == [[1], [1, 1]]
+    assert videos[1][0][0].startswith("videos/stage_02_door-open/reach_episode0_")
+    assert all((tmp_path / "full" / v[0]).stat().st_size > 1000 for stage in videos for v in stage)
 
     def kill_after_first(stage):
         if stage == 0:
