@@ -3,7 +3,9 @@
     python -m sr_imitation.experiments.needle_compare --preset=configs/needle_cpu.json \\
         --seeds=[0,1,2] --variants=[sr,wake_only,sequential_bc] --output_root=outputs/needle_compare
 
-Every (variant, seed) is an ordinary ``sr-train`` run in ``<output_root>/<variant>_seed<seed>`` on the same
+Variants: ``sr``, ``wake_only``, ``sequential_bc`` (the default three) and the sleep ablations ``sr_no_anchor``
+(anchor strength 0) and ``sr_mean_grad`` (mean of normalized gradients instead of Nash). Every (variant, seed) is an
+ordinary ``sr-train`` run in ``<output_root>/<variant>_seed<seed>`` on the same
 recorded datasets (recorded once, as by ``sr-main``); an interrupted comparison resumes each run where it stopped.
 The summary (``summary.json``, ``summary.md``, ``summary.png``) reports the final AFSR, PRS, BWT and SPI, the final
 success per skill and the success right after each skill's own wake as mean +- standard error over training seeds
@@ -33,10 +35,13 @@ from sr_imitation.record import RecordConfig, record
 
 logger = logging.getLogger(__name__)
 
-VARIANTS = {
-    "sr": {"method": "sr", "sleep": True},
-    "wake_only": {"method": "sr", "sleep": False},
-    "sequential_bc": {"method": "sequential_bc", "sleep": False},
+# variant -> (continual method, policy settings that differ from the preset)
+VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
+    "sr": ("sr", {"sleep": True}),
+    "wake_only": ("sr", {"sleep": False}),
+    "sequential_bc": ("sequential_bc", {"sleep": False}),
+    "sr_no_anchor": ("sr", {"sleep": True, "anchor_strength": 0.0}),
+    "sr_mean_grad": ("sr", {"sleep": True, "aggregator": "mean"}),
 }
 METRICS = ("afsr", "prs", "bwt", "spi")
 
@@ -47,7 +52,7 @@ class CompareConfig:
 
     preset: Path = Path("configs/needle_cpu.json")
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
-    variants: list[str] = field(default_factory=lambda: list(VARIANTS))
+    variants: list[str] = field(default_factory=lambda: ["sr", "wake_only", "sequential_bc"])
     output_root: Path = Path("outputs/needle_compare")
 
     def __post_init__(self) -> None:
@@ -66,8 +71,9 @@ def run_compare(cfg: CompareConfig) -> dict:
     for variant in cfg.variants:
         for seed in cfg.seeds:
             train = copy.deepcopy(base.train)
-            train.method = VARIANTS[variant]["method"]
-            train.policy.sleep = VARIANTS[variant]["sleep"]
+            train.method, policy_settings = VARIANTS[variant]
+            for name, value in policy_settings.items():
+                setattr(train.policy, name, value)
             train.seed = seed
             train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
             train.resume = (train.output_dir / "progress.json").exists()

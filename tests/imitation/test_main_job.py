@@ -108,20 +108,24 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
     from sr_imitation.experiments.needle_compare import CompareConfig, run_compare
 
     tmp, config_path = main_job_run
-    summary = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr", "sequential_bc"],
+    summary = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr_no_anchor", "sequential_bc"],
                                         output_root=tmp_path))
-    assert set(summary) == {"sr", "sequential_bc"}
+    assert set(summary) == {"sr_no_anchor", "sequential_bc"}
     # three tables (metrics, final success, success after own wake), each a header + two variants
     assert (tmp_path / "summary.md").read_text().count("\n| ") == 9
     assert (tmp_path / "summary.png").stat().st_size > 0
     saved = json.loads((tmp_path / "summary.json").read_text())
-    sr_final = json.loads((tmp_path / "sr_seed0" / "results.json").read_text())["metrics"]["afsr"]["final_mean"]
-    assert saved["summary"]["sr"]["afsr"]["per_seed"] == [sr_final]
-    assert set(saved["summary"]["sr"]["final_success"]) == set(saved["skills"])
+    run = tmp_path / "sr_no_anchor_seed0"
+    final = json.loads((run / "results.json").read_text())["metrics"]["afsr"]["final_mean"]
+    assert saved["summary"]["sr_no_anchor"]["afsr"]["per_seed"] == [final]
+    assert set(saved["summary"]["sr_no_anchor"]["final_success"]) == set(saved["skills"])
     bc = json.loads((tmp_path / "sequential_bc_seed0" / "results.json").read_text())
     assert bc["sleep"] == {} and bc["memory_bytes"] == {}  # no sleep, no memories for sequential BC
-    sr = json.loads((tmp_path / "sr_seed0" / "results.json").read_text())
-    assert "2.sleep" in sr["sleep"]
+    # The ablation's override reached the run: it slept, without the anchor.
+    assert json.loads((run / "train_config.json").read_text())["policy"]["anchor_strength"] == 0.0
+    assert json.loads((run / "progress.json").read_text())["completed"]["2.sleep"]["anchor_lambda"] == 0.0
+    with pytest.raises(ValueError, match="unknown variants"):
+        CompareConfig(variants=["sr_typo"])
 
 
 def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_job_run, tmp_path):
