@@ -53,6 +53,16 @@ def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     return atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
 
 
+def read_json(path: str | os.PathLike[str]) -> Any:
+    """Parse a JSON file; ``CorruptFileError`` naming the file if it is not valid JSON (a missing file raises
+    ``FileNotFoundError``)."""
+    path = Path(path)
+    try:
+        return json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        raise CorruptFileError(path, f"not valid JSON ({exc})") from exc
+
+
 def tensors_digest(tensors: Mapping[str, torch.Tensor]) -> str:
     """sha256 over names, dtypes, shapes and raw bytes of ``tensors`` in sorted name order."""
     h = hashlib.sha256()

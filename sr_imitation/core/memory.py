@@ -226,6 +226,14 @@ def load_memory(path: str | os.PathLike[str], skill: str | None = None) -> Memor
         raise CorruptFileError(path, f"invalid {kind} memory: {exc}") from exc
 
 
+REDUCTIONS = ("sum", "mean")
+
+
+def _check_reduction(reduction: str) -> None:
+    if reduction not in REDUCTIONS:
+        raise ValueError(f"reduction must be 'sum' or 'mean', got {reduction!r}")
+
+
 @register_memory
 class OutputDistillationMemory(Memory):
     """Frozen-snapshot distillation memory: L_i = E_{o ~ B_i} ||pi_theta(o) - pi_{theta_i}(o)||^2.
@@ -243,8 +251,7 @@ class OutputDistillationMemory(Memory):
 
     def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):
         config = {"reduction": "sum", **dict(config or {})}
-        if config["reduction"] not in ("sum", "mean"):
-            raise ValueError(f"reduction must be 'sum' or 'mean', got {config['reduction']!r}")
+        _check_reduction(config["reduction"])
         super().__init__(skill, tensors, config)
 
     @property
@@ -268,6 +275,7 @@ class OutputDistillationMemory(Memory):
         reduction: str = "sum",
     ) -> OutputDistillationMemory:
         """Evaluate the frozen ``snapshot`` once on ``inputs`` (in batches, no grad) and store the targets."""
+        _check_reduction(reduction)  # before the snapshot's forward passes, not after
         n = int(next(iter(inputs.values())).shape[0])
         outs = []
         with torch.no_grad():

@@ -24,7 +24,7 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.io import CorruptFileError, atomic_write_json
+from sr_imitation.core.io import atomic_write_json, read_json
 from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stage_name
 
 logger = logging.getLogger(__name__)
@@ -57,11 +57,9 @@ class SleepReplayConfig:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        return json.loads(path.read_text())
+        return read_json(path)
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{path}: not found (is {path.parent} an sr-train output directory?)") from exc
-    except json.JSONDecodeError as exc:
-        raise CorruptFileError(path, f"invalid JSON: {exc}") from exc
 
 
 def prepare_replay(cfg: SleepReplayConfig) -> TrainStreamConfig:

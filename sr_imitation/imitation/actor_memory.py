@@ -55,12 +55,10 @@ class ActorMemory(OutputDistillationMemory):
         ``chunk_fn`` maps a dict of raw buffered observations to the snapshot's normalized action chunks
         (B, chunk, action_dim); it is evaluated once, here. ``reduction``: ``"mean"`` or ``"sum"`` over the chunk.
         """
-        if reduction not in ("mean", "sum"):
-            raise ValueError(f"reduction must be 'mean' or 'sum', got {reduction!r}")
         obs = {k: images_to_uint8(v) if k.startswith("observation.images") else v.float()
                for k, v in observations.items()}
-        base = OutputDistillationMemory.from_snapshot(skill, chunk_fn, obs, batch_size=batch_size)
-        return cls(skill, dict(base.tensors), {"reduction": reduction, "snapshot": snapshot})
+        base = OutputDistillationMemory.from_snapshot(skill, chunk_fn, obs, batch_size=batch_size, reduction=reduction)
+        return cls(skill, dict(base.tensors), {**base.config, "snapshot": snapshot})
 
     def observations(self) -> dict[str, Tensor]:
         """The buffered observations, keyed as in the dataset."""

@@ -15,7 +15,7 @@ from pathlib import Path
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.envs import STREAMS
-from sr_imitation.rl.video import CAMERAS, DEFAULT_CAMERA, check_video_size
+from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
 
 
 @dataclass
@@ -186,15 +186,16 @@ class EvalConfig:
             raise ValueError(f"eval.episodes must be >= 1, got {self.episodes}")
         if self.success_mode not in ("any_step", "final_step"):
             raise ValueError(f"eval.success_mode must be any_step or final_step, got {self.success_mode!r}")
-        if not isinstance(self.videos_per_skill, int) or self.videos_per_skill < 0:
-            raise ValueError(f"eval.videos_per_skill must be an integer >= 0 (0 disables videos), "
-                             f"got {self.videos_per_skill!r}")
         try:
-            check_video_size(self.video_height, self.video_width)
+            check_video_settings(self.videos_per_skill, self.video_height, self.video_width, self.video_camera)
         except ValueError as exc:
             raise ValueError(f"eval.{exc}") from None
-        if self.video_camera not in CAMERAS:
-            raise ValueError(f"eval.video_camera must be one of {CAMERAS}, got {self.video_camera!r}")
+
+    def video_spec(self, directory: Path) -> VideoSpec | None:
+        """The evaluation videos to record into ``directory`` (``None`` when ``videos_per_skill`` is 0)."""
+        if not self.videos_per_skill:
+            return None
+        return VideoSpec(directory, self.videos_per_skill, self.video_height, self.video_width, self.video_camera)
 
 
 @dataclass

@@ -101,16 +101,15 @@ def evaluate_policy(
     try:
         for episode in range(episodes):
             configuration = None if configurations is None else int(configurations[episode])
-            if renderer is None or episode >= n_videos:
-                success, total, length, observations = _rollout(
-                    act, env, configuration, success_mode, stop_early, record_trajectories)
-            else:
-                assert video is not None
+            if video is not None and renderer is not None and episode < n_videos:
                 with VideoWriter(video.directory, f"{canonical_skill(env.skill)}_episode{episode}", env.fps) as w:
                     success, total, length, observations = _rollout(
                         act, env, configuration, success_mode, stop_early, record_trajectories,
                         on_frame=lambda w=w: w.append(renderer.frame()))
                     result.videos.append(w.finish("success" if success else "failure"))
+            else:
+                success, total, length, observations = _rollout(
+                    act, env, configuration, success_mode, stop_early, record_trajectories)
             result.successes.append(success)
             result.returns.append(total)
             result.lengths.append(length)

@@ -8,12 +8,11 @@ read from each run's ``results.json``; nothing is computed that the run did not 
 from __future__ import annotations
 
 import argparse
-import json
 from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.io import CorruptFileError
+from sr_imitation.core.io import read_json
 from sr_imitation.core.metrics import mean_sem
 
 METRICS = ("afsr", "prs", "bwt", "spi")
@@ -23,10 +22,7 @@ def load_results(run_dir: Path) -> dict[str, Any]:
     path = Path(run_dir) / "results.json"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no results (unfinished run?)")
-    try:
-        return json.loads(path.read_text())
-    except json.JSONDecodeError as exc:
-        raise CorruptFileError(path, f"not valid JSON ({exc})") from exc
+    return read_json(path)
 
 
 def _fmt(x: float | None) -> str:

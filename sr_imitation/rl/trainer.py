@@ -48,7 +48,7 @@ from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.evaluate import evaluate_policy
 from sr_imitation.rl.sac import SACAgent
-from sr_imitation.rl.video import VideoSpec, rendering_unavailable
+from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
 
 logger = logging.getLogger(__name__)
@@ -212,10 +212,8 @@ class StreamTrainer:
         the output directory)."""
         cfg = self.cfg
         rows, trajectories = [], {}
-        spec = None
-        if videos and self._videos:
-            spec = VideoSpec(self.video_dir(k), cfg.eval.videos_per_skill, cfg.eval.video_height,
-                             cfg.eval.video_width, cfg.eval.video_camera)
+        spec = cfg.eval.video_spec(self.video_dir(k)) if videos and self._videos else None
+        if spec is not None:
             shutil.rmtree(spec.directory, ignore_errors=True)  # leftovers of a killed attempt at this stage
         for i, skill in enumerate(self.skills[: k + 1]):
             if only_current and i < k:

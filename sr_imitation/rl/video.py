@@ -43,6 +43,15 @@ def check_video_size(height: int, width: int) -> None:
             raise ValueError(f"{name} must be a multiple of {MACRO_BLOCK} in [{MIN_SIZE}, {MAX_SIZE}], got {value!r}")
 
 
+def check_video_settings(episodes: int, height: int, width: int, camera: str) -> None:
+    """Raise ``ValueError`` naming the setting (``videos_per_skill``, ``video_height``, ...) that is invalid."""
+    if not isinstance(episodes, int) or episodes < 0:
+        raise ValueError(f"videos_per_skill must be an integer >= 0 (0 disables videos), got {episodes!r}")
+    check_video_size(height, width)
+    if camera not in CAMERAS:
+        raise ValueError(f"video_camera must be one of {CAMERAS}, got {camera!r}")
+
+
 @dataclass(frozen=True)
 class VideoSpec:
     """Which evaluation episodes to record and how: the first ``episodes`` episodes of a rollout into
@@ -56,11 +65,7 @@ class VideoSpec:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "directory", Path(self.directory))
-        if self.episodes < 0:
-            raise ValueError(f"videos_per_skill must be >= 0, got {self.episodes}")
-        check_video_size(self.height, self.width)
-        if self.camera not in CAMERAS:
-            raise ValueError(f"video_camera must be one of {CAMERAS}, got {self.camera!r}")
+        check_video_settings(self.episodes, self.height, self.width, self.camera)
 
 
 class SkillRenderer:
