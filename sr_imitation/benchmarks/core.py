@@ -23,7 +23,7 @@ import torch
 from torch import nn
 
 from sr_imitation.benchmarks.timing import median_ms
-from sr_imitation.core.aggregation import NashAggregator
+from sr_imitation.core.aggregation import FrankWolfeNashAggregator, NashAggregator
 from sr_imitation.core.memory import OutputDistillationMemory
 from sr_imitation.core.sleep import SleepConfig, sleep_consolidate
 
@@ -45,10 +45,12 @@ def bench_nash(repeats: int) -> list[dict[str, float]]:
         jac = rng.normal(size=(k, 1000))
         gram = jac @ jac.T
         row: dict[str, float] = {"k": k}
-        for iters in (5, 50):
-            cold = NashAggregator(iterations=iters, tol=0.0, warm_start=False)
+        for iters in ("exact", 5, 50):
+            make = (lambda **kw: NashAggregator(**kw)) if iters == "exact" else (
+                lambda i=iters, **kw: FrankWolfeNashAggregator(iterations=i, **kw))
+            cold = make(warm_start=False) if iters == "exact" else make(tol=0.0, warm_start=False)
             row[f"cold_{iters}"] = median_ms(lambda a=cold, g=gram: a(g), repeats, warmup=5)
-            warm = NashAggregator(iterations=iters)
+            warm = make()
             # Warm start as in sleep: consecutive Gram matrices from noisy minibatch gradients.
             grams = [(jac + 0.3 * rng.normal(size=jac.shape)) for _ in range(repeats + 5)]
             grams = [g @ g.T for g in grams]
@@ -126,11 +128,12 @@ def main() -> None:
           f"{platform.processor() or platform.machine()}, python {platform.python_version()}\n")
     actor_ms = bench_actor_step(args.repeats)
     print(f"2x256 MLP actor forward+backward, batch {BATCH}: {actor_ms:.3f} ms\n")
-    print("| k | cold 5 it (ms) | cold 50 it (ms) | warm 5 it (ms) | warm 50 it (ms) | cold 50 it / actor f+b |")
-    print("|---|---|---|---|---|---|")
+    print("| k | exact cold (ms) | exact warm (ms) | FW-5 cold | FW-50 cold | FW-5 warm | FW-50 warm "
+          "| exact warm / actor f+b |")
+    print("|---|---|---|---|---|---|---|---|")
     for r in bench_nash(args.repeats):
-        print(f"| {r['k']} | {r['cold_5']:.3f} | {r['cold_50']:.3f} | {r['warm_5']:.3f} | {r['warm_50']:.3f} "
-              f"| {r['cold_50'] / actor_ms:.2f} |")
+        print(f"| {r['k']} | {r['cold_exact']:.3f} | {r['warm_exact']:.3f} | {r['cold_5']:.3f} | {r['cold_50']:.3f} "
+              f"| {r['warm_5']:.3f} | {r['warm_50']:.3f} | {r['warm_exact'] / actor_ms:.2f} |")
     print("\n| actor | batch | k | k x (fwd+bwd) (ms) | + sampling + Adam (ms) | sleep iteration (ms) "
           "| sleep / k x (fwd+bwd) | sleep / (+ sampling + Adam) |")
     print("|---|---|---|---|---|---|---|---|")

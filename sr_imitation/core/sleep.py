@@ -45,8 +45,11 @@ class SleepConfig:
         lr: Adam learning rate eta_sleep (MT5 5e-4, SurgicAI 1e-5).
         max_iterations: N_sleep (MT5 4000, SurgicAI 1000).
         batch_size: samples drawn from each memory per iteration (MT5 64, SurgicAI 8).
-        aggregator: ``nash`` (Eq. 1), ``mean`` (Mean-grad ablation) or ``pcgrad``.
-        fw_iterations: Frank-Wolfe iterations per Nash solve (MT5 50, SurgicAI 5).
+        aggregator: ``nash`` (Eq. 1, solved exactly), ``nash_fw`` (the paper's Frank-Wolfe with ``fw_iterations``;
+            approximate, the ablation), ``mean_grad`` (raw-gradient mean: the paper's Mean-grad ablation),
+            ``mean_normalized`` or ``pcgrad`` (see ``sr_imitation.core.aggregation``).
+        fw_iterations: Frank-Wolfe iterations per solve of ``nash_fw`` (paper: MT5 50, SurgicAI 5); the exact
+            ``nash`` solver stops at its tolerance instead.
         eps: gradient-normalization constant (1e-5).
         early_stop_tol: delta; stop when the windowed objective changes by less than this (1e-3).
         early_stop_window: window length in iterations (MT5 100).
@@ -98,7 +101,9 @@ class SleepConfig:
         from sr_imitation.core.aggregation import AGGREGATORS
 
         if self.aggregator not in AGGREGATORS:
-            raise ValueError(f"unknown aggregator {self.aggregator!r}; choose from {sorted(AGGREGATORS)}")
+            from sr_imitation.core.aggregation import make_aggregator as _check
+
+            _check(self.aggregator)  # raises with the list of names
 
     @classmethod
     def mt5(cls, **overrides: Any) -> SleepConfig:
@@ -115,7 +120,7 @@ class SleepConfig:
 
     def make_aggregator(self) -> Aggregator:
         kwargs: dict[str, Any] = {"eps": self.eps}
-        if self.aggregator == "nash":
+        if self.aggregator == "nash_fw":
             kwargs["iterations"] = self.fw_iterations
         elif self.aggregator == "pcgrad":
             kwargs["seed"] = self.seed
@@ -136,6 +141,7 @@ class SleepResult:
     memory_losses: list[list[float]] = field(default_factory=list)
     sleep_objective: list[float] = field(default_factory=list)
     solver_iterations: list[int] = field(default_factory=list)
+    solver_status: dict[str, int] = field(default_factory=dict)
     skipped_steps: list[dict[str, Any]] = field(default_factory=list)
 
     def to_dict(self) -> dict[str, Any]:
@@ -154,6 +160,7 @@ class SleepResult:
             "initial_memory_losses": first(self.memory_losses),
             "final_memory_losses": last(self.memory_losses),
             "skipped_steps": len(self.skipped_steps),
+            "solver_status": dict(self.solver_status),
         }
 
 
@@ -322,6 +329,7 @@ def sleep_consolidate(
         result.memory_losses.append(losses)
         result.sleep_objective.append(objective)
         result.solver_iterations.append(int(agg.iterations))
+        result.solver_status[agg.status] = result.solver_status.get(agg.status, 0) + 1
         result.stop_iteration = it + 1
         if progress and it % 10 == 0:
             bar.set_postfix(obj=f"{objective:.4g}", worst=f"{max(losses):.4g}")

@@ -41,7 +41,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "wake_only": ("sr", {"sleep": False}),
     "sequential_bc": ("sequential_bc", {"sleep": False}),
     "sr_no_anchor": ("sr", {"sleep": True, "anchor_strength": 0.0}),
-    "sr_mean_grad": ("sr", {"sleep": True, "aggregator": "mean"}),
+    "sr_mean_grad": ("sr", {"sleep": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw gradients)
+    "sr_mean_normalized": ("sr", {"sleep": True, "aggregator": "mean_normalized"}),
+    "sr_nash_fw": ("sr", {"sleep": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
 }
 METRICS = ("afsr", "prs", "bwt", "spi")
 

@@ -59,9 +59,9 @@ def test_lerobot_factory_finds_the_policy_and_draccus_parses_flags():
         "from lerobot.utils.import_utils import register_third_party_plugins\n"
         "register_third_party_plugins()\n"
         "cfg = draccus.parse(TrainPipelineConfig, args=['--policy.type=act_sr', '--policy.sleep=false',\n"
-        "    '--policy.aggregator=mean', '--policy.device=cpu', '--dataset.repo_id=x/y'])\n"
+        "    '--policy.aggregator=mean_grad', '--policy.device=cpu', '--dataset.repo_id=x/y'])\n"
         "assert type(cfg.policy).__name__ == 'ACTSRConfig' and cfg.policy.sleep is False\n"
-        "assert cfg.policy.aggregator == 'mean' and cfg.policy.type == 'act_sr'\n"
+        "assert cfg.policy.aggregator == 'mean_grad' and cfg.policy.type == 'act_sr'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
 

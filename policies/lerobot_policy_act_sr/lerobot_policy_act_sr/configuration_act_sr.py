@@ -34,12 +34,15 @@ class ACTSRConfig(ACTConfig):
         memory_buffer_size: |B_k|, observations stored per skill memory.
         sleep_lr, sleep_max_iterations, sleep_batch_size: eta_sleep, N_sleep and the sleep batch per memory.
         sleep_early_stop_tol, sleep_early_stop_window: delta and the window of the plateau rule.
-        sleep_fw_iterations: Frank-Wolfe iterations per Nash solve.
+        sleep_fw_iterations: Frank-Wolfe iterations per solve of the ``nash_fw`` ablation (paper: 5); the default
+            ``nash`` aggregator solves Eq. 1 exactly and ignores it.
         grad_norm_eps: eps of the per-skill l2 normalization.
         anchor_strength: lambda of the proximal sleep anchor toward the previous sleep checkpoint.
         anchor_tau: optional gate tau of Eq. 2 (``null``: always on, as in the SurgicAI setting).
         anchor_after_final: apply the anchor in the sleep after the last skill.
-        aggregator: ``nash`` (the method), ``mean`` or ``pcgrad`` (ablations).
+        aggregator: ``nash`` (the method, Eq. 1 solved exactly), ``nash_fw`` (the paper's Frank-Wolfe with
+            ``sleep_fw_iterations``), ``mean_grad`` (the paper's Mean-grad ablation: raw-gradient mean),
+            ``mean_normalized`` or ``pcgrad`` (see ``sr_imitation.core.aggregation``).
         use_images: ``false`` gives ACT's state-only mode: the state is also fed as
             ``observation.environment_state`` and no camera is used (the CPU preset's choice).
     """
@@ -103,7 +106,8 @@ class ACTSRConfig(ACTConfig):
         if self.distill_reduction not in ("mean", "sum"):
             raise ValueError(f"distill_reduction must be 'mean' or 'sum', got {self.distill_reduction!r}")
         if self.aggregator not in AGGREGATORS:
-            raise ValueError(f"aggregator must be one of {sorted(AGGREGATORS)}, got {self.aggregator!r}")
+            hint = " ('mean' was split into 'mean_grad' and 'mean_normalized')" if self.aggregator == "mean" else ""
+            raise ValueError(f"aggregator must be one of {sorted(AGGREGATORS)}, got {self.aggregator!r}{hint}")
 
     def distill_weight(self, skill_number: int) -> float:
         """gamma_k of the wake objective for the k-th skill (1-based): 0, gamma_2, then gamma_later."""

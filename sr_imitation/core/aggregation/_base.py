@@ -18,11 +18,15 @@ class Aggregation:
     Attributes:
         weights: raw-gradient weights ``w`` (k,); the combined direction is ``d = sum_j w_j g_j``.
         alpha: the weights on the *normalized* gradients g_hat_j (k,); convex (on the simplex) for Nash and
-            mean, the effective projection coefficients for PCGrad.
+            mean_normalized, the effective projection coefficients for PCGrad; for mean_grad the uniform
+            weights 1/k of the raw gradients.
         iterations: solver iterations used (0 for closed forms).
         gap: Frank-Wolfe duality gap at return (0 for closed forms).
         objective: the aggregator's objective at ``alpha`` (Eq. 1 for Nash; NaN when undefined).
         active: boolean mask (k,) of memories that took part (zero gradients are masked out).
+        status: how the weights were obtained: ``closed_form``, ``optimal``, ``pareto_stationary`` (Nash: the
+            maximizer opposed some memory, so the min-norm point), ``max_iterations``, ``stalled``,
+            ``all_zero``; ``approximate`` for fixed-iteration Frank-Wolfe.
     """
 
     weights: np.ndarray
@@ -31,6 +35,7 @@ class Aggregation:
     gap: float = 0.0
     objective: float = float("nan")
     active: np.ndarray = field(default_factory=lambda: np.ones(0, dtype=bool))
+    status: str = "closed_form"
 
 
 class Aggregator(ABC):

@@ -9,6 +9,8 @@ alone (Section 3, "Nash-bargained sleep consolidation"):
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
 GRAD_NORM_EPS = 1e-5
@@ -25,17 +27,18 @@ def as_gram(gram: np.ndarray) -> np.ndarray:
     gram = np.asarray(gram, dtype=np.float64)
     if gram.ndim != 2 or gram.shape[0] != gram.shape[1] or gram.shape[0] == 0:
         raise ValueError(f"Gram matrix must be a non-empty square matrix, got shape {gram.shape}")
-    if not np.isfinite(gram).all():
+    if not math.isfinite(float(gram.sum())):  # one reduction; the slow path names the rows
         bad = sorted({int(i) for i in np.argwhere(~np.isfinite(gram))[:, 0]})
         raise ValueError(f"Gram matrix has non-finite entries in rows {bad} (non-finite memory gradients)")
-    if float(np.abs(gram - gram.T).max()) > 1e-6 * max(1.0, float(np.abs(gram).max())):
+    scale = float(np.abs(gram).max())
+    if float(np.abs(gram - gram.T).max()) > 1e-6 * max(1.0, scale):
         raise ValueError("Gram matrix is not symmetric")
     return gram
 
 
 def gradient_norms(gram: np.ndarray) -> np.ndarray:
     """The per-memory gradient norms ``||g_i|| = sqrt(G_ii)``."""
-    return np.sqrt(np.clip(np.diag(gram), 0.0, None))
+    return np.sqrt(np.maximum(gram.diagonal(), 0.0))
 
 
 def normalized_gram(gram: np.ndarray, eps: float = GRAD_NORM_EPS) -> tuple[np.ndarray, np.ndarray]:
@@ -47,3 +50,15 @@ def normalized_gram(gram: np.ndarray, eps: float = GRAD_NORM_EPS) -> tuple[np.nd
     scale = 1.0 / (gradient_norms(gram) + eps)
     g_hat = gram * scale[:, None] * scale[None, :]
     return 0.5 * (g_hat + g_hat.T), scale
+
+
+def cosine_matrix(gram: np.ndarray, active: np.ndarray | None = None, norms: np.ndarray | None = None) -> np.ndarray:
+    """The cosine matrix ``G_ij / (||g_i|| ||g_j||)`` of the ``active`` (non-zero) gradients: the Gram matrix of the
+    exact unit directions, symmetrized, clipped to [-1, 1], unit diagonal. ``norms`` may pass precomputed norms."""
+    norms = gradient_norms(gram) if norms is None else norms
+    if active is not None and not active.all():
+        gram, norms = gram[active][:, active], norms[active]
+    cosine = gram / np.multiply.outer(norms, norms)
+    cosine = np.minimum(np.maximum(0.5 * (cosine + cosine.T), -1.0), 1.0)
+    np.fill_diagonal(cosine, 1.0)
+    return cosine

@@ -21,16 +21,22 @@ class PCGradAggregator(Aggregator):
         eps: gradient-normalization constant.
         seed: seed of the generator that draws the projection order (reproducible runs).
         reduction: ``"mean"`` (default, same scale as a convex combination) or ``"sum"`` (original PCGrad).
+        rescale: rescale the projected update to the norm of the same reduction of the *raw* gradients
+            (``||mean_i g_i||`` or ``||sum_i g_i||``), as the paper's PCGrad baseline does ("the projected update
+            is rescaled to the original gradient norm", appendix B; "original" read as the un-projected,
+            un-normalized update: our reading). Computed from the Gram matrix, ``||J^T w||^2 = w^T G w``.
     """
 
     name = "pcgrad"
 
-    def __init__(self, eps: float = GRAD_NORM_EPS, seed: int = 0, reduction: str = "mean") -> None:
+    def __init__(self, eps: float = GRAD_NORM_EPS, seed: int = 0, reduction: str = "mean",
+                 rescale: bool = False) -> None:
         super().__init__(eps)
         if reduction not in ("mean", "sum"):
             raise ValueError(f"reduction must be 'mean' or 'sum', got {reduction!r}")
         self.seed = int(seed)
         self.reduction = reduction
+        self.rescale = bool(rescale)
         self._rng = np.random.default_rng(self.seed)
 
     def reset(self) -> None:
@@ -52,7 +58,15 @@ class PCGradAggregator(Aggregator):
                     coef[j] -= inner / g_hat[j, j]
             total += coef
         alpha = total / k if self.reduction == "mean" else total
-        return Aggregation(alpha * scale, alpha, 0, 0.0, float("nan"), np.ones(k, dtype=bool))
+        weights = alpha * scale
+        if self.rescale:
+            raw = np.full(k, 1.0 / k if self.reduction == "mean" else 1.0)
+            target = float(raw @ gram @ raw)
+            current = float(weights @ gram @ weights)
+            factor = np.sqrt(max(target, 0.0) / current) if current > 0.0 else 0.0
+            weights, alpha = weights * factor, alpha * factor
+        return Aggregation(weights, alpha, 0, 0.0, float("nan"), np.ones(k, dtype=bool))
 
     def __repr__(self) -> str:
-        return f"PCGradAggregator(eps={self.eps:g}, seed={self.seed}, reduction={self.reduction!r})"
+        return (f"PCGradAggregator(eps={self.eps:g}, seed={self.seed}, reduction={self.reduction!r}, "
+                f"rescale={self.rescale})")
