@@ -49,6 +49,11 @@ def test_paper_defaults_and_validation():
         ACTSRConfig(device="cpu", aggregator="sum")
     with pytest.raises(ValueError, match="sleep_lr"):
         ACTSRConfig(device="cpu", sleep_lr=0.0)
+    for key in ("anchor_strength", "distill_weight_second", "sleep_early_stop_tol", "sleep_lr"):
+        with pytest.raises(ValueError, match=key):  # NaN is refused at parse time, not at the first sleep
+            ACTSRConfig(device="cpu", **{key: float("nan")})
+    with pytest.raises(ValueError, match="mean_grad"):
+        ACTSRConfig(device="cpu", aggregator="mean")  # the old name, with a hint
 
 
 def test_lerobot_factory_finds_the_policy_and_draccus_parses_flags():

@@ -98,7 +98,7 @@ class ACTSRConfig(ACTConfig):
             "anchor_strength": self.anchor_strength,
             "sleep_early_stop_tol": self.sleep_early_stop_tol,
         }
-        bad += [f"{k}={v}" for k, v in non_negative.items() if v < 0]
+        bad += [f"{k}={v}" for k, v in non_negative.items() if not v >= 0]  # NaN fails too
         if self.anchor_tau is not None and not self.anchor_tau > 0:
             bad.append(f"anchor_tau={self.anchor_tau}")
         if bad:
