@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.metadata
+import json
 import subprocess
 import sys
 from pathlib import Path
@@ -15,23 +16,41 @@ def test_plugin_distribution_name_equals_its_import_name():
     assert dist.metadata["Name"] == "lerobot_policy_act_sr"
 
 
+def _run_json(code: str, timeout: int) -> dict:
+    """Run ``code`` in a fresh interpreter (imports must start clean) and parse the JSON it prints last."""
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=ROOT, timeout=timeout)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
 def test_lerobot_discovers_and_imports_the_plugin():
-    code = (
-        "import sys\n"
+    found = _run_json(
+        "import json, sys\n"
+        "before = 'lerobot_policy_act_sr' in sys.modules\n"
         "from lerobot.utils.import_utils import register_third_party_plugins\n"
         "register_third_party_plugins()\n"
-        "assert 'lerobot_policy_act_sr' in sys.modules, sorted(m for m in sys.modules if 'policy' in m)\n"
+        "from lerobot.configs.policies import PreTrainedConfig\n"
+        "print(json.dumps({'before': before, 'after': 'lerobot_policy_act_sr' in sys.modules,\n"
+        "                  'choices': sorted(PreTrainedConfig.get_known_choices())}))\n",
+        timeout=300,
     )
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT, timeout=300)
+    # Imported by LeRobot's discovery (not before it), and the policy type is registered with draccus.
+    assert found["before"] is False and found["after"] is True
+    assert "act_sr" in found["choices"] and "act" in found["choices"]
 
 
 def test_core_imports_neither_lerobot_nor_simulators():
-    code = (
-        "import sys, sr_imitation.core\n"
-        "bad = [m for m in ('lerobot', 'metaworld', 'mujoco', 'gymnasium') if m in sys.modules]\n"
-        "assert not bad, bad\n"
+    found = _run_json(
+        "import json, sys\n"
+        "import sr_imitation.core, sr_imitation.core.sleep, sr_imitation.core.memory, sr_imitation.core.metrics\n"
+        "import sr_imitation.core.aggregation, sr_imitation.core.excitability, sr_imitation.core.io\n"
+        "print(json.dumps({'modules': sorted(m.split('.')[0] for m in sys.modules),\n"
+        "                  'core': 'sr_imitation.core.sleep' in sys.modules}))\n",
+        timeout=120,
     )
-    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT, timeout=120)
+    assert found["core"] is True and "torch" in found["modules"]  # the probe did import the core
+    bad = {"lerobot", "metaworld", "mujoco", "gymnasium", "lerobot_policy_act_sr"} & set(found["modules"])
+    assert not bad, bad
 
 
 def test_no_top_level_package_shadows_hugging_face_datasets():
