@@ -86,20 +86,67 @@ def test_sleep_lowers_the_worst_memory_loss_compared_with_no_sleep(stream):
     assert len(result.grad_norms[0]) == 2 and len(result.memory_losses[0]) == 2
 
 
-def test_nash_and_mean_sleep_both_lower_the_worst_loss_on_three_memories(stream):
+class _LoudMemory(OutputDistillationMemory):
+    """A memory whose loss (and gradient) is ``scale`` times larger, e.g. actions in other units."""
+
+    scale = 1.0
+
+    def loss(self, policy, batch):
+        return super().loss(policy, batch) * type(self).scale
+
+
+def _unscaled_losses(net: nn.Module, memories) -> list[float]:
+    with torch.no_grad():
+        return [float(OutputDistillationMemory.loss(m, _policy(net), dict(m.tensors.items()))) for m in memories]
+
+
+def test_nash_ignores_gradient_scale_and_mean_grad_lets_the_loud_memory_dominate(stream, monkeypatch):
+    """Section 3's motivation for Nash: the raw-gradient mean is "sensitive to gradient scale".
+
+    Three memories, all with a positive loss at the start; memory c's loss is multiplied by 1 or 100. Nash
+    bargains over unit directions, so its sleep is the same at both scales; the raw mean follows c at scale 100:
+    c's loss vanishes while skill b is forgotten (worse than before sleep), where Nash lowers the worst loss.
+    """
     net0, _, _, memories = stream
     xc, yc = _skill_data(0.0, 0.5)
     net_c = copy.deepcopy(net0)
     _wake(net_c, xc, yc, steps=200)
-    mem_c = OutputDistillationMemory.from_snapshot("c", _policy(net_c), {"x": xc})
-    worst = {}
-    for name in ("nash", "mean"):
-        net = copy.deepcopy(net0)
-        sleep_consolidate(list(net.parameters()), _policy(net), [*memories, mem_c],
-                          _config(aggregator=name, max_iterations=200), progress=False)
-        worst[name] = _worst_loss(net, [*memories, mem_c])
-    before = _worst_loss(net0, [*memories, mem_c])
-    assert worst["nash"] < before and worst["mean"] < before
+    mem_c = _LoudMemory.from_snapshot("c", _policy(net_c), {"x": xc})
+    start = copy.deepcopy(net_c)
+    _wake(start, *_skill_data(0.15, -0.3), steps=100)  # a fourth skill: every memory starts with a loss
+    mems = [*memories, mem_c]
+    before = _unscaled_losses(start, mems)
+    assert min(before) > 0.1
+    finals, losses, alphas = {}, {}, {}
+    for scale in (1.0, 100.0):
+        monkeypatch.setattr(_LoudMemory, "scale", scale)
+        for name in ("nash", "mean_grad"):
+            net = copy.deepcopy(start)
+            result = sleep_consolidate(list(net.parameters()), _policy(net), mems,
+                                       _config(aggregator=name, max_iterations=200), progress=False)
+            assert result.stop_iteration == 200 and len(result.alpha) == 200
+            assert all(len(a) == 3 and abs(sum(a) - 1) < 1e-9 and min(a) >= 0 for a in result.alpha)
+            finals[name, scale] = [p.detach().clone() for p in net.parameters()]
+            losses[name, scale] = _unscaled_losses(net, mems)
+            alphas[name, scale] = result.alpha
+    moved = parameter_distance(finals["nash", 1.0], list(start.parameters()))
+    # Nash: the same sleep at both scales (only eps = 1e-5 in g/(||g|| + eps) differs) ...
+    assert parameter_distance(finals["nash", 1.0], finals["nash", 100.0]) < 1e-2 * moved
+    torch.testing.assert_close(torch.tensor(alphas["nash", 1.0]), torch.tensor(alphas["nash", 100.0]),
+                               atol=1e-3, rtol=0)
+    # ... and not the uniform mean: the memories conflict unequally, so Nash weighs them unequally.
+    assert max(abs(a - 1 / 3) for a in alphas["nash", 1.0][0]) > 0.1
+    assert all(a == [1 / 3] * 3 for a in alphas["mean_grad", 100.0])
+    # The raw mean moves somewhere else when one memory gets louder ...
+    assert parameter_distance(finals["mean_grad", 1.0], finals["mean_grad", 100.0]) > 0.3 * moved
+    # ... the loud memory dominates: its loss vanishes and another memory ends worse than before sleep.
+    loud = losses["mean_grad", 100.0]
+    assert loud[2] < 0.01 * before[2]
+    assert max(loud[:2]) > max(before)
+    # Nash lowers the worst memory loss whatever the scale, far below the raw mean's.
+    for scale in (1.0, 100.0):
+        assert max(losses["nash", scale]) < 0.5 * max(before)
+    assert max(losses["nash", 100.0]) < 0.5 * max(loud)
 
 
 def test_anchor_pulls_toward_the_previous_checkpoint(stream):
