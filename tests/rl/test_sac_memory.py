@@ -77,22 +77,63 @@ def test_critic_memory_matches_live_critic_and_roundtrips(tmp_path):
         load_memory(path)
 
 
-def test_sleep_leaves_frozen_critics_unchanged_and_moves_the_actor():
+def _windowed_stop(objective, window, tol):
+    """Where the documented rule stops: the first window boundary t >= 2w at which the mean objective of the
+    last window differs from the previous window's by less than ``tol`` (relative); None if it never does."""
+    for t in range(2 * window, len(objective) + 1, window):
+        cur, prev = np.mean(objective[t - window : t]), np.mean(objective[t - 2 * window : t - window])
+        if abs(cur - prev) / max(abs(prev), 1e-12) < tol:
+            return t
+    return None
+
+
+def _two_critic_memories():
     agent = _agent()
     m1 = _memory(agent, "reach", seed=1)
     with torch.no_grad():  # a different critic for the second skill
         for p in agent.critic.parameters():
             p.add_(0.1 * torch.randn_like(p))
     m2 = _memory(agent, "door-open", seed=2)
+    return agent, m1, m2
+
+
+def test_sleep_leaves_frozen_critics_unchanged_and_moves_the_actor():
+    agent, m1, m2 = _two_critic_memories()
     prints = [m1.fingerprint(), m2.fingerprint()]
     critic_before = [p.detach().clone() for p in agent.critic.parameters()]
     actor_before = [p.detach().clone() for p in agent.actor_parameters()]
-    cfg = SleepConfig.mt5(max_iterations=15, batch_size=16, fw_iterations=10)
+    values_before = [m.value(agent.policy_fn) for m in (m1, m2)]
+    cfg = SleepConfig.mt5(max_iterations=40, batch_size=16, fw_iterations=10)  # window 100: cannot stop early
     result = sleep_consolidate(agent.actor_parameters(), agent.policy_fn, [m1, m2], cfg, progress=False)
-    assert result.stop_iteration > 0
+    assert result.stop_iteration == 40 and result.stop_reason == "max_iterations"
+    assert result.skills == ["reach", "door-open"] and result.anchor_lambda == 0.0  # no anchor given
+    assert len(result.alpha) == len(result.memory_losses) == len(result.sleep_objective) == 40
+    # k = 2: Nash bargaining gives (1/2, 1/2) on the normalized gradients, every step.
+    assert all(a == pytest.approx([0.5, 0.5], abs=1e-12) for a in result.alpha)
+    # Sleep raised the value of every frozen critic (on its whole buffer) and the sampled losses fell.
+    values_after = [m.value(agent.policy_fn) for m in (m1, m2)]
+    assert all(a > b + 1e-3 for a, b in zip(values_after, values_before, strict=True)), (values_before,
+                                                                                          values_after)
+    losses = np.array(result.memory_losses)
+    assert (losses[-10:].mean(0) < losses[:10].mean(0)).all()
     assert [m1.fingerprint(), m2.fingerprint()] == prints
     assert all(torch.equal(a, b) for a, b in zip(critic_before, agent.critic.parameters(), strict=True))
     assert any(not torch.equal(a, b) for a, b in zip(actor_before, agent.actor_parameters(), strict=True))
+
+
+@pytest.mark.parametrize("tol", [0.07, 0.03])  # fires at the first check (t = 2w) / at a later one
+def test_sleep_stops_where_the_windowed_rule_says(tol):
+    agent, m1, m2 = _two_critic_memories()
+    cfg = SleepConfig.mt5(max_iterations=40, batch_size=16, early_stop_window=5, early_stop_tol=tol)
+    result = sleep_consolidate(agent.actor_parameters(), agent.policy_fn, [m1, m2], cfg, progress=False)
+    predicted = _windowed_stop(result.sleep_objective, 5, tol)
+    assert predicted is not None and predicted < 40  # the rule fired (before the budget) ...
+    # ... exactly there: not earlier (the recorded objective would not allow it) and not later.
+    assert result.stop_iteration == predicted == len(result.sleep_objective)
+    assert result.stop_reason == "plateau"
+    # The recorded objective is sum_i alpha_i L_i (no anchor here).
+    for a, losses, objective in zip(result.alpha, result.memory_losses, result.sleep_objective, strict=True):
+        assert objective == pytest.approx(float(np.dot(a, losses)), rel=1e-9, abs=1e-12)
 
 
 def test_excitability_in_bounds_and_not_touched_by_optimizer():
