@@ -46,9 +46,36 @@ def test_a_stream_writes_every_stage_memory_and_report(finished_run):
     assert set(results["metrics"]) == {"afsr", "prs", "bwt", "spi"}
     assert results["metrics"]["prs"]["mean_curve"][0] is None  # PRS only for k >= 2
     sleeps = results["sleep"]
-    assert set(sleeps) == {"2.sleep", "3.sleep"} and all(r["stop_iteration"] >= 1 for r in sleeps.values())
-    diag = json.loads((out / "skill_3_insert" / "sleep" / "sleep_diagnostics.json").read_text())
-    assert diag["skills"] == SKILLS and len(diag["alpha"][0]) == 3
+    assert set(sleeps) == {"2.sleep", "3.sleep"}
+    policy = tiny_stream_config(Path("unused"), out, SKILLS).policy
+    # N_sleep = 3 < 2 windows of 2: the plateau rule cannot fire, every sleep runs its whole budget.
+    assert policy.sleep_max_iterations == 3 and policy.sleep_early_stop_window == 2
+    for k in (2, 3):
+        record, name = sleeps[f"{k}.sleep"], f"skill_{k}_{SKILLS[k - 1]}"
+        diag = json.loads((out / name / "sleep" / "sleep_diagnostics.json").read_text())
+        assert record["stop_iteration"] == diag["stop_iteration"] == 3
+        assert record["stop_reason"] == diag["stop_reason"] == "max_iterations"
+        assert diag["skills"] == record["skills"] == SKILLS[:k]
+        rows = [diag[key] for key in ("alpha", "memory_losses", "grad_norms", "sleep_objective", "solver_iterations")]
+        assert [len(r) for r in rows] == [3] * 5 and diag["skipped_steps"] == []
+        # Eq. 1 weights: k per iteration, on the simplex; (1/2, 1/2) for two memories.
+        for alpha in diag["alpha"]:
+            assert len(alpha) == k and min(alpha) >= 0 and sum(alpha) == pytest.approx(1, abs=1e-9)
+        for alpha, norms in zip(diag["alpha"], diag["grad_norms"], strict=True):
+            if k == 2 and min(norms) > 0:
+                assert alpha == pytest.approx([0.5, 0.5], abs=1e-9)
+        # Sleep starts at theta_k^wake, which M_k snapshots: M_k has zero loss and gradient, so Nash masks it.
+        assert diag["memory_losses"][0][-1] == diag["grad_norms"][0][-1] == diag["alpha"][0][-1] == 0.0
+        assert min(diag["memory_losses"][0][:-1]) > 0 and diag["memory_losses"][-1][-1] > 0
+        assert all(len(x) == k and all(v >= 0 for v in x) for x in diag["memory_losses"] + diag["grad_norms"])
+        assert record["final_alpha"] == diag["alpha"][-1] and record["final_memory_losses"] == diag["memory_losses"][-1]
+        # The anchor (SurgicAI setting: always on, also after the final skill) and Eq. 2's c_i for i < k only.
+        assert record["anchor_lambda"] == diag["anchor_lambda"] == policy.anchor_strength > 0
+        assert len(diag["anchor_distances"]) == k - 1 and all(d > 0 for d in diag["anchor_distances"])
+        # The recorded objective is alpha . L, plus the anchor term (which is >= 0).
+        for alpha, losses, objective in zip(diag["alpha"], diag["memory_losses"], diag["sleep_objective"],
+                                            strict=True):
+            assert objective >= sum(a * x for a, x in zip(alpha, losses, strict=True)) - 1e-9
     assert results["memory_bytes_total"] == sum(results["memory_bytes"].values()) > 0
     # Videos of the first evaluation episode per skill and stage.
     assert list((out / "videos" / "skill_2_place" / "sleep").glob("approach_episode0_*.mp4"))
