@@ -1,0 +1,106 @@
+"""Issue 9: the SAC stream gives the sleep of stage k the right checkpoints (Eq. 2 and the anchor).
+
+At stage k >= 2 (1-based) the gate of Eq. 2 needs theta_i^wake for i < k only (passing theta_k^wake too would
+make c_k = 0 at the start of sleep and keep the gate always on), and the anchor pulls toward theta_{k-1}^sleep
+(theta_1^wake for k = 2). The test records what the trainer passes to ``sleep_consolidate`` and compares it with
+the actor parameters seen at the end of every wake and sleep, and with the wake snapshots the stages saved.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+from sr_imitation.core.io import load_checked_safetensors
+from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.rl import trainer as trainer_module
+from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
+from sr_imitation.rl.trainer import WAKE_PREFIX, StreamTrainer
+
+SKILLS = ["reach-v3", "door-open-v3", "drawer-open-v3"]
+
+
+def _config(out: Path) -> RLTrainConfig:
+    return RLTrainConfig(
+        output_dir=out, seed=5, skills=SKILLS, max_episode_steps=20,
+        sac=SACConfig(hidden_dim=16, batch_size=16, utd_ratio=0.5, warmup_steps=20, buffer_size=2000),
+        wake=WakeConfig(budget_scale=0.002),
+        # tau = 150 (MT5): the gate is on for these small networks; 10 iterations, the plateau rule cannot fire.
+        sleep=SleepConfig.mt5(max_iterations=10, early_stop_window=10, batch_size=16),
+        memory=CriticMemoryConfig(buffer_size=16, validation_chunk=5, validation_max_rounds=1),
+        eval=EvalConfig(episodes=1, videos_per_skill=0), progress=False, plots=False,
+    )
+
+
+def _clone(tensors) -> list[torch.Tensor]:
+    return [t.detach().clone() for t in tensors]
+
+
+def _same(a, b) -> bool:
+    return len(a) == len(b) and all(x.shape == y.shape and torch.equal(x, y) for x, y in zip(a, b, strict=True))
+
+
+@pytest.fixture(scope="module")
+def recorded_stream(tmp_path_factory):
+    out = tmp_path_factory.mktemp("rl_wiring") / "run"
+    trainer = StreamTrainer(_config(out))
+    wakes, sleeps = [], []
+    real_wake, real_sleep = trainer_module.train_skill, trainer_module.sleep_consolidate
+
+    def recording_wake(agent, *args, **kwargs):
+        result = real_wake(agent, *args, **kwargs)
+        wakes.append(_clone(agent.actor_parameters()))  # theta_i^wake
+        return result
+
+    def recording_sleep(params, policy, memories, config, anchor_params=None, wake_snapshots=(), **kwargs):
+        params = list(params)
+        call = {"start": _clone(params), "anchor": None if anchor_params is None else _clone(anchor_params),
+                "wake_snapshots": [_clone(s) for s in wake_snapshots], "skills": [m.skill for m in memories],
+                "kwargs": kwargs}
+        result = real_sleep(params, policy, memories, config, anchor_params=anchor_params,
+                            wake_snapshots=wake_snapshots, **kwargs)
+        call.update(end=_clone(params), result=result)
+        sleeps.append(call)
+        return result
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(trainer_module, "train_skill", recording_wake)
+        mp.setattr(trainer_module, "sleep_consolidate", recording_sleep)
+        trainer.run()
+    saved = []
+    for k in range(len(SKILLS)):
+        tensors, _ = load_checked_safetensors(trainer.stage_dir(k) / "agent.safetensors")
+        saved.append([tensors[f"{WAKE_PREFIX}{i}"] for i in range(sum(n.startswith(WAKE_PREFIX) for n in tensors))])
+    return wakes, sleeps, saved
+
+
+def test_stage_k_sleep_gets_the_k_minus_1_earlier_wake_snapshots_and_the_previous_sleep_as_anchor(recorded_stream):
+    wakes, sleeps, saved = recorded_stream
+    assert len(wakes) == 3 and len(sleeps) == 2
+    for i, snapshot in enumerate(saved):  # each stage saved its own theta^wake
+        assert _same(snapshot, wakes[i]), i
+    for k, call in zip((2, 3), sleeps, strict=True):
+        assert call["skills"] == [s.removesuffix("-v3") for s in SKILLS[:k]]
+        # The sleep starts at theta_k^wake ...
+        assert _same(call["start"], wakes[k - 1])
+        # ... the gate sees theta_i^wake for i < k: exactly k - 1 of them, those of skills 1..k-1 ...
+        assert len(call["wake_snapshots"]) == k - 1
+        for i, snapshot in enumerate(call["wake_snapshots"], start=1):
+            assert _same(snapshot, wakes[i - 1]), (k, i)
+        # ... so no c_i is 0 at the start of sleep (c_k would be), and the recorded c_i are those distances.
+        distances = call["result"].anchor_distances
+        assert len(distances) == k - 1 and min(distances) > 0
+        for c, snapshot in zip(distances, call["wake_snapshots"], strict=True):
+            expected = torch.sqrt(sum(((a - b) ** 2).sum() for a, b in zip(call["start"], snapshot, strict=True)))
+            assert c == pytest.approx(float(expected), rel=1e-5)
+        # The anchor is theta_{k-1}^sleep (theta_1^wake for k = 2): what the previous stage ended with.
+        previous_end = wakes[0] if k == 2 else sleeps[k - 3]["end"]
+        assert _same(call["anchor"], previous_end)
+        assert not _same(call["anchor"], call["start"])
+        is_final = k == len(SKILLS)
+        assert call["kwargs"]["is_final_skill"] is is_final
+        # MT5: gate tau = 150 is open for these small networks; no anchor after the final skill.
+        assert call["result"].anchor_lambda == (0.0 if is_final else 1e-2)
+        assert call["result"].stop_iteration == 10 and not _same(call["end"], call["start"])
