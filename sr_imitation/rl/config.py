@@ -164,15 +164,18 @@ class CriticMemoryConfig:
 
 @dataclass
 class EvalConfig:
-    """Evaluation protocol (Appendix A.1: N = 100 episodes per learned skill after each stage)."""
+    """Evaluation protocol (Appendix A.1: N = 100 episodes per learned skill after each stage). Each skill is
+    evaluated on the same configurations at every stage (``rl.evaluate.evaluation_configurations``)."""
 
     episodes: int = 100
     success_mode: str = "any_step"
     stop_on_success: bool = True
     deterministic: bool = True
     """Evaluate the Gaussian mean (tanh) action."""
-    after_wake: bool = False
-    """Also evaluate the current skill right after wake (diagnostic, costs time)."""
+    after_wake: bool = True
+    """Evaluate each new skill right after its wake, on the same configurations as its stage evaluations: the
+    reference of ``bwt_wake`` (off: ``bwt_wake`` is null). Costs one extra evaluation of one skill per sleep stage;
+    stages without sleep reuse their stage evaluation."""
     videos_per_skill: int = 1
     """After every stage, record the first N evaluation episodes of each learned skill as mp4 (0: no videos)."""
     video_height: int = 240

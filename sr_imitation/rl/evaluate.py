@@ -9,6 +9,13 @@ Success: ``any_step`` (the episode succeeds if Meta-World reports success at any
 Meta-World convention) or ``final_step`` (success at the last step). With ``any_step`` an episode may stop at the
 first success (``stop_on_success``) without changing the success rate.
 
+Paired evaluation (common random numbers): :func:`evaluation_configurations` gives the configuration indices of a
+skill's N evaluation episodes from (run seed, skill identity, episode) only, so the stream trainer evaluates skill
+i on the same configurations after its wake and after every stage; S[k, i] - S[i, i] then compares the same
+episodes (our choice; the paper does not say how its evaluation configurations are drawn).
+
+SPI: only the robot's own state enters (``SPI_FEATURES``, :func:`sr_imitation.core.metrics.policy_motion`).
+
 Videos: with a :class:`~sr_imitation.rl.video.VideoSpec` the first ``spec.episodes`` episodes are also rendered
 offscreen (the frame after reset, then one per step) into ``<skill>_episode<i>_<success|failure>.mp4``. Rendering
 only reads the simulation state, so the outcome is identical with and without videos
@@ -18,6 +25,7 @@ only reads the simulation state, so the outcome is identical with and without vi
 from __future__ import annotations
 
 import logging
+import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -25,7 +33,7 @@ from pathlib import Path
 import numpy as np
 
 from sr_imitation.core.metrics import canonical_skill
-from sr_imitation.rl.envs import ACT_DIM, SkillEnv
+from sr_imitation.rl.envs import ACT_DIM, NUM_CONFIGURATIONS, SkillEnv
 from sr_imitation.rl.video import SkillRenderer, VideoSpec, VideoWriter
 
 logger = logging.getLogger(__name__)
@@ -34,6 +42,32 @@ ActFn = Callable[[np.ndarray], np.ndarray]
 """A policy as a function of one 39-d observation returning one 4-d action."""
 
 SUCCESS_MODES = ("any_step", "final_step")
+
+SPI_FEATURES: tuple[int, ...] = (0, 1, 2, 3)
+"""Policy-dependent entries of the 39-d Meta-World v3 observation used by SPI: the end-effector position (xyz, m,
+``obs[0:3]``) and the gripper opening (finger distance / 0.1 m clipped to [0, 1], ``obs[3]``). The rest is not the
+robot's own state: ``obs[4:18]`` object positions and quaternions, ``obs[18:36]`` the previous frame of
+``obs[0:18]``, ``obs[36:39]`` the goal (``SawyerXYZEnv._get_obs`` in Meta-World 3.1.1)."""
+
+EVAL_SEED_SALT = 0x5E1F_E7A1
+"""Separates the evaluation configuration stream from every training seed derived from the run seed."""
+
+
+def evaluation_configurations(run_seed: int, skill: str, episodes: int) -> list[int]:
+    """Configuration indices (0..49) of the ``episodes`` evaluation episodes of ``skill``: drawn uniformly (with
+    replacement, as the uniform protocol samples) from a generator seeded by (run seed, skill identity), so episode
+    j gets the same configuration at every stage and in every evaluation of that run (common random numbers). The
+    skill enters by its canonical name (CRC-32), not its stream position: the same skill is paired across stream
+    orders too.
+
+    Raises:
+        ValueError: ``episodes`` < 1.
+    """
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    key = zlib.crc32(canonical_skill(skill).encode())
+    rng = np.random.default_rng(np.random.SeedSequence([int(run_seed), EVAL_SEED_SALT, key]))
+    return [int(x) for x in rng.integers(NUM_CONFIGURATIONS, size=episodes)]
 
 
 @dataclass
@@ -82,7 +116,7 @@ def evaluate_policy(
         seed: evaluation seed (configurations per episode).
         success_mode: ``any_step`` or ``final_step``.
         stop_on_success: end an episode at its first success (``any_step`` only).
-        record_trajectories: keep each episode's observations (T x 39) for SPI.
+        record_trajectories: keep each episode's observations (T x 39); SPI uses their ``SPI_FEATURES``.
         configurations: evaluate exactly these configuration indices, one episode each, instead of sampling
             (``range(50)`` gives the population success rate of the uniform protocol).
         video: record the first ``video.episodes`` episodes as mp4 into ``video.directory`` (None: no videos).

@@ -1,10 +1,16 @@
 """The MT5 stream trainer (Algorithm 1 with the SAC substrate).
 
 For each skill k of the stream: wake (SAC, :func:`~sr_imitation.rl.wake.train_skill`) -> frozen critic memory
-M_k -> sleep over M_1..M_k when k >= 2 (:func:`~sr_imitation.core.sleep.sleep_consolidate`: Nash bargaining,
-anchor gate of Eq. 2, sleep-rate excitability) -> evaluation of the shared actor on every learned skill -> one
-checkpoint directory per stage. After the stream: success matrix, AFSR/PRS/BWT/SPI, ``results.json``, plots and a
-short ``report.md``.
+M_k -> evaluation of skill k right after its wake (``eval.after_wake``, on by default) -> sleep over M_1..M_k when
+k >= 2 (:func:`~sr_imitation.core.sleep.sleep_consolidate`: Nash bargaining, anchor gate of Eq. 2, sleep-rate
+excitability) -> evaluation of the shared actor on every learned skill -> one checkpoint directory per stage. After
+the stream: success matrix, AFSR/PRS/BWT (after-stage and after-own-wake references)/SPI, ``results.json``, plots
+and a short ``report.md``.
+
+Evaluation is paired (common random numbers): skill i is evaluated on the same Meta-World configurations after
+its wake and after every stage (:func:`~sr_imitation.rl.evaluate.evaluation_configurations`). Without a sleep
+(k = 1, wake-only) the after-wake policy is the stage policy, so the stage evaluation of skill k is reused as its
+after-wake evaluation (same configurations, same deterministic policy: the same numbers) instead of running twice.
 
 Output layout (every file written atomically; ``stage.json`` is written last and marks a completed stage)::
 
@@ -41,12 +47,19 @@ from sr_imitation.core.io import (
     load_checked_safetensors,
     save_checked_safetensors,
 )
-from sr_imitation.core.metrics import MT5_PAIRS, all_pairs, canonical_skill, spi_at_stage, stream_metrics
+from sr_imitation.core.metrics import (
+    MT5_PAIRS,
+    all_pairs,
+    canonical_skill,
+    policy_motion,
+    spi_at_stage,
+    stream_metrics,
+)
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import SkillEnv
-from sr_imitation.rl.evaluate import evaluate_policy
+from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
@@ -54,7 +67,10 @@ from sr_imitation.rl.wake import train_skill
 logger = logging.getLogger(__name__)
 
 CHECKPOINT_FORMAT = "sr_imitation.rl.stage"
-CHECKPOINT_VERSION = 1
+CHECKPOINT_VERSION = 2
+"""2: paired evaluation configurations and SPI trajectories of SPI_FEATURES motions (1: per-stage draws, 39-d)."""
+RESULTS_VERSION = 2
+"""results.json schema: 2 adds ``success_after_own_wake``, ``metrics.bwt_wake``, ``spi_features``."""
 WAKE_PREFIX = "wake_snapshot."
 
 
@@ -139,7 +155,8 @@ class StreamTrainer:
         save_checked_safetensors(d / "agent.safetensors", tensors, header)
         memory.save(d / "memory.safetensors")
         traj = {f"traj.{canonical_skill(s)}": torch.as_tensor(x) for s, x in trajectories.items()}
-        save_checked_safetensors(d / "trajectories.safetensors", traj, {**header, "format": "sr_imitation.rl.traj"})
+        save_checked_safetensors(d / "trajectories.safetensors", traj,
+                                 {**header, "format": "sr_imitation.rl.traj", "spi_features": list(SPI_FEATURES)})
         atomic_write_json(d / "stage.json", record)
 
     def _load_stage(self, k: int, agent: SACAgent) -> tuple[CriticMemory, list[torch.Tensor], dict[str, Any]]:
@@ -208,8 +225,10 @@ class StreamTrainer:
 
     def _evaluate(self, k: int, agent: SACAgent, only_current: bool = False, videos: bool = False
                   ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
-        """Evaluate every skill learned so far; with ``videos`` each row also lists its mp4 files (relative to
-        the output directory)."""
+        """Evaluate every skill learned so far (only skill k with ``only_current``), each on its paired
+        configurations (:func:`evaluation_configurations`: the same at every stage); each row lists them, and
+        with ``videos`` its mp4 files (relative to the output directory). Returns the rows and, per skill, the
+        SPI input (:func:`policy_motion` of ``SPI_FEATURES``) of its episodes."""
         cfg = self.cfg
         rows, trajectories = [], {}
         spec = cfg.eval.video_spec(self.video_dir(k)) if videos and self._videos else None
@@ -221,15 +240,16 @@ class StreamTrainer:
             env = self._eval_envs.get(skill)
             if env is None:
                 env = self._eval_envs[skill] = SkillEnv(skill, seed=0, max_episode_steps=cfg.max_episode_steps)
+            configurations = evaluation_configurations(cfg.seed, skill, cfg.eval.episodes)
             res = evaluate_policy(
                 lambda obs: agent.act(obs, deterministic=cfg.eval.deterministic), env, cfg.eval.episodes,
-                seed=stage_seed(cfg.seed, k, 100 + i) % (2**31), success_mode=cfg.eval.success_mode,
-                stop_on_success=cfg.eval.stop_on_success, record_trajectories=True, video=spec,
+                seed=cfg.seed, success_mode=cfg.eval.success_mode, stop_on_success=cfg.eval.stop_on_success,
+                record_trajectories=True, configurations=configurations, video=spec,
             )
-            rows.append(res.summary())
+            rows.append({**res.summary(), "configurations": configurations})
             if spec is not None:
                 rows[-1]["videos"] = [p.relative_to(self.out).as_posix() for p in res.videos]
-            trajectories[skill] = np.concatenate(res.trajectories)
+            trajectories[skill] = policy_motion(res.trajectories, SPI_FEATURES)
         return rows, trajectories
 
     # -- main loop -------------------------------------------------------------------------------------------
@@ -268,11 +288,16 @@ class StreamTrainer:
             wake_snapshots.append([p.detach().clone() for p in agent.actor_parameters()])  # theta_k^wake
             record: dict[str, Any] = {"stage": k, "skill": skill, "wake": wake.summary(),
                                       "memory": {"states": memory.size, "nbytes": memory.nbytes()}}
-            if cfg.eval.after_wake:
-                record["eval_after_wake"] = self._evaluate(k, agent, only_current=True)[0][-1]
-            if k >= 1 and cfg.sleep_enabled:
+            sleeps = k >= 1 and cfg.sleep_enabled
+            if cfg.eval.after_wake and sleeps:
+                record["eval_after_wake"] = {**self._evaluate(k, agent, only_current=True)[0][-1],
+                                             "reused_stage_evaluation": False}
+            if sleeps:
                 record["sleep"] = self._sleep(k, agent, memories, anchor, wake_snapshots)
             record["eval"], trajectories = self._evaluate(k, agent, videos=True)
+            if cfg.eval.after_wake and not sleeps:  # no sleep: the after-wake policy is the stage policy
+                row = {key: value for key, value in record["eval"][-1].items() if key != "videos"}
+                record["eval_after_wake"] = {**row, "reused_stage_evaluation": True}
             record["seconds"] = time.perf_counter() - t0
             self._save_stage(k, agent, memory, wake_snapshots[-1], trajectories, record)
             records.append(record)
@@ -300,14 +325,23 @@ class StreamTrainer:
         reference = {names[i]: trajectories[i][names[i]] for i in range(n)}
         spi = [spi_at_stage(reference, trajectories[k], names[:k]) for k in range(n)]
         pairs = prs_pairs(self.skills)
-        metrics = stream_metrics(matrix, names, pairs, spi=spi)
+        after_wake = [rec["eval_after_wake"]["success_rate"] if "eval_after_wake" in rec else None
+                      for rec in records]
+        complete = all(x is not None for x in after_wake[:-1])
+        metrics = stream_metrics(matrix, names, pairs, spi=spi,
+                                 wake_diagonal=[np.nan if x is None else x for x in after_wake] if complete else None)
+        if not complete:  # eval.after_wake was off: the after-own-wake reference was not measured
+            metrics["bwt_wake"], metrics["bwt_wake_curve"] = float("nan"), [float("nan")] * n
         return {
+            "results_version": RESULTS_VERSION,
             "seed": self.cfg.seed,
             "skills": names,
             "method": "sleeping_robots" if self.cfg.sleep_enabled else "wake_only",
             "pairs": [list(p) for p in pairs],
             "success_matrix": [[None if np.isnan(x) else float(x) for x in row] for row in matrix],
+            "success_after_own_wake": after_wake,
             "metrics": _nan_to_none(metrics),
+            "spi_features": list(SPI_FEATURES),
             "memory_nbytes_total": int(sum(m.nbytes() for m in memories)),
             "stages": records,
             "config": self.cfg.fingerprint_dict(),
@@ -334,8 +368,13 @@ def _diff_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
     return [f"{prefix.rstrip('.')}: saved {a!r} vs now {b!r}"] if a != b else []
 
 
+REPORT_METRICS = ("afsr", "prs", "bwt", "bwt_wake", "spi")
+METRIC_LABELS = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT (ref. after stage i)",
+                 "bwt_wake": "BWT_wake (ref. after own wake)", "spi": "SPI"}
+
+
 def render_report(results: dict[str, Any]) -> str:
-    """A short markdown report: success matrix and final metrics."""
+    """A short markdown report: success matrix, success right after each skill's own wake, final metrics."""
     names = results["skills"]
     lines = [f"# SAC stream report ({results['method']}, seed {results['seed']})", "",
              "Success S[k, i] after stage k (rows) on skill i (columns):", "",
@@ -343,13 +382,16 @@ def render_report(results: dict[str, Any]) -> str:
     for k, row in enumerate(results["success_matrix"]):
         cells = ["" if x is None else f"{x:.2f}" for x in row]
         lines.append(f"| {k + 1}. {names[k]} | " + " | ".join(cells) + " |")
+    wake = results.get("success_after_own_wake")
+    if wake is not None:
+        lines.append("| right after own wake | " + " | ".join("-" if x is None else f"{x:.2f}" for x in wake) + " |")
     m = results["metrics"]
     lines += ["", "| metric | final | per stage |", "|---|---|---|"]
-    for key in ("afsr", "prs", "bwt", "spi"):
+    for key in REPORT_METRICS:
         if key in m:
             curve = ", ".join("-" if x is None else f"{x:.3f}" for x in m[f"{key}_curve"])
             final = "-" if m[key] is None else f"{m[key]:.3f}"
-            lines.append(f"| {key.upper()} | {final} | {curve} |")
+            lines.append(f"| {METRIC_LABELS[key]} | {final} | {curve} |")
     lines += ["", f"Memory stored: {results['memory_nbytes_total'] / 1e6:.2f} MB", ""]
     return "\n".join(lines)
 
@@ -378,10 +420,13 @@ def write_plots(results: dict[str, Any], plot_dir: Path) -> None:
 
     m = results["metrics"]
     fig, axes = plt.subplots(1, 4, figsize=(14, 3))
-    for ax, key in zip(axes, ("afsr", "prs", "bwt", "spi"), strict=True):
-        curve = [np.nan if x is None else x for x in m.get(f"{key}_curve", [])]
-        ax.plot(range(1, len(curve) + 1), curve, marker="o")
-        ax.set_title(key.upper())
+    for ax, keys in zip(axes, (("afsr",), ("prs",), ("bwt", "bwt_wake"), ("spi",)), strict=True):
+        for key in keys:
+            curve = [np.nan if x is None else x for x in m.get(f"{key}_curve", [])]
+            ax.plot(range(1, len(curve) + 1), curve, marker="o", label=METRIC_LABELS[key])
+        ax.set_title(" / ".join(key.upper() for key in keys))
+        if len(keys) > 1:
+            ax.legend(fontsize=7)
         ax.set_xlabel("stage k")
         ax.grid(alpha=0.3)
     _save_fig(fig, plot_dir / "metrics.png", io, plt)

@@ -1,4 +1,5 @@
-"""Stream trainer: end-to-end on a tiny 2-skill stream, resume after a kill, output-dir safety, CLI configs."""
+"""Stream trainer: end-to-end on a tiny 2-skill stream, resume after a kill, output-dir safety, CLI configs,
+paired evaluation (the same configurations for a skill at every stage and right after its wake)."""
 
 from __future__ import annotations
 
@@ -11,7 +12,9 @@ import pytest
 from sr_imitation.core.io import CorruptFileError
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
+from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.report import summarize
+from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.trainer import StreamTrainer
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
@@ -38,8 +41,21 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     full = StreamTrainer(tiny_config(tmp_path / "full", plots=True)).run()
     assert full["skills"] == ["reach", "door-open"]
     assert len(full["success_matrix"]) == 2 and full["success_matrix"][0][1] is None
-    assert set(full["metrics"]) >= {"afsr", "prs", "bwt", "spi"}
+    assert set(full["metrics"]) == {f"{m}{suffix}" for m in ("afsr", "prs", "bwt", "bwt_wake", "spi")
+                                    for suffix in ("", "_curve")}
     assert "sleep" in full["stages"][1] and "sleep" not in full["stages"][0]
+    # After-wake evaluation (on by default): stage 1 has no sleep and reuses its stage evaluation; stage 2 is
+    # evaluated before its sleep on the same configurations as its stage evaluation.
+    wake_rows = [stage["eval_after_wake"] for stage in full["stages"]]
+    assert [row["reused_stage_evaluation"] for row in wake_rows] == [True, False]
+    assert wake_rows[0]["success_rate"] == full["success_matrix"][0][0]
+    assert wake_rows[1]["configurations"] == full["stages"][1]["eval"][1]["configurations"]
+    assert full["success_after_own_wake"] == [row["success_rate"] for row in wake_rows]
+    s_final, w = full["success_matrix"], full["success_after_own_wake"]
+    assert full["metrics"]["bwt_wake"] == pytest.approx(s_final[1][0] - w[0])
+    assert full["metrics"]["bwt"] == pytest.approx(s_final[1][0] - s_final[0][0])
+    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == 2
+    assert "BWT_wake" in (tmp_path / "full" / "report.md").read_text()
     assert len(full["stages"][1]["sleep"]["frozen_critic_value_change"]) == 2
     assert (tmp_path / "full" / "plots" / "success_matrix.png").is_file()
     assert (tmp_path / "full" / "report.md").is_file()
@@ -89,3 +105,46 @@ def test_shipped_configs_parse(name):
     assert cfg.sleep.fw_iterations == 50 and cfg.sleep.max_iterations == 4000 and cfg.sleep.lr == 5e-4
     assert cfg.excitability.e_min == 0.1 and cfg.excitability.e_max == 5.0
     assert cfg.sac.target_entropy == -2.0 and cfg.sac.hidden_dim == 256
+
+
+def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch):
+    """Skill i is evaluated on the same Meta-World configurations at stage i, at stage i + 1 and right after its
+    wake (common random numbers). With the old per-stage seed (stage_seed(seed, k, 100 + i)) the reach episodes at
+    stage 2 drew different configurations than at stage 1, and this test failed."""
+    cfg = tiny_config(tmp_path / "paired", eval=EvalConfig(episodes=6, videos_per_skill=0), max_episode_steps=10)
+    trainer = StreamTrainer(cfg)
+    agent = SACAgent(cfg.sac, cfg.excitability)
+    seen: list[tuple[str, int]] = []
+    original_reset = SkillEnv.reset
+
+    def recording_reset(self, configuration=None):
+        obs = original_reset(self, configuration)
+        seen.append((self.skill, self.configuration))
+        return obs
+
+    monkeypatch.setattr(SkillEnv, "reset", recording_reset)
+
+    def configurations(run):
+        seen.clear()
+        rows, _ = run()
+        by_skill: dict[str, list[int]] = {}
+        for skill, c in seen:
+            by_skill.setdefault(skill, []).append(c)
+        return rows, by_skill
+
+    rows_1, stage_1 = configurations(lambda: trainer._evaluate(0, agent))
+    rows_2, stage_2 = configurations(lambda: trainer._evaluate(1, agent))
+    wake_rows, after_wake_2 = configurations(lambda: trainer._evaluate(1, agent, only_current=True))
+    assert len(stage_1["reach-v3"]) == 6 and len(set(stage_1["reach-v3"])) > 1
+    assert stage_2["reach-v3"] == stage_1["reach-v3"]
+    assert after_wake_2["door-open-v3"] == stage_2["door-open-v3"] and "reach-v3" not in after_wake_2
+    assert rows_2[0]["configurations"] == stage_1["reach-v3"]
+    # Same policy, same configurations: the same numbers, which is why a stage without sleep reuses its stage
+    # evaluation as the after-wake one.
+    assert wake_rows[-1] == rows_2[-1]
+    assert rows_2[0] == rows_1[0]
+    # Another run seed draws other configurations.
+    other = StreamTrainer(tiny_config(tmp_path / "other", seed=4, eval=EvalConfig(episodes=6, videos_per_skill=0),
+                                      max_episode_steps=10))
+    _, stage_1_other = configurations(lambda: other._evaluate(0, agent))
+    assert stage_1_other["reach-v3"] != stage_1["reach-v3"]
