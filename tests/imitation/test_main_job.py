@@ -8,6 +8,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import av
+import numpy as np
 import pytest
 
 from sr_imitation.imitation.cli import train_main
@@ -41,17 +43,109 @@ def main_job_run(tmp_path_factory):
     return tmp, path
 
 
+def _decode(path: Path) -> np.ndarray:
+    """All frames of an mp4 as uint8 (T, H, W, 3), decoded with PyAV."""
+    with av.open(str(path)) as container:
+        return np.stack([frame.to_ndarray(format="rgb24") for frame in container.decode(video=0)])
+
+
+def _table_row(markdown: str, label: str) -> list[str]:
+    rows = [line for line in markdown.splitlines() if line.startswith(f"| {label} |")]
+    assert len(rows) == 1, (label, markdown)
+    return [cell.strip() for cell in rows[0].strip().strip("|").split("|")][1:]
+
+
+def _check_results_against_files(run: Path, skills: list[str]) -> dict:
+    """results.json and results.md agree with the per-phase eval.json files and with each other."""
+    results = json.loads((run / "results.json").read_text())
+    n = len(skills)
+    final = [run / f"skill_{k + 1}_{s}" / ("sleep" if k else "wake") / "eval.json" for k, s in enumerate(skills)]
+    wake = [run / f"skill_{k + 1}_{s}" / "wake" / "eval.json" for k, s in enumerate(skills)]
+    expected = [[json.loads(final[k].read_text())[skills[i]]["success"] if i <= k else None for i in range(n)]
+                for k in range(n)]
+    assert results["success_matrix"] == expected
+    assert results["success_after_own_wake"] == [json.loads(wake[i].read_text())[skills[i]]["success"]
+                                                 for i in range(n)]
+    assert all(0.0 <= x <= 1.0 for row in expected for x in row if x is not None)
+    s = results["success_matrix"]
+    m = results["metrics"]
+    assert set(m) >= {"afsr", "prs", "bwt", "bwt_wake", "spi"}
+    # AFSR_k = mean of row k up to the diagonal (Eq. 4); BWT / BWT_wake and PRS for the pair (approach, place).
+    assert m["afsr"]["mean_curve"] == pytest.approx([np.mean(s[k][: k + 1]) for k in range(n)])
+    assert m["afsr"]["final_mean"] == pytest.approx(np.mean(s[-1]))
+    assert m["bwt"]["final_mean"] == pytest.approx(s[1][0] - s[0][0])
+    assert m["bwt_wake"]["final_mean"] == pytest.approx(s[1][0] - results["success_after_own_wake"][0])
+    assert results["pairs"] == [["approach", "place"]]
+    assert m["prs"]["mean_curve"][0] is None and m["prs"]["final_mean"] == pytest.approx(min(s[1][0], s[1][1]))
+    assert 0.0 <= m["spi"]["final_mean"] <= 1.0 + 1e-9
+    # results.md shows the same numbers.
+    md = (run / "results.md").read_text()
+    for k, skill in enumerate(skills):
+        assert _table_row(md, skill) == [f"{x:.2f}" if x is not None else "" for x in s[k]]
+    assert _table_row(md, "right after own wake") == [f"{x:.2f}" for x in results["success_after_own_wake"]]
+    assert _table_row(md, "AFSR")[0].startswith(f"{m['afsr']['final_mean']:.3f}")
+    assert _table_row(md, "PRS")[0].startswith(f"{m['prs']['final_mean']:.3f}")
+    return results
+
+
 def test_main_job_records_trains_evaluates_and_reports(main_job_run):
     tmp, _ = main_job_run
     run = tmp / "run"
+    skills = ["approach", "place"]
     assert (tmp / "datasets" / "approach" / "meta" / "info.json").is_file()
-    results = json.loads((run / "results.json").read_text())
-    assert results["skills"] == ["approach", "place"] and len(results["success_matrix"]) == 2
-    for name in ("metrics.png", "success_matrix.png", "results.md", "expert_suture.mp4"):
-        assert (run / name).stat().st_size > 0, name
-    videos = list((run / "videos").rglob("*.mp4"))
+    for skill in skills:
+        info = json.loads((tmp / "datasets" / skill / "meta" / "info.json").read_text())
+        assert info["total_episodes"] == 2 and info["total_frames"] > 2
+    results = _check_results_against_files(run, skills)
+    assert results["skills"] == skills and results["eval_seeds"] == [0]
+    # One evaluation seed of one episode: every success is 0 or 1.
+    assert all(x in (0.0, 1.0) for row in results["success_matrix"] for x in row if x is not None)
+    for name in ("metrics.png", "success_matrix.png"):
+        assert (run / name).read_bytes()[:8] == b"\x89PNG\r\n\x1a\n", name
+    # Rollout videos: one per learned skill and phase, 64 x 64 as configured, one frame per step of the episode
+    # (plus the first observation), named after its outcome, and not a still image.
+    videos = sorted((run / "videos").rglob("*.mp4"))
     assert len(videos) == 1 + 2 + 2  # wake 1: one skill; wake 2 and sleep 2: two skills each
-    assert all(v.stat().st_size > 1000 for v in videos)
+    for video in videos:
+        stage, phase = video.parent.parent.name, video.parent.name
+        skill, _, outcome = video.stem.partition("_episode0_")
+        record = json.loads((run / stage / phase / "eval.json").read_text())[skill]
+        assert str(video.relative_to(run)) in record["videos"]
+        assert outcome == ("success" if record["success_per_seed"][0] == 1.0 else "failure"), video
+        frames = _decode(video)
+        assert frames.shape[1:] == (64, 64, 3), video
+        assert len(frames) in (record["episode_lengths"][0], record["episode_lengths"][0] + 1), video
+        assert frames.std() > 1.0 and np.abs(frames[-1].astype(int) - frames[0].astype(int)).max() > 0, video
+    # The scripted expert's full suture: many frames, and the scene moves.
+    expert = _decode(run / "expert_suture.mp4")
+    assert len(expert) > 50 and expert.std() > 1.0
+    assert np.abs(expert[-1].astype(int) - expert[0].astype(int)).mean() > 1.0
+
+
+def test_the_report_is_rebuilt_from_the_evaluation_files(main_job_run, tmp_path):
+    """Known success numbers written into a copy's eval.json files come out in results.json/.md (via resume)."""
+    tmp, _ = main_job_run
+    run = tmp_path / "run"
+    shutil.copytree(tmp / "run", run)
+    doctored = {  # phase -> {skill: success}
+        "skill_1_approach/wake": {"approach": 0.5},
+        "skill_2_place/wake": {"approach": 0.75, "place": 0.5},
+        "skill_2_place/sleep": {"approach": 0.25, "place": 1.0},
+    }
+    for phase, values in doctored.items():
+        path = run / phase / "eval.json"
+        record = json.loads(path.read_text())
+        for skill, value in values.items():
+            record[skill]["success"], record[skill]["success_per_seed"] = value, [value]
+        path.write_text(json.dumps(record))
+    train_main([f"--config_path={tmp / 'run' / 'train_config.json'}", f"--output_dir={run}", "--resume=true"])
+    results = _check_results_against_files(run, ["approach", "place"])
+    assert results["success_matrix"] == [[0.5, None], [0.25, 1.0]]
+    assert results["success_after_own_wake"] == [0.5, 0.5]
+    m = results["metrics"]
+    assert m["afsr"]["mean_curve"] == pytest.approx([0.5, 0.625])
+    assert m["bwt"]["final_mean"] == pytest.approx(-0.25) and m["prs"]["final_mean"] == pytest.approx(0.25)
+    assert "| AFSR | 0.625 |" in (run / "results.md").read_text()
 
 
 def test_sr_train_resumes_a_finished_run_without_redoing_work(main_job_run):
