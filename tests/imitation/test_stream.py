@@ -43,7 +43,7 @@ def test_a_stream_writes_every_stage_memory_and_report(finished_run):
         assert (out / name).is_file(), name
     s = results["success_matrix"]
     assert len(s) == 3 and s[0][1] is None and all(0.0 <= x <= 1.0 for x in s[2])
-    assert set(results["metrics"]) == {"afsr", "prs", "bwt", "spi"}
+    assert set(results["metrics"]) == {"afsr", "prs", "bwt", "bwt_wake", "spi"}
     assert results["metrics"]["prs"]["mean_curve"][0] is None  # PRS only for k >= 2
     sleeps = results["sleep"]
     assert set(sleeps) == {"2.sleep", "3.sleep"}
