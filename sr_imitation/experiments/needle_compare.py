@@ -7,9 +7,11 @@ Variants: ``sr``, ``wake_only``, ``sequential_bc`` (the default three) and the s
 (anchor strength 0) and ``sr_mean_grad`` (mean of normalized gradients instead of Nash). Every (variant, seed) is an
 ordinary ``sr-train`` run in ``<output_root>/<variant>_seed<seed>`` on the same
 recorded datasets (recorded once, as by ``sr-main``); an interrupted comparison resumes each run where it stopped.
-The summary (``summary.json``, ``summary.md``, ``summary.png``) reports the final AFSR, PRS, BWT and SPI, the final
-success per skill and the success right after each skill's own wake as mean +- standard error over training seeds
-(each seed's value is itself the mean over its evaluation seeds).
+The summary (``summary.json``, ``summary.md``, ``summary.png``) reports the final AFSR, PRS, BWT (reference: after
+stage i), BWT_wake (reference: right after skill i's own wake) and SPI, the final success per skill and the success
+right after each skill's own wake as mean +- standard error over training seeds (each seed's value is itself the
+mean over its evaluation seeds), and every metric's paired difference to ``wake_only`` over the training seeds
+both have.
 """
 
 from __future__ import annotations
@@ -28,7 +30,7 @@ import draccus
 import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, atomic_write_json
-from sr_imitation.core.metrics import mean_sem
+from sr_imitation.core.metrics import bwt_curve, mean_sem
 from sr_imitation.imitation.stream import train_stream
 from sr_imitation.main_job import MainJobConfig
 from sr_imitation.record import RecordConfig, record
@@ -45,7 +47,9 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "sr_mean_normalized": ("sr", {"sleep": True, "aggregator": "mean_normalized"}),
     "sr_nash_fw": ("sr", {"sleep": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
 }
-METRICS = ("afsr", "prs", "bwt", "spi")
+METRICS = ("afsr", "prs", "bwt", "bwt_wake", "spi")
+LABELS = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
+PAIRED_BASELINE = "wake_only"
 
 
 @dataclass
@@ -91,15 +95,49 @@ def _mean_sem_dict(values: list[float | None]) -> dict[str, Any]:
     return {"mean": mean, "sem": sem, "per_seed": values}
 
 
+def _final(results: dict[str, Any], metric: str) -> float | None:
+    """A run's final metric (mean over its evaluation seeds). Runs written before ``bwt_wake`` existed: computed
+    from ``success_matrix`` and the diagonal of ``success_matrix_after_wake`` (linear in S, so equal to the mean of
+    the per-evaluation-seed values)."""
+    if metric in results["metrics"]:
+        return results["metrics"][metric]["final_mean"]
+    if metric != "bwt_wake":
+        raise KeyError(f"results.json has no metric {metric!r}")
+    s = np.array(results["success_matrix"], dtype=float)
+    wake = np.diag(np.array(results["success_matrix_after_wake"], dtype=float))
+    return float(bwt_curve(s, wake)[-1])
+
+
+def _paired(summary: dict[str, Any], finals: dict[str, dict[str, dict[str, float | None]]]) -> dict[str, Any]:
+    """Per variant: the difference to ``PAIRED_BASELINE`` of each metric, per training seed both have, mean +- SE."""
+    if PAIRED_BASELINE not in finals:
+        return {}
+    base = finals[PAIRED_BASELINE]
+    out: dict[str, Any] = {}
+    for variant, per_metric in finals.items():
+        seeds = [s for s in summary[variant]["seeds"] if s in summary[PAIRED_BASELINE]["seeds"]]
+        if variant == PAIRED_BASELINE or not seeds:
+            continue
+        out[variant] = {"seeds": seeds}
+        for m in METRICS:
+            diffs = [None if per_metric[m][s] is None or base[m][s] is None else per_metric[m][s] - base[m][s]
+                     for s in seeds]
+            out[variant][m] = _mean_sem_dict(diffs)
+    return out
+
+
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
     """Mean +- SE over training seeds of the final metrics, the final success per skill and the success right
-    after each skill's own wake; writes ``summary.json``, ``summary.md`` and ``summary.png``."""
+    after each skill's own wake, and paired differences to ``wake_only``; writes ``summary.json``, ``summary.md``
+    and ``summary.png``."""
     summary: dict[str, Any] = {}
     skills: list[str] = []
+    finals_by_seed: dict[str, dict[str, dict[str, float | None]]] = {}
     for variant, per_seed in runs.items():
         results = {seed: json.loads(Path(path).read_text()) for seed, path in per_seed.items()}
         skills = next(iter(results.values()))["skills"]
-        finals = {m: [r["metrics"][m]["final_mean"] for r in results.values()] for m in METRICS}
+        finals_by_seed[variant] = {m: {seed: _final(r, m) for seed, r in results.items()} for m in METRICS}
+        finals = {m: list(finals_by_seed[variant][m].values()) for m in METRICS}
         final_success = np.array([r["success_matrix"][-1] for r in results.values()], dtype=float)
         after_wake = np.array([np.diag(np.array(r["success_matrix_after_wake"], dtype=float))
                                for r in results.values()])
@@ -111,12 +149,22 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
             "success_after_own_wake": {s: _mean_sem_dict(after_wake[:, i].tolist())
                                        for i, s in enumerate(skills)},
         }
-    atomic_write_json(output_root / "summary.json", {"skills": skills, "summary": summary})
+    paired = _paired(summary, finals_by_seed)
+    atomic_write_json(output_root / "summary.json", {"skills": skills, "summary": summary,
+                                                     f"paired_minus_{PAIRED_BASELINE}": paired})
     fmt = lambda d: f"{d['mean']:.3f} +- {d['sem']:.3f}"  # noqa: E731
-    lines = ["Final metrics after the full stream, mean +- SE over training seeds:", "",
-             "| variant | seeds | AFSR | PRS | BWT | SPI |", "|---|---|---|---|---|---|"]
+    header = "| variant | seeds | " + " | ".join(LABELS[m] for m in METRICS) + " |"
+    rule = "|---" * (len(METRICS) + 2) + "|"
+    lines = ["Final metrics after the full stream, mean +- SE over training seeds. BWT: reference = success on skill "
+             "i after stage i (after its sleep); BWT_wake: reference = success on skill i right after its own wake.",
+             "", header, rule]
     for v, row in summary.items():
         lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(fmt(row[m]) for m in METRICS) + " |")
+    if paired:
+        lines += ["", f"Paired difference variant - {PAIRED_BASELINE} (same training seed), mean +- SE:", "",
+                  header, rule]
+        for v, row in paired.items():
+            lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(fmt(row[m]) for m in METRICS) + " |")
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):
         lines += ["", f"{title}, mean +- SE over training seeds:", "",
@@ -136,7 +184,7 @@ def _plot(summary: dict[str, Any], skills: list[str], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     variants = list(summary)
-    panels = [(m.upper(), [summary[v][m] for v in variants]) for m in METRICS]
+    panels = [(LABELS[m], [summary[v][m] for v in variants]) for m in METRICS]
     fig, axes = plt.subplots(1, len(panels) + 1, figsize=(4 * (len(panels) + 1), 3.6))
     x = np.arange(len(variants))
     for ax, (title, cells) in zip(axes, panels, strict=False):

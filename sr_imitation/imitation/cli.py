@@ -48,8 +48,10 @@ def train_main(args: list[str] | None = None) -> None:
     results = train_stream(cfg)
     m = results["metrics"]
     print(f"results: {cfg.output_dir / 'results.json'} (plots: metrics.png, success_matrix.png; videos: videos/)")
-    print("final " + ", ".join(f"{k.upper()}={m[k]['final_mean']:.3f}" for k in ("afsr", "prs", "bwt", "spi")
-                               if m[k]["final_mean"] is not None))
+    names = ("afsr", "prs", "bwt", "bwt_wake", "spi")
+    print("final " + ", ".join(f"{k.upper()}={m[k]['final_mean']:.3f}" for k in names
+                               if k in m and m[k]["final_mean"] is not None)
+          + " (BWT: reference after stage i; BWT_WAKE: reference right after skill i's own wake)")
 
 
 @dataclass

@@ -2,9 +2,12 @@
 
 Each skill is evaluated with N episodes per evaluation seed (paper: N = 20, three evaluation seeds); an episode
 succeeds when ``info["is_success"]`` becomes true (the environment terminates on success). The observation
-trajectories (``agent_pos``) are kept for SPI, and the first episodes of each skill can be saved as mp4 from the
-scene camera (offscreen EGL). Observations go through LeRobot's ``preprocess_observation`` and the policy's
-pre/post-processors, as in ``lerobot-eval``.
+trajectories (``agent_pos``, all 35 entries) are kept; SPI uses their ``SPI_FEATURES`` only (the report slices
+them, ``sr_imitation.core.metrics.policy_motion``), and the first episodes of each skill can be saved as mp4 from
+the scene camera (offscreen EGL). Episode e of evaluation seed s on the skill at stream position i always resets
+with the same seed (``EVAL_SEED_OFFSET + 10000 s + 100 i + e``), whatever the stage: S[k, i] and S[i, i], and the
+evaluation right after skill i's wake, are paired (common random numbers). Observations go through LeRobot's
+``preprocess_observation`` and the policy's pre/post-processors, as in ``lerobot-eval``.
 """
 
 from __future__ import annotations
@@ -26,6 +29,25 @@ logger = logging.getLogger(__name__)
 
 EVAL_SEED_OFFSET = 1_000_000
 """Evaluation episodes use reset seeds far from the demonstration seeds."""
+
+SPI_FEATURES: tuple[int, ...] = tuple(range(7))
+"""Policy-dependent entries of the needle env's 35-d ``agent_pos`` used by SPI: the active arm's tool setpoint
+``cur_x, cur_y, cur_z`` (cm), ``cur_roll, cur_pitch, cur_yaw`` (rad) and ``cur_jaw`` (``envs.needle.env.STATE_NAMES``
+0-6). The rest is not the tool's own state or repeats it: ``goal_*`` (7-13) is set at reset, ``delta_*`` (14-20)
+= goal - cur, ``achieved_*`` (21-27) repeats cur, ``desired_*`` (28-34) repeats goal (docs/NEEDLE_ENV.md)."""
+
+NEEDLE_STATE_DIM = 35
+"""Size of the needle env's ``agent_pos`` (``envs.needle.env.STATE_DIM``), the layout ``SPI_FEATURES`` refers to."""
+
+
+def spi_features(state_dim: int) -> tuple[int, ...]:
+    """The ``agent_pos`` entries SPI uses: ``SPI_FEATURES`` for the needle env's 35-d layout. Another environment
+    (a custom ``EnvFactory``) has no declared layout here; all its entries are used, with a warning (our choice)."""
+    if state_dim == NEEDLE_STATE_DIM:
+        return SPI_FEATURES
+    logger.warning("SPI: %d-d agent_pos is not the needle env's %d-d layout; using all %d entries", state_dim,
+                   NEEDLE_STATE_DIM, state_dim)
+    return tuple(range(state_dim))
 
 EnvFactory = Callable[[str, bool], gym.Env]
 """(skill, with_scene_render) -> a gymnasium env with ``pixels``/``agent_pos`` observations."""
