@@ -174,8 +174,9 @@ class EvalConfig:
     """Evaluate the Gaussian mean (tanh) action."""
     after_wake: bool = True
     """Evaluate each new skill right after its wake, on the same configurations as its stage evaluations: the
-    reference of ``bwt_wake`` (off: ``bwt_wake`` is null). Costs one extra evaluation of one skill per sleep stage;
-    stages without sleep reuse their stage evaluation."""
+    reference of ``bwt_wake``. Costs one extra evaluation of one skill per sleep stage; stages without sleep reuse
+    their stage evaluation (also when this is off). Off: sleep stages have no after-wake success and a sleeping
+    run's ``bwt_wake`` is null."""
     videos_per_skill: int = 1
     """After every stage, record the first N evaluation episodes of each learned skill as mp4 (0: no videos)."""
     video_height: int = 240

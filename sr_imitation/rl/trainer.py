@@ -295,7 +295,7 @@ class StreamTrainer:
             if sleeps:
                 record["sleep"] = self._sleep(k, agent, memories, anchor, wake_snapshots)
             record["eval"], trajectories = self._evaluate(k, agent, videos=True)
-            if cfg.eval.after_wake and not sleeps:  # no sleep: the after-wake policy is the stage policy
+            if not sleeps:  # no sleep: the after-wake policy is the stage policy (free, so even with after_wake off)
                 row = {key: value for key, value in record["eval"][-1].items() if key != "videos"}
                 record["eval_after_wake"] = {**row, "reused_stage_evaluation": True}
             record["seconds"] = time.perf_counter() - t0
