@@ -43,14 +43,58 @@ def dataset_info_path(root: Path) -> Path:
 
 
 def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
-    """Load a local dataset's metadata, failing loudly (never reaching for the Hub)."""
+    """Load a local dataset's metadata, failing loudly (never reaching for the Hub).
+
+    LeRobot falls back to downloading from the Hub when a local metadata file is missing, which turns a deleted
+    file into a long traceback about the Hub; the files LeRobot v3 needs are checked first, and any other failure
+    to read them is reported as one :class:`DatasetMismatchError` naming the dataset.
+    """
     root = Path(root)
     if not dataset_info_path(root).is_file():
         raise DatasetMismatchError(f"{root}: not a LeRobot dataset (missing {dataset_info_path(root)})")
-    meta = LeRobotDatasetMetadata(repo_id, root=root)
+    missing = [name for name in ("meta/tasks.parquet",) if not (root / name).is_file()]
+    if not any((root / "meta" / "episodes").glob("*/*.parquet")):
+        missing.append("meta/episodes/*/*.parquet")
+    if missing:
+        raise DatasetMismatchError(f"{root}: incomplete LeRobot dataset, missing {', '.join(missing)}")
+    try:
+        meta = LeRobotDatasetMetadata(repo_id, root=root)
+    except Exception as exc:  # noqa: BLE001 - LeRobot raises anything from Arrow/JSON/Hub errors here
+        raise DatasetMismatchError(f"{root}: cannot read the dataset metadata ({type(exc).__name__}: {exc})") from exc
     if meta.total_episodes == 0 or meta.total_frames == 0:
         raise DatasetMismatchError(f"{root}: dataset is empty ({meta.total_episodes} episodes)")
     return meta
+
+
+def check_data_files(meta: LeRobotDatasetMetadata) -> None:
+    """Every data (parquet) and video file the episodes reference exists and is non-empty."""
+    paths = {meta.get_data_file_path(e) for e in range(meta.total_episodes)}
+    for key in meta.video_keys:
+        paths |= {meta.get_video_file_path(e, key) for e in range(meta.total_episodes)}
+    missing = sorted(str(p) for p in paths if not (meta.root / p).is_file() or (meta.root / p).stat().st_size == 0)
+    if missing:
+        raise DatasetMismatchError(f"{meta.root}: missing or empty data files {missing}")
+
+
+def check_stream_datasets(stream, use_images: bool) -> tuple[LeRobotDatasetMetadata, dict, dict]:
+    """Open every dataset of a stream and match it to the policy, before anything is trained or written.
+
+    The policy's features come from the first skill's dataset (:func:`policy_features`); every dataset must
+    exist, be non-empty, have all its data/video files, provide those features with the same shapes, and share
+    the first dataset's fps (the action chunk is defined in time steps). ``stream`` is a
+    :class:`~sr_imitation.imitation.stream.StreamConfig` (``skills``, ``dataset_path(i)``, ``repo_id(i)``).
+    Returns the first dataset's metadata and the policy's input and output features.
+    """
+    metas = [load_metadata(stream.dataset_path(i), stream.repo_id(i)) for i in range(len(stream.skills))]
+    inputs, outputs = policy_features(metas[0], use_images)
+    for meta in metas:
+        check_features(meta, inputs, outputs)
+        if meta.fps != metas[0].fps:
+            raise DatasetMismatchError(
+                f"{dataset_info_path(meta.root)}: fps {meta.fps} differs from the first skill's {metas[0].fps}"
+            )
+        check_data_files(meta)
+    return metas[0], inputs, outputs
 
 
 def policy_features(meta: LeRobotDatasetMetadata, use_images: bool) -> tuple[dict, dict]:

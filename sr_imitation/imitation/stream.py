@@ -45,6 +45,7 @@ from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.data import (
+    check_stream_datasets,
     load_metadata,
     load_skill_data,
     load_stats,
@@ -377,6 +378,7 @@ class StreamTrainer:
         last = len(self.skills) if stop_after is None else stop_after
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
+        check_stream_datasets(self.cfg.stream, self.policy_cfg.use_images)  # before anything is written
         self._prepare_output_dir()
         self._setup_policy()
         pending_load: Path | None = None
