@@ -227,6 +227,7 @@ def sleep_consolidate(
     step_callback: Callable[[int], None] | None = None,
     aggregator: Aggregator | None = None,
     progress: bool = True,
+    on_iteration: Callable[[int, dict[str, Any]], None] | None = None,
 ) -> SleepResult:
     """Run one sleep phase in place on ``params`` (Algorithm 1, lines 7-15).
 
@@ -242,6 +243,9 @@ def sleep_consolidate(
         step_callback: called with the iteration index after each applied update (e.g. excitability).
         aggregator: reuse an aggregator (keeps its warm start); default: a fresh one from ``config``.
         progress: show a tqdm progress bar.
+        on_iteration: called after each applied update with the iteration index and that iteration's record
+            (``objective``, ``memory_losses``, ``alpha``, ``grad_norms``, ``anchor_lambda``, ``solver_status``,
+            ``solver_iterations``), e.g. to write the run log (``sr_imitation.core.runlog``).
     """
     params = [p for p in params if p.requires_grad]
     if not params:
@@ -330,6 +334,10 @@ def sleep_consolidate(
         result.sleep_objective.append(objective)
         result.solver_iterations.append(int(agg.iterations))
         result.solver_status[agg.status] = result.solver_status.get(agg.status, 0) + 1
+        if on_iteration is not None:
+            on_iteration(it, {"objective": objective, "memory_losses": losses, "alpha": result.alpha[-1],
+                              "grad_norms": result.grad_norms[-1], "anchor_lambda": lam,
+                              "solver_status": agg.status, "solver_iterations": int(agg.iterations)})
         result.stop_iteration = it + 1
         if progress and it % 10 == 0:
             bar.set_postfix(obj=f"{objective:.4g}", worst=f"{max(losses):.4g}")
