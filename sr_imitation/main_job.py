@@ -17,9 +17,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import draccus
-
-from sr_imitation.imitation.cli import _split_config_path
+from sr_imitation.imitation.cli import _split_config_path, parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.record import RecordConfig, record
 
@@ -63,7 +61,7 @@ def main(args: list[str] | None = None) -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = draccus.parse(MainJobConfig, config_path=config_path, args=rest)
+    cfg = parse_config(MainJobConfig, config_path, rest)
     results = run_main_job(cfg)
     out = Path(cfg.train.output_dir)
     m = results["metrics"]

@@ -31,6 +31,7 @@ import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, atomic_write_json
 from sr_imitation.core.metrics import bwt_curve, mean_sem
+from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import train_stream
 from sr_imitation.main_job import MainJobConfig
 from sr_imitation.record import RecordConfig, record
@@ -68,7 +69,7 @@ class CompareConfig:
 
 
 def run_compare(cfg: CompareConfig) -> dict:
-    base = draccus.parse(MainJobConfig, config_path=str(cfg.preset), args=[])
+    base = parse_config(MainJobConfig, cfg.preset, [])
     rec = base.record
     missing = [s for s in rec.skills if not rec.target(s).exists()]
     if missing:

@@ -25,6 +25,7 @@ from typing import Any
 import draccus
 
 from sr_imitation.core.io import atomic_write_json, read_json
+from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stage_name
 
 logger = logging.getLogger(__name__)
@@ -93,7 +94,7 @@ def prepare_replay(cfg: SleepReplayConfig) -> TrainStreamConfig:
     saved["policy"].update(cfg.set.as_dict())
     saved["output_dir"] = str(out)
     atomic_write_json(out / "train_config.json", saved)
-    train = draccus.parse(TrainStreamConfig, config_path=str(out / "train_config.json"), args=[])
+    train = parse_config(TrainStreamConfig, out / "train_config.json", [])
     train.resume, train.progress = True, cfg.progress
     return train
 

@@ -3,22 +3,27 @@
     sr-train --config_path=configs/needle_cpu.json
     sr-train --policy.type=act_sr --policy.sleep=true --stream.skills=[approach,place,insert] \\
              --stream.dataset_root=datasets/needle --output_dir=outputs/run1
-    sr-train --config_path=outputs/run1/train_config.json --resume=true
+    sr-train --config_path=outputs/run1/train_config.json --resume=true   # resumes outputs/run1, wherever it is
     sr-eval --policy.path=outputs/run1/skill_5_pullout/sleep/pretrained_model --skills=[approach,pullout]
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import logging
 import os
 import sys
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import TypeVar
 
 import draccus
+from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
+from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.core.io import atomic_write_json
 from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
@@ -35,6 +40,31 @@ def _split_config_path(args: list[str]) -> tuple[str | None, list[str]]:
     return path, rest
 
 
+@contextlib.contextmanager
+def act_sr_choices_only() -> Iterator[None]:
+    """Within the block, ``--policy.type`` knows ``act_sr`` only.
+
+    LeRobot registers every policy type with ``PreTrainedConfig``; draccus builds flags (and extracts help text
+    from the source) for all of them on every parse: 3.7 s per parse here and a ``--help`` of ~2000 lines of
+    unrelated policies. ``sr-train`` trains ACT-SR only, so the registry is narrowed while parsing (0.6 s) and
+    any other ``--policy.type`` is refused by argparse naming the valid choice."""
+    saved = PreTrainedConfig.__dict__["_choice_registry"]
+    PreTrainedConfig._choice_registry = {k: v for k, v in saved.items() if k == "act_sr"}
+    try:
+        yield
+    finally:
+        PreTrainedConfig._choice_registry = saved
+
+
+T = TypeVar("T")
+
+
+def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str]) -> T:
+    """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`)."""
+    with act_sr_choices_only():
+        return draccus.parse(cls, config_path=None if config_path is None else str(config_path), args=args)
+
+
 def _setup_logging() -> None:
     os.environ.setdefault("MUJOCO_GL", "egl")
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
@@ -44,7 +74,9 @@ def train_main(args: list[str] | None = None) -> None:
     """``sr-train``: run (or resume) a wake-sleep stream."""
     _setup_logging()
     config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = draccus.parse(TrainStreamConfig, config_path=config_path, args=rest)
+    cfg = parse_config(TrainStreamConfig, config_path, rest)
+    # A run's train_config.json stores output_dir "." (the run directory itself, wherever it was copied to).
+    cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
     results = train_stream(cfg)
     m = results["metrics"]
     print(f"results: {cfg.output_dir / 'results.json'} (plots: metrics.png, success_matrix.png; videos: videos/)")

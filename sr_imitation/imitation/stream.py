@@ -39,7 +39,18 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
-from sr_imitation.core.io import CorruptFileError, atomic_write_json
+from sr_imitation.core.fingerprint import (
+    FINGERPRINT_FILE,
+    RUN_DIRECTORY,
+    SettingsFingerprint,
+    check_settings,
+    read_fingerprint,
+    settings_fingerprint,
+    settings_from_config,
+    to_jsonable,
+    write_fingerprint,
+)
+from sr_imitation.core.io import CorruptFileError, atomic_write_json, read_json
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.core.sleep import sleep_consolidate
@@ -140,32 +151,48 @@ def stage_name(index: int, skill: str) -> str:
 
 
 def _config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:
-    def convert(value: Any) -> Any:
-        if dataclasses.is_dataclass(value) and not isinstance(value, type):
-            out = {f.name: convert(getattr(value, f.name)) for f in dataclasses.fields(value)}
-            if isinstance(value, PreTrainedConfig):
-                out["type"] = value.type
-            return out
-        if isinstance(value, Path):
-            return str(value)
-        if isinstance(value, dict):
-            return {str(k): convert(v) for k, v in value.items()}
-        if isinstance(value, (list, tuple)):
-            return [convert(v) for v in value]
-        if hasattr(value, "value") and not isinstance(value, (int, float, str, bool)):
-            return value.value
-        if hasattr(value, "__dict__") and not isinstance(value, (int, float, str, bool)):
-            return {k: convert(v) for k, v in vars(value).items()}
-        return value
-
-    return convert(cfg)
+    """The whole configuration as JSON data (what ``train_config.json`` holds; draccus reads it back)."""
+    out = to_jsonable(cfg)
+    out["policy"]["type"] = cfg.policy.type  # draccus' choice key (not a dataclass field)
+    return out
 
 
-# Settings that must agree between a run and its resumption (anything else, e.g. progress bars, may change).
-_RESUME_KEYS = ("method", "seed", "stream", "wake", "eval")
-_RESUME_POLICY_KEYS = ("sleep", "aggregator", "use_images", "chunk_size", "dim_model", "sleep_max_iterations",
-                       "sleep_lr", "memory_buffer_size", "anchor_strength", "distill_weight_second",
-                       "distill_weight_later", "distill_reduction")
+RESUME_ALLOW_LIST: dict[str, str] = {
+    "output_dir": "where the run is, not what it computes: a copied run directory resumes where it is",
+    "resume": "the per-invocation flag that asks for this check",
+    "overwrite": "per invocation (it excludes --resume, and a fresh run has nothing to compare with)",
+    "progress": "console progress bars only",
+    "eval.videos_per_skill": "which evaluation episodes are also rendered to mp4: the recording env is another "
+                             "instance reset with the same seed and rendering only reads the scene (outcomes, "
+                             "agent_pos and image observations are identical, checked on the needle env with "
+                             "64x64 images and 240x320 / 720x1280 videos)",
+    "eval.video_height": "video frame size only (see eval.videos_per_skill)",
+    "eval.video_width": "video frame size only (see eval.videos_per_skill)",
+    "wake.num_workers": "DataLoader worker processes: sampling and its seed draw stay in the main process (torch "
+                        "draws the worker base seed with or without workers) and the in-memory dataset has no "
+                        "randomness, so the batches are the same (tests/imitation/test_resume_settings.py resumes "
+                        "with workers and gets bit-identical weights)",
+    "policy.input_features": "derived from the stream's first dataset at set-up (any given value is overwritten); "
+                             "the datasets are inputs, not settings",
+    "policy.output_features": "as policy.input_features",
+}
+"""Settings of ``sr-train`` that may differ on ``--resume`` (fnmatch patterns, each covering the keys below it),
+with the reason each cannot change results. Every other setting of :class:`TrainStreamConfig`, the whole
+``--policy.*`` included, is fingerprinted at the run's start (``settings_fingerprint.json``) and must be equal on
+resume; the check runs before anything is written (:meth:`StreamTrainer._prepare_output_dir`)."""
+
+
+def resume_fingerprint(cfg: TrainStreamConfig) -> SettingsFingerprint:
+    """The settings of ``cfg`` that a resume must keep (everything but :data:`RESUME_ALLOW_LIST`)."""
+    return settings_fingerprint(_config_dict(cfg), RESUME_ALLOW_LIST)
+
+
+def stored_config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:
+    """``train_config.json``: the whole config without the per-invocation flags and with ``output_dir`` "."
+    (the directory holding the file), so the file never names the run's absolute location."""
+    out = {k: v for k, v in _config_dict(cfg).items() if k not in ("resume", "overwrite")}
+    out["output_dir"] = RUN_DIRECTORY
+    return out
 
 
 class StreamTrainer:
@@ -183,37 +210,50 @@ class StreamTrainer:
 
     # -- set-up --------------------------------------------------------------------------------------
     def _prepare_output_dir(self) -> None:
-        progress_path = self.out / "progress.json"
-        # Per-invocation flags are not part of the run's identity: a saved config never implies --resume.
-        config_now = {k: v for k, v in _config_dict(self.cfg).items() if k not in ("resume", "overwrite")}
-        if self.out.exists() and any(self.out.iterdir()):
-            if self.cfg.overwrite:
-                logger.warning("--overwrite: removing %s", self.out)
-                shutil.rmtree(self.out)
-            elif not self.cfg.resume:
-                raise FileExistsError(
-                    f"{self.out} already exists; pass --resume=true to continue it or --overwrite=true to replace it"
-                )
-        elif self.cfg.resume:
-            raise FileNotFoundError(f"--resume=true but {self.out} holds no run to resume")
-        self.out.mkdir(parents=True, exist_ok=True)
-        if self.cfg.resume and progress_path.exists():
-            try:
-                self.progress = json.loads(progress_path.read_text())
-                saved = json.loads((self.out / "train_config.json").read_text())
-            except (json.JSONDecodeError, FileNotFoundError) as exc:
-                raise CorruptFileError(progress_path, f"cannot resume: {exc}") from exc
-            self._check_resume_compatible(saved, config_now)
-        atomic_write_json(self.out / "train_config.json", config_now)
-
-    def _check_resume_compatible(self, saved: dict[str, Any], now: dict[str, Any]) -> None:
-        diffs = [k for k in _RESUME_KEYS if saved.get(k) != now.get(k)]
-        diffs += [f"policy.{k}" for k in _RESUME_POLICY_KEYS
-                  if saved.get("policy", {}).get(k) != now.get("policy", {}).get(k)]
-        if diffs:
-            raise ValueError(
-                f"{self.out / 'train_config.json'}: cannot resume with different settings: {diffs}"
+        """Fresh run: create the directory, then write the settings fingerprint and ``train_config.json`` (once).
+        Resume: check the requested settings against the stored fingerprint and read ``progress.json``, writing
+        nothing (a refused resume leaves the directory byte-identical; the stored config is never rewritten)."""
+        fingerprint = resume_fingerprint(self.cfg)
+        exists = self.out.exists() and any(self.out.iterdir())
+        if exists and self.cfg.overwrite:
+            logger.warning("--overwrite: removing %s", self.out)
+            shutil.rmtree(self.out)
+            exists = False
+        elif exists and not self.cfg.resume:
+            raise FileExistsError(
+                f"{self.out} already exists; pass --resume=true to continue it or --overwrite=true to replace it"
             )
+        elif not exists and self.cfg.resume:
+            raise FileNotFoundError(f"--resume=true but {self.out} holds no run to resume")
+        if exists:
+            legacy = self._check_resume_settings(fingerprint)
+            progress_path = self.out / "progress.json"
+            if progress_path.exists():
+                try:
+                    self.progress = json.loads(progress_path.read_text())
+                except json.JSONDecodeError as exc:
+                    raise CorruptFileError(progress_path, f"cannot resume: {exc}") from exc
+            if legacy:  # a run from before fingerprints (or a sleep replay): store the checked settings once
+                write_fingerprint(self.out / FINGERPRINT_FILE, fingerprint)
+            return
+        self.out.mkdir(parents=True, exist_ok=True)
+        write_fingerprint(self.out / FINGERPRINT_FILE, fingerprint)
+        atomic_write_json(self.out / "train_config.json", stored_config_dict(self.cfg))
+
+    def _check_resume_settings(self, fingerprint: SettingsFingerprint) -> bool:
+        """Compare with the stored fingerprint (or, for a run without one, its ``train_config.json``); raise
+        :class:`SettingsMismatchError` naming every differing key. Returns whether the run had no fingerprint."""
+        path = self.out / FINGERPRINT_FILE
+        if path.is_file():
+            check_settings(path, read_fingerprint(path), fingerprint)
+            return False
+        path = self.out / "train_config.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"--resume=true but {self.out} holds no run to resume (no {FINGERPRINT_FILE} "
+                                    "or train_config.json)")
+        saved = read_json(path)
+        check_settings(path, settings_from_config(saved), fingerprint)
+        return True
 
     def _setup_policy(self) -> None:
         first_meta = load_metadata(self.cfg.stream.dataset_path(0), self.cfg.stream.repo_id(0))

@@ -4,15 +4,18 @@ LeRobot-style flags through draccus, e.g.::
 
     sr-rl-train --config_path=configs/sac_mt5_cpu.json --seed=1 --output_dir=outputs/sac_cpu_s1
     sr-rl-train --config_path=configs/sac_mt5_cpu.json --output_dir=outputs/sac_cpu_s1 --resume=true
+    sr-rl-train --config_path=outputs/sac_cpu_s1/config.json --resume=true   # resumes that run, wherever it is
     sr-rl-train --config_path=configs/sac_mt5_cpu.json --sleep_enabled=false   # SR wake-only ablation
 """
 
 
 import json
 import logging
+import sys
 
 import draccus
 
+from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
 
 logger = logging.getLogger(__name__)
@@ -28,10 +31,23 @@ def train(cfg: RLTrainConfig) -> dict:
     return results
 
 
-@draccus.wrap()
-def main(cfg: RLTrainConfig) -> None:
+def parse(args: list[str]) -> RLTrainConfig:
+    """The config ``args`` describe; a run's own ``config.json`` stores output_dir "." (the run directory itself),
+    resolved to the file's directory unless ``--output_dir`` is given."""
+    config_path, rest = None, []
+    for arg in args:
+        if arg.startswith("--config_path="):
+            config_path = arg.split("=", 1)[1]
+        else:
+            rest.append(arg)
+    cfg = draccus.parse(RLTrainConfig, config_path=config_path, args=rest)
+    cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
+    return cfg
+
+
+def main(args: list[str] | None = None) -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    train(cfg)
+    train(parse(list(sys.argv[1:] if args is None else args)))
 
 
 if __name__ == "__main__":

@@ -11,8 +11,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.core.fingerprint import RUN_DIRECTORY, SettingsFingerprint, settings_fingerprint, to_jsonable
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
@@ -245,27 +247,33 @@ class RLTrainConfig:
     def stream_skills(self) -> list[str]:
         return list(self.skills) if self.skills is not None else list(STREAMS[self.stream])
 
-    def fingerprint_dict(self) -> dict:
-        """The settings that must match for ``--resume`` (everything except run-control flags)."""
-        from dataclasses import asdict
+    def stored_config(self) -> dict[str, Any]:
+        """``config.json`` of a run: the whole config (draccus reads it back with ``--config_path``) without the
+        per-invocation flags and with ``output_dir`` "." (the directory holding the file: the run never names its
+        absolute location, so a copied run resumes where it is)."""
+        out = {k: v for k, v in to_jsonable(self).items() if k not in ("resume", "overwrite")}
+        out["output_dir"] = RUN_DIRECTORY
+        return out
 
-        d = asdict(self)
-        for key in ("resume", "overwrite", "progress", "plots", "output_dir", "device", "torch_threads"):
-            d.pop(key, None)
-        for key in VIDEO_KEYS:  # videos never change results; runs started before they existed stay resumable
-            d["eval"].pop(key, None)
-        return _jsonable(d)
-
-
-VIDEO_KEYS = ("videos_per_skill", "video_height", "video_width", "video_camera")
-"""EvalConfig fields left out of the resume fingerprint."""
+    def resume_fingerprint(self) -> SettingsFingerprint:
+        """The settings a resume must keep: the whole config minus :data:`RESUME_ALLOW_LIST`."""
+        return settings_fingerprint(self, RESUME_ALLOW_LIST)
 
 
-def _jsonable(obj):
-    if isinstance(obj, dict):
-        return {str(k): _jsonable(v) for k, v in obj.items()}
-    if isinstance(obj, list | tuple):
-        return [_jsonable(v) for v in obj]
-    if isinstance(obj, Path):
-        return str(obj)
-    return obj
+RESUME_ALLOW_LIST: dict[str, str] = {
+    "output_dir": "where the run is, not what it computes: a copied run directory resumes where it is",
+    "resume": "the per-invocation flag that asks for this check",
+    "overwrite": "per invocation (it excludes --resume, and a fresh run has nothing to compare with)",
+    "progress": "console progress bars only",
+    "plots": "PNG plots drawn from results.json at the end",
+    "eval.videos_per_skill": "which evaluation episodes are also rendered to mp4: rendering only reads the "
+                             "simulation state, the outcome is identical (tests/rl/test_video.py)",
+    "eval.video_height": "video frame size only (see eval.videos_per_skill)",
+    "eval.video_width": "video frame size only (see eval.videos_per_skill)",
+    "eval.video_camera": "video camera only (see eval.videos_per_skill)",
+}
+"""Settings of ``sr-rl-train`` that may differ on ``--resume`` (fnmatch patterns, each covering the keys below it),
+with the reason each cannot change results. Every other setting of :class:`RLTrainConfig` is fingerprinted at the
+run's start (``settings_fingerprint.json``) and must be equal on resume, checked before anything is written. Not
+allow-listed on purpose: ``device`` (CPU and CUDA kernels round differently) and ``torch_threads`` (intra-op
+parallel reductions may split sums differently, so results are only reproducible at a fixed thread count)."""

@@ -14,7 +14,7 @@ after-wake evaluation (same configurations, same deterministic policy: the same 
 
 Output layout (every file written atomically; ``stage.json`` is written last and marks a completed stage)::
 
-    <output_dir>/config.json
+    <output_dir>/settings_fingerprint.json, config.json   (written once at the start, never on resume)
     <output_dir>/stages/01_reach/{agent.safetensors, memory.safetensors, trajectories.safetensors, stage.json}
     <output_dir>/videos/stage_01_reach/reach_episode0_success.mp4   (eval.videos_per_skill per learned skill)
     <output_dir>/videos/stage_02_door-open/{reach,door-open}_episode0_<success|failure>.mp4
@@ -40,11 +40,20 @@ import numpy as np
 import torch
 
 from sr_imitation.core.excitability import update_excitability
+from sr_imitation.core.fingerprint import (
+    FINGERPRINT_FILE,
+    SettingsFingerprint,
+    check_settings,
+    read_fingerprint,
+    settings_from_config,
+    write_fingerprint,
+)
 from sr_imitation.core.io import (
     CorruptFileError,
     atomic_write_bytes,
     atomic_write_json,
     load_checked_safetensors,
+    read_json,
     save_checked_safetensors,
 )
 from sr_imitation.core.metrics import (
@@ -105,9 +114,11 @@ class StreamTrainer:
 
     # -- output directory ----------------------------------------------------------------------------------
     def _prepare_output_dir(self) -> int:
-        """Create/validate the output dir; returns the number of completed stages to skip."""
-        cfg_path = self.out / "config.json"
-        expected = self.cfg.fingerprint_dict()
+        """Create/validate the output dir; returns the number of completed stages to skip.
+
+        Fresh run: the settings fingerprint and ``config.json`` are written once. Resume: the requested settings are
+        checked against the stored fingerprint before anything is written, and nothing stored is rewritten."""
+        fingerprint = self.cfg.resume_fingerprint()
         exists = self.out.exists() and any(self.out.iterdir())
         if exists and not (self.cfg.resume or self.cfg.overwrite):
             raise FileExistsError(f"{self.out} already exists and is not empty; pass --resume=true to continue it "
@@ -116,19 +127,30 @@ class StreamTrainer:
             shutil.rmtree(self.out)
             exists = False
         if exists:
-            if not cfg_path.is_file():
-                raise CorruptFileError(cfg_path, "cannot resume: the run's config.json is missing")
-            try:
-                saved = json.loads(cfg_path.read_text())["fingerprint"]
-            except (json.JSONDecodeError, KeyError) as exc:
-                raise CorruptFileError(cfg_path, f"unreadable run config ({exc})") from exc
-            if saved != expected:
-                diff = sorted(_diff_keys(saved, expected))
-                raise CorruptFileError(cfg_path, f"cannot resume: settings differ from the saved run: {diff}")
+            if self._check_resume_settings(fingerprint):  # a run from before fingerprints: store them once
+                write_fingerprint(self.out / FINGERPRINT_FILE, fingerprint)
             return self._completed_stages()
         self.out.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(cfg_path, {"fingerprint": expected, "skills": self.skills})
+        write_fingerprint(self.out / FINGERPRINT_FILE, fingerprint)
+        atomic_write_json(self.out / "config.json", self.cfg.stored_config())
         return 0
+
+    def _check_resume_settings(self, fingerprint: SettingsFingerprint) -> bool:
+        """Compare with the stored fingerprint (runs from before fingerprints: the ``fingerprint`` in their
+        ``config.json``); :class:`SettingsMismatchError` naming every differing key. Returns whether the run had
+        no fingerprint file."""
+        path = self.out / FINGERPRINT_FILE
+        if path.is_file():
+            check_settings(path, read_fingerprint(path), fingerprint)
+            return False
+        path = self.out / "config.json"
+        if not path.is_file():
+            raise CorruptFileError(path, f"cannot resume: neither {FINGERPRINT_FILE} nor config.json is there")
+        saved = read_json(path)
+        if not isinstance(saved, dict) or not isinstance(saved.get("fingerprint"), dict):
+            raise CorruptFileError(path, f"cannot resume: no {FINGERPRINT_FILE} and no fingerprint in config.json")
+        check_settings(path, settings_from_config(saved["fingerprint"]), fingerprint)
+        return True
 
     def stage_dir(self, k: int) -> Path:
         return self.out / "stages" / f"{k + 1:02d}_{canonical_skill(self.skills[k])}"
@@ -344,7 +366,7 @@ class StreamTrainer:
             "spi_features": list(SPI_FEATURES),
             "memory_nbytes_total": int(sum(m.nbytes() for m in memories)),
             "stages": records,
-            "config": self.cfg.fingerprint_dict(),
+            "config": self.cfg.stored_config(),
         }
 
 
@@ -357,15 +379,6 @@ def _nan_to_none(obj: Any) -> Any:
     if isinstance(obj, float) and np.isnan(obj):
         return None
     return obj
-
-
-def _diff_keys(a: Any, b: Any, prefix: str = "") -> list[str]:
-    if isinstance(a, dict) and isinstance(b, dict):
-        out = []
-        for key in set(a) | set(b):
-            out += _diff_keys(a.get(key), b.get(key), f"{prefix}{key}.")
-        return out
-    return [f"{prefix.rstrip('.')}: saved {a!r} vs now {b!r}"] if a != b else []
 
 
 REPORT_METRICS = ("afsr", "prs", "bwt", "bwt_wake", "spi")

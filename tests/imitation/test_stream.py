@@ -10,6 +10,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from sr_imitation.core.fingerprint import SettingsMismatchError
 from sr_imitation.core.io import CorruptFileError
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import DatasetMismatchError
@@ -141,7 +142,8 @@ def test_resume_refuses_changed_settings_and_missing_files(finished_run, tmp_pat
                              out, SKILLS, use_images=False)
     cfg.resume = True
     cfg.seed = 8
-    with pytest.raises(ValueError, match="cannot resume with different settings: \\['seed'\\]"):
+    with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: cannot resume with different "
+                                                    r"settings \(stored -> requested\): seed: 7 -> 8 \("):
         train_stream(cfg, fake_env_factory)
     cfg.seed = 7
     progress = json.loads((out / "progress.json").read_text())

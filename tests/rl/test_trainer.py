@@ -9,6 +9,7 @@ from pathlib import Path
 import draccus
 import pytest
 
+from sr_imitation.core.fingerprint import SettingsMismatchError
 from sr_imitation.core.io import CorruptFileError
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
@@ -86,7 +87,7 @@ def test_output_dir_safety_and_loud_failures(tmp_path):
     StreamTrainer(cfg).run()
     with pytest.raises(FileExistsError, match="--resume"):
         StreamTrainer(tiny_config(out, skills=["reach-v3"])).run()
-    with pytest.raises(CorruptFileError, match="seed"):
+    with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: .*seed: 3 -> 4"):
         StreamTrainer(tiny_config(out, skills=["reach-v3"], seed=4, resume=True)).run()
     ckpt = out / "stages" / "01_reach" / "agent.safetensors"
     ckpt.write_bytes(ckpt.read_bytes()[:-10])

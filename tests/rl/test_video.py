@@ -70,4 +70,4 @@ def test_bad_values_raise(overrides, match):
 def test_video_settings_not_in_resume_fingerprint(tmp_path):
     a = RLTrainConfig(output_dir=tmp_path, eval=EvalConfig(videos_per_skill=0))
     b = RLTrainConfig(output_dir=tmp_path, eval=EvalConfig(videos_per_skill=3, video_height=64))
-    assert a.fingerprint_dict() == b.fingerprint_dict()
+    assert a.resume_fingerprint() == b.resume_fingerprint()

@@ -1,0 +1,295 @@
+"""``sr-train --resume``: every results-affecting setting is fingerprinted and checked before anything is written;
+the allow-list is accepted; a copied run directory resumes where it is.
+
+Before this check (issue 10), resuming with another ``--policy.sleep_batch_size``, ``--policy.n_action_steps`` or
+``--policy.anchor_tau`` exited 0 and mixed settings within one run, and ``--policy.dim_feedforward`` rewrote
+train_config.json before failing, after which every plain resume failed.
+"""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+import sr_imitation.imitation.cli as cli
+from sr_imitation.core.aggregation import AGGREGATORS
+from sr_imitation.core.fingerprint import (
+    FINGERPRINT_FILE,
+    SettingsFingerprint,
+    diff_settings,
+    is_allowed,
+    read_fingerprint,
+    settings_digest,
+    write_fingerprint,
+)
+from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
+from sr_imitation.imitation.methods import METHODS
+from sr_imitation.imitation.stream import (
+    RESUME_ALLOW_LIST,
+    StreamTrainer,
+    TrainStreamConfig,
+    resume_fingerprint,
+    train_stream,
+)
+from tests.core.test_fingerprint import assert_refused_naming, changed_values, leaves, tree_state, with_leaf
+from tests.imitation.conftest import SKILLS
+from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+
+STREAM = SKILLS[:2]
+MAPPING = ["MEAN_STD", "MIN_MAX", "IDENTITY"]
+CHOICES: dict[str, list[Any]] = {
+    # strings with a small set of valid values: the other ones
+    "method": sorted(METHODS),
+    "policy.aggregator": sorted(AGGREGATORS),
+    "policy.distill_reduction": ["mean", "sum"],
+    "policy.feedforward_activation": ["relu", "gelu"],
+    "policy.vision_backbone": ["resnet18", "resnet34"],
+    "policy.normalization_mapping.VISUAL": MAPPING,
+    "policy.normalization_mapping.STATE": MAPPING,
+    "policy.normalization_mapping.ACTION": MAPPING,
+    "stream.pairs": ["surgicai", "all", "adjacent"],
+    "stream.video_backend": ["pyav", "torchcodec"],
+    "eval.thresholds": sorted(THRESHOLD_PRESETS),
+    # free strings and paths: another value
+    "stream.repo_id_prefix": ["local/other_prefix"],
+    "stream.dataset_root": ["/elsewhere/needle"],
+    "stream.skills": [[*STREAM, "insert"]],
+    # settings that are None in the tiny config: a value of their declared type
+    "policy.anchor_tau": [0.5],
+    "policy.temporal_ensemble_coeff": [0.01],
+    "policy.pretrained_path": ["outputs/other/pretrained_model"],
+    "policy.pretrained_backbone_weights": ["ResNet18_Weights.IMAGENET1K_V1"],
+    "policy.repo_id": ["user/act_sr"],
+    "policy.private": [True],
+    "policy.tags": [["sr"]],
+    "policy.license": ["mit"],
+    "stream.dataset_paths": [[f"/data/{s}" for s in STREAM]],
+}
+COMPANIONS: dict[str, dict[tuple[str, ...], Any]] = {
+    # ACT allows a temporal ensemble only with one action step per chunk: change both (the diff names both).
+    "policy.temporal_ensemble_coeff": {("policy", "n_action_steps"): 1},
+}
+SKIP: dict[str, str] = {
+    "policy.type": "sr-train trains act_sr only: TrainStreamConfig.__post_init__ refuses any other policy type",
+    "policy.n_obs_steps": "ACT handles one observation step only: ACTConfig.__post_init__ refuses any other value",
+    "policy.device": "only cpu exists on the test machine and LeRobot turns an unavailable device into cpu at "
+                     "parse time; test_a_run_made_on_another_device_is_refused covers it",
+    "policy.use_amp": "LeRobot refuses use_amp on cpu at parse time (nothing else is valid here); like device, a "
+                      "run stored with it is refused by the same key comparison",
+}
+ALLOWED_CHANGES: dict[str, Any] = {
+    # one changed value per allow-list entry (the test fails if an entry has none)
+    "output_dir": "/somewhere/else",
+    "resume": True,
+    "overwrite": True,
+    "progress": True,
+    "eval.videos_per_skill": 0,
+    "eval.video_height": 64,
+    "eval.video_width": 96,
+    "wake.num_workers": 1,
+    "policy.input_features": {"observation.state": {"type": "STATE", "shape": [6]}},
+    "policy.output_features": {"action": {"type": "ACTION", "shape": [7]}},
+}
+
+
+def _weights(run: Path, phase: str = "skill_2_place/sleep") -> dict[str, torch.Tensor]:
+    return load_file(str(run / phase / "pretrained_model" / "model.safetensors"))
+
+
+def _parse(tree: dict[str, Any], tmp: Path, out: Path) -> TrainStreamConfig:
+    """The config a user gets from ``--config_path`` with ``tree`` (validation included), resuming ``out``."""
+    path = tmp / "requested.json"
+    path.write_text(json.dumps(tree))
+    cfg = cli.parse_config(TrainStreamConfig, path, [])
+    cfg.output_dir, cfg.resume = out, True
+    return cfg
+
+
+@pytest.fixture(scope="module")
+def stored(tmp_path_factory) -> tuple[Path, dict[str, Any]]:
+    """A run directory as a fresh run leaves it before its first step: fingerprint + train_config.json."""
+    out = tmp_path_factory.mktemp("stored") / "run"
+    StreamTrainer(tiny_stream_config(Path("/datasets/needle"), out, STREAM, use_images=False))._prepare_output_dir()
+    return out, json.loads((out / "train_config.json").read_text())
+
+
+@pytest.fixture(scope="module")
+def reference(state_datasets, tmp_path_factory) -> tuple[Path, dict[str, Any]]:
+    out = tmp_path_factory.mktemp("reference") / "run"
+    return out, train_stream(tiny_stream_config(state_datasets, out, STREAM, use_images=False), fake_env_factory)
+
+
+@pytest.fixture(scope="module")
+def after_stage_1(state_datasets, tmp_path_factory) -> Path:
+    """A run stopped after its first stage (as a kill between stages leaves it); tests work on copies."""
+    out = tmp_path_factory.mktemp("stage1") / "run"
+    StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False), fake_env_factory).run(
+        stop_after=1)
+    return out
+
+
+@pytest.fixture
+def fake_env_cli(monkeypatch):
+    """``sr-train`` (train_main) with the fake environment instead of MuJoCo."""
+    monkeypatch.setattr(cli, "train_stream", lambda cfg: train_stream(cfg, fake_env_factory))
+
+
+def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
+    out, saved = stored
+    assert saved["output_dir"] == "." and "resume" not in saved and "overwrite" not in saved
+    settings = read_fingerprint(out / FINGERPRINT_FILE)
+    assert str(out) not in (out / FINGERPRINT_FILE).read_text() + (out / "train_config.json").read_text()
+    assert not any(is_allowed(k, RESUME_ALLOW_LIST) for k in settings)
+    expected = {".".join(p) for p, _ in leaves(saved) if not is_allowed(".".join(p), RESUME_ALLOW_LIST)}
+    assert set(settings) == expected
+    assert {"policy.sleep_batch_size", "policy.n_action_steps", "policy.anchor_tau", "policy.dim_feedforward",
+            "policy.optimizer_lr", "policy.sleep_fw_iterations", "policy.distill_batch_size"} <= set(settings)
+    for pattern in RESUME_ALLOW_LIST:  # no stale entries: each one names a setting of the config
+        assert any(is_allowed(".".join(p), [pattern]) for p, _ in leaves(saved)) or pattern in ("resume",
+                                                                                                "overwrite"), pattern
+
+
+def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stored, tmp_path):
+    """Property test over the config's fields: each leaf setting outside the allow-list, changed alone (through a
+    config file draccus parses and validates), is refused by the resume check with its key and values named."""
+    out, saved = stored
+    stored_settings = read_fingerprint(out / FINGERPRINT_FILE)
+    covered, refused = set(), []
+    for path, value in leaves(saved):
+        key = ".".join(path)
+        if is_allowed(key, RESUME_ALLOW_LIST):
+            continue
+        covered.add(key)
+        if key in SKIP:
+            continue
+        tried = []
+        for new in changed_values(key, value, CHOICES):
+            tree = with_leaf(saved, path, new)
+            for other, other_value in COMPANIONS.get(key, {}).items():
+                tree = with_leaf(tree, other, other_value)
+            try:
+                cfg = _parse(tree, tmp_path, out)
+            except Exception as exc:  # not a valid value of this setting: try the next candidate
+                tried.append(f"{new!r}: {type(exc).__name__}")
+                continue
+            fingerprint = resume_fingerprint(cfg)
+            if not diff_settings(stored_settings, fingerprint.settings):
+                tried.append(f"{new!r}: parsed back to the stored value")
+                continue
+            before = tree_state(out)
+            err = assert_refused_naming(lambda c=cfg, f=fingerprint: StreamTrainer(c)._check_resume_settings(f), key)
+            assert tree_state(out) == before
+            assert f"{FINGERPRINT_FILE}: cannot resume" in str(err)
+            refused.append(key)
+            break
+        else:
+            pytest.fail(f"{key} = {value!r}: no valid changed value ({tried}); add one to CHOICES or a reasoned SKIP")
+    assert covered == set(stored_settings)  # every fingerprinted setting was visited
+    assert set(SKIP) <= covered and len(refused) == len(covered) - len(SKIP) >= 60
+
+
+def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, tmp_path):
+    out, saved = stored
+    assert set(ALLOWED_CHANGES) == set(RESUME_ALLOW_LIST)
+    everything = saved
+    for key, new in ALLOWED_CHANGES.items():
+        path = tuple(key.split("."))
+        cfg = _parse(with_leaf(saved, path, new), tmp_path, out)
+        StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))  # no error
+        if key != "overwrite":  # --resume and --overwrite exclude each other (TrainStreamConfig.__post_init__)
+            everything = with_leaf(everything, path, new)
+    cfg = _parse(everything, tmp_path, out)
+    assert cfg.wake.num_workers == 1 and cfg.eval.videos_per_skill == 0 and cfg.progress
+    StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))
+
+
+def test_a_run_made_on_another_device_is_refused(stored, tmp_path):
+    out, saved = stored
+    run = tmp_path / "run"
+    shutil.copytree(out, run)
+    settings = {**read_fingerprint(run / FINGERPRINT_FILE), "policy.device": "cuda"}  # as a GPU run stores it
+    write_fingerprint(run / FINGERPRINT_FILE, SettingsFingerprint(settings, settings_digest(settings)))
+    cfg = _parse(saved, tmp_path, run)
+    err = assert_refused_naming(lambda: StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg)),
+                                "policy.device")
+    assert 'policy.device: "cuda" -> "cpu"' in str(err)
+
+
+def test_refused_resumes_leave_the_run_byte_identical_and_a_plain_resume_still_works(
+        after_stage_1, reference, tmp_path, fake_env_cli):
+    """End to end through ``sr-train``: the settings of issue 10's report, each refused before anything is written
+    (files, bytes and modification times unchanged); then the plain resume finishes the run exactly like an
+    uninterrupted one."""
+    run = tmp_path / "run"
+    shutil.copytree(after_stage_1, run)
+    resume = [f"--config_path={run / 'train_config.json'}", "--resume=true"]
+    before = tree_state(run)
+    for flag, key, change in [
+        ("--policy.sleep_batch_size=8", "policy.sleep_batch_size", "4 -> 8"),
+        ("--policy.n_action_steps=2", "policy.n_action_steps", "4 -> 2"),
+        ("--policy.anchor_tau=0.5", "policy.anchor_tau", "null -> 0.5"),
+        ("--policy.dim_feedforward=128", "policy.dim_feedforward", "64 -> 128"),
+    ]:
+        err = assert_refused_naming(lambda f=flag: cli.train_main([*resume, f]), key)
+        assert f"{key}: {change}" in str(err) and len(err.diffs) == 1
+        assert tree_state(run) == before, flag
+    err = assert_refused_naming(lambda: cli.train_main([*resume, "--policy.optimizer_lr=0.001", "--seed=8"]), "seed")
+    assert set(err.diffs) == {"policy.optimizer_lr", "seed"} and tree_state(run) == before
+    stored_files = {name: (run / name).read_bytes() for name in ("train_config.json", FINGERPRINT_FILE)}
+    cli.train_main(resume)
+    assert {name: (run / name).read_bytes() for name in stored_files} == stored_files  # never rewritten
+    ref_out, ref_results = reference
+    assert json.loads((run / "results.json").read_text())["metrics"] == ref_results["metrics"]
+    final, ref = _weights(run), _weights(ref_out)
+    assert all(torch.equal(final[k], ref[k]) for k in ref)
+
+
+def test_a_copied_run_resumes_where_it_is_with_allow_listed_changes(after_stage_1, reference, tmp_path, fake_env_cli):
+    """A run directory copied elsewhere resumes in the copy (its train_config.json stores output_dir "."), never
+    touching the original; allow-listed settings changed on the way (DataLoader workers, videos, progress bars)
+    leave the weights bit-identical to an uninterrupted run."""
+    original = after_stage_1
+    copy = tmp_path / "elsewhere" / "run"
+    shutil.copytree(original, copy)
+    original_state = tree_state(original)
+    cli.train_main([f"--config_path={copy / 'train_config.json'}", "--resume=true", "--wake.num_workers=1",
+                    "--eval.videos_per_skill=0", "--eval.video_height=64", "--progress=true"])
+    assert tree_state(original) == original_state
+    progress = json.loads((copy / "progress.json").read_text())["completed"]
+    assert {"2.wake", "2.memory", "2.wake.eval", "2.sleep", "2.sleep.eval"} <= set(progress)
+    assert (copy / "results.json").is_file() and not (original / "results.json").exists()
+    ref_out, ref_results = reference
+    assert json.loads((copy / "results.json").read_text())["metrics"] == ref_results["metrics"]
+    for phase in ("skill_2_place/wake", "skill_2_place/sleep"):
+        final, ref = _weights(copy, phase), _weights(ref_out, phase)
+        assert all(torch.equal(final[k], ref[k]) for k in ref), phase
+    for path in copy.rglob("*.json"):  # nothing in the run directory names where it (or its original) is
+        text = path.read_text()
+        assert str(original) not in text and str(copy) not in text, path
+
+
+def test_a_run_without_fingerprint_is_checked_against_its_train_config(stored, tmp_path):
+    """Runs written before fingerprints (and sleep replays) hold only train_config.json: resuming compares with
+    it, refuses naming that file, and stores the fingerprint once when the settings agree."""
+    out, saved = stored
+    run = tmp_path / "old"
+    shutil.copytree(out, run)
+    (run / FINGERPRINT_FILE).unlink()
+    old_style = {**saved, "output_dir": str(tmp_path / "old")}  # the old absolute output_dir is allow-listed
+    (run / "train_config.json").write_text(json.dumps(old_style))
+    changed = _parse(with_leaf(saved, ("policy", "sleep_lr"), 2e-5), tmp_path, run)
+    before = tree_state(run)
+    err = assert_refused_naming(lambda: StreamTrainer(changed)._prepare_output_dir(), "policy.sleep_lr")
+    assert "train_config.json: cannot resume" in str(err) and tree_state(run) == before
+    StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
+    assert read_fingerprint(run / FINGERPRINT_FILE) == read_fingerprint(out / FINGERPRINT_FILE)
+    (run / FINGERPRINT_FILE).unlink()
+    (run / "train_config.json").unlink()
+    with pytest.raises(FileNotFoundError, match="holds no run to resume"):
+        StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
