@@ -39,11 +39,12 @@ def test_lerobot_discovers_and_imports_the_plugin():
     assert "act_sr" in found["choices"] and "act" in found["choices"]
 
 
-def test_core_imports_neither_lerobot_nor_simulators():
+def test_core_and_stream_engine_import_neither_lerobot_nor_simulators():
     found = _run_json(
         "import json, sys\n"
         "import sr_imitation.core, sr_imitation.core.sleep, sr_imitation.core.memory, sr_imitation.core.metrics\n"
         "import sr_imitation.core.aggregation, sr_imitation.core.excitability, sr_imitation.core.io\n"
+        "import sr_imitation.stream, sr_imitation.stream.engine, sr_imitation.stream.methods\n"
         "print(json.dumps({'modules': sorted(m.split('.')[0] for m in sys.modules),\n"
         "                  'core': 'sr_imitation.core.sleep' in sys.modules}))\n",
         timeout=120,

@@ -12,8 +12,9 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.imitation import stream as stream_module
+from sr_imitation.imitation import substrate as substrate_module
 from sr_imitation.imitation.stream import StreamTrainer
+from sr_imitation.stream import engine as engine_module
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 
@@ -39,7 +40,7 @@ def recorded_stream(state_datasets, tmp_path_factory):
                              sleep_max_iterations=20, sleep_early_stop_window=20)
     trainer = StreamTrainer(cfg, fake_env_factory)
     wakes, sleeps = [], []
-    real_wake, real_sleep = stream_module.wake_train, stream_module.sleep_consolidate
+    real_wake, real_sleep = substrate_module.wake_train, engine_module.sleep_consolidate
 
     def recording_wake(policy, *args, **kwargs):
         result = real_wake(policy, *args, **kwargs)
@@ -58,8 +59,8 @@ def recorded_stream(state_datasets, tmp_path_factory):
         return result
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(stream_module, "wake_train", recording_wake)
-        mp.setattr(stream_module, "sleep_consolidate", recording_sleep)
+        mp.setattr(substrate_module, "wake_train", recording_wake)
+        mp.setattr(engine_module, "sleep_consolidate", recording_sleep)
         trainer.run()
     names = [n for n, p in trainer.policy.named_parameters() if p.requires_grad]
     return out, names, wakes, sleeps

@@ -25,7 +25,7 @@ def _fails_before_writing(root, out, match, monkeypatch):
     def tripwire(*args, **kwargs):
         raise AssertionError("training started before the inputs were checked")
 
-    monkeypatch.setattr("sr_imitation.imitation.stream.wake_train", tripwire)
+    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", tripwire)
     with pytest.raises(DatasetMismatchError, match=match) as info:
         train_stream(tiny_stream_config(root, out, SKILLS, use_images=False), fake_env_factory)
     assert "\n" not in str(info.value)  # one line

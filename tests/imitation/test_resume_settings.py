@@ -29,7 +29,6 @@ from sr_imitation.core.fingerprint import (
     write_fingerprint,
 )
 from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
-from sr_imitation.imitation.methods import METHODS
 from sr_imitation.imitation.stream import (
     RESUME_ALLOW_LIST,
     StreamTrainer,
@@ -37,6 +36,7 @@ from sr_imitation.imitation.stream import (
     resume_fingerprint,
     train_stream,
 )
+from sr_imitation.stream import methods_for
 from tests.core.test_fingerprint import assert_refused_naming, changed_values, leaves, tree_state, with_leaf
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
@@ -45,7 +45,7 @@ STREAM = SKILLS[:2]
 MAPPING = ["MEAN_STD", "MIN_MAX", "IDENTITY"]
 CHOICES: dict[str, list[Any]] = {
     # strings with a small set of valid values: the other ones
-    "method": sorted(METHODS),
+    "method": methods_for("act"),
     "policy.aggregator": sorted(AGGREGATORS),
     "policy.distill_reduction": ["mean", "sum"],
     "policy.feedforward_activation": ["relu", "gelu"],

@@ -14,8 +14,9 @@ from sr_imitation.core.fingerprint import SettingsMismatchError
 from sr_imitation.core.io import CorruptFileError
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.stream import StreamTrainer, train_stream
+from sr_imitation.imitation.stream import train_stream
 from sr_imitation.imitation.wake import NonFiniteLossError
+from sr_imitation.stream import StreamEngine
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
 
@@ -108,7 +109,7 @@ def test_resume_after_a_kill_reaches_the_same_results(finished_run, state_datase
     out = tmp_path / "stream"
     cfg = tiny_stream_config(state_datasets, out, SKILLS, use_images=False)
     calls = {"n": 0}
-    original = StreamTrainer._sleep
+    original = StreamEngine._sleep
 
     def killed_during_second_sleep(self, index):
         calls["n"] += 1
@@ -116,10 +117,10 @@ def test_resume_after_a_kill_reaches_the_same_results(finished_run, state_datase
             raise KeyboardInterrupt("simulated kill")
         return original(self, index)
 
-    monkeypatch.setattr(StreamTrainer, "_sleep", killed_during_second_sleep)
+    monkeypatch.setattr(StreamEngine, "_sleep", killed_during_second_sleep)
     with pytest.raises(KeyboardInterrupt):
         train_stream(cfg, fake_env_factory)
-    monkeypatch.setattr(StreamTrainer, "_sleep", original)
+    monkeypatch.setattr(StreamEngine, "_sleep", original)
     progress = json.loads((out / "progress.json").read_text())["completed"]
     assert "3.wake.eval" in progress and "3.sleep" not in progress
     assert not (out / "results.json").exists()

@@ -1,0 +1,238 @@
+"""The ACT imitation substrate of the stream engine (:class:`~sr_imitation.stream.substrate.Substrate`).
+
+Per stage k (files under the run directory; every file written atomically, checkpoints staged then renamed):
+
+- ``wake``: behaviour cloning on skill k's LeRobot dataset (:func:`~sr_imitation.imitation.wake.wake_train`) with
+  the method's distillation from earlier memories; checkpoint ``skill_k_<name>/wake/pretrained_model`` (LeRobot
+  layout, loadable by ``lerobot-eval --policy.path``) and ``wake_history.json``;
+- ``memory``: the frozen actor memory M_k (``memories/skill_k_<name>.safetensors``);
+- ``wake.eval`` / ``sleep.eval``: success on the learned skills (``eval.json``), SPI trajectories
+  (``trajectories.npz``) and a few rollout videos (``videos/``);
+- ``sleep``: checkpoint ``skill_k_<name>/sleep`` and ``sleep_diagnostics.json``.
+
+Seeding: every phase seeds Python, NumPy and torch from ``seed * 1000 + 10 * stage + phase id``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import random
+import shutil
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, ClassVar
+
+import numpy as np
+import torch
+from lerobot.policies.factory import make_policy, make_pre_post_processors
+from safetensors.torch import load_file
+
+from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from sr_imitation.core.io import CorruptFileError, atomic_write_json
+from sr_imitation.core.memory import Memory, load_memory
+from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.data import (
+    load_metadata,
+    load_skill_data,
+    load_stats,
+    policy_features,
+    sample_observation_buffer,
+    save_stats,
+    stream_stats,
+)
+from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, needle_env_factory
+from sr_imitation.imitation.report import write_report
+from sr_imitation.imitation.wake import wake_train
+from sr_imitation.stream.substrate import MethodSettings, SleepProblem
+
+if TYPE_CHECKING:
+    from sr_imitation.imitation.stream import TrainStreamConfig
+
+import logging
+
+logger = logging.getLogger(__name__)
+
+PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def stage_name(index: int, skill: str) -> str:
+    return f"skill_{index + 1}_{skill}"
+
+
+class ACTSubstrate:
+    """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
+
+    name: ClassVar[str] = "act"
+
+    def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
+        self.cfg = cfg
+        self.out = Path(cfg.output_dir)
+        self.policy_cfg: ACTSRConfig = cfg.policy  # type: ignore[assignment]
+        self.skills = list(cfg.stream.skills)
+        self._make_env = make_env
+        self._data: Any = None
+
+    def method_settings(self) -> MethodSettings:
+        return MethodSettings(sleep=bool(self.policy_cfg.sleep), distill_weight=self.policy_cfg.distill_weight,
+                              extra={"aggregator": self.policy_cfg.aggregator})
+
+    # -- set-up ------------------------------------------------------------------------------------------
+    def setup(self) -> None:
+        first_meta = load_metadata(self.cfg.stream.dataset_path(0), self.cfg.stream.repo_id(0))
+        inputs, outputs = policy_features(first_meta, self.policy_cfg.use_images)
+        self.policy_cfg.input_features, self.policy_cfg.output_features = inputs, outputs
+        stats_path = self.out / "stream_stats.safetensors"
+        if stats_path.exists():
+            self.stats = load_stats(stats_path)
+        else:
+            self.stats = stream_stats(first_meta, inputs, self.cfg.stream.stats_min_std)
+            save_stats(stats_path, self.stats)
+        seed_everything(self.cfg.seed)
+        self.policy: ACTSRPolicy = make_policy(self.policy_cfg, ds_meta=first_meta)  # type: ignore[assignment]
+        self.preprocessor, self.postprocessor = make_pre_post_processors(self.policy_cfg, dataset_stats=self.stats)
+        self.policy.set_observation_normalizer(self._normalize_raw)
+        image_keys = list(self.policy_cfg.image_features)
+        self.buffer_keys = [*image_keys, "observation.state"]
+        size = None
+        if image_keys:
+            shape = self.policy_cfg.image_features[image_keys[0]].shape
+            size = (int(shape[1]), int(shape[2]))
+        self.make_env = self._make_env or needle_env_factory(size, self.cfg.eval)
+
+    def _normalize_raw(self, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        obs = {k: (v.float() / 255.0 if v.dtype == torch.uint8 else v) for k, v in raw.items()}
+        return self.preprocessor(obs)
+
+    def phase_seed(self, index: int, phase: str) -> int:
+        return self.cfg.seed * 1000 + 10 * (index + 1) + PHASE_IDS[phase]
+
+    def begin_phase(self, k: int, phase: str) -> None:
+        seed_everything(self.phase_seed(k, phase))
+
+    # -- files -------------------------------------------------------------------------------------------
+    def checkpoint_dir(self, index: int, phase: str) -> Path:
+        return self.out / stage_name(index, self.skills[index]) / phase
+
+    def memory_path(self, index: int) -> Path:
+        return self.out / "memories" / f"{stage_name(index, self.skills[index])}.safetensors"
+
+    def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
+        """Write ``pretrained_model/`` (LeRobot layout) and ``files`` (JSON) to a staging dir, then rename."""
+        final = self.checkpoint_dir(k, phase)
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{phase}.", dir=final.parent))
+        try:
+            pretrained = tmp / "pretrained_model"
+            self.policy.save_pretrained(pretrained)
+            self.preprocessor.save_pretrained(pretrained)
+            self.postprocessor.save_pretrained(pretrained)
+            for name, obj in files.items():
+                atomic_write_json(tmp / name, obj)
+            if final.exists():  # left by a run killed after the rename but before progress.json was written
+                shutil.rmtree(final)
+            os.replace(tmp, final)
+        except BaseException:
+            shutil.rmtree(tmp, ignore_errors=True)
+            raise
+
+    def load_policy(self, k: int, phase: str) -> None:
+        path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"
+        if not path.is_file():
+            raise FileNotFoundError(f"{path}: checkpoint recorded in progress.json is missing")
+        state = load_file(str(path))
+        missing, unexpected = self.policy.load_state_dict(state, strict=False)
+        if missing or unexpected:
+            raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
+                                         f"unexpected {unexpected[:5]})")
+
+    def trainable(self) -> list[torch.nn.Parameter]:
+        return [p for p in self.policy.parameters() if p.requires_grad]
+
+    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
+        state = load_file(str(self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"))
+        names = [n for n, p in self.policy.named_parameters() if p.requires_grad]
+        return [state[n] for n in names]
+
+    # -- phases --------------------------------------------------------------------------------------------
+    def _skill_data(self, index: int) -> Any:
+        skill = self.skills[index]
+        if self._data is None or self._data.skill != skill:
+            self._data = load_skill_data(skill, self.cfg.stream.dataset_path(index), self.cfg.stream.repo_id(index),
+                                         self.policy_cfg, self.cfg.wake.val_fraction,
+                                         self.phase_seed(index, "wake"), self.cfg.stream.video_backend)
+        return self._data
+
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
+                                                                                        dict[str, Any]]:
+        self._data = None
+        data = self._skill_data(k)
+        self.policy.set_wake_memories(list(memories), distill_weight, seed=self.phase_seed(k, "wake"))
+        t0 = time.perf_counter()
+        result = wake_train(self.policy, self.preprocessor, data, self.cfg.wake, self.phase_seed(k, "wake"),
+                            self.cfg.progress)
+        self.policy.set_wake_memories([], 0.0)
+        history = dataclasses.asdict(result) | {"distill_weight": distill_weight, "n_memories": len(memories)}
+        record = {"seconds": time.perf_counter() - t0, "epochs": result.epochs, "best_epoch": result.best_epoch,
+                  "best_val_l1": result.best_val_l1, "steps": result.steps}
+        return record, {"wake_history.json": history}
+
+    def make_memory(self, k: int) -> Memory:
+        data = self._skill_data(k)
+        buffer = sample_observation_buffer(data, self.policy_cfg.memory_buffer_size, self.buffer_keys,
+                                           self.phase_seed(k, "memory"))
+        snapshot = str(self.checkpoint_dir(k, "wake").relative_to(self.out))
+        memory = ActorMemory.from_observations(self.skills[k], self.policy.memory_chunk, buffer, snapshot=snapshot,
+                                               reduction=self.policy_cfg.distill_reduction)
+        memory.save(self.memory_path(k))
+        return memory
+
+    def load_memory(self, k: int) -> Memory:
+        return load_memory(self.memory_path(k), skill=self.skills[k])
+
+    def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
+        return list(range(k + 1))  # every learned skill: the after-wake success matrix is reported too
+
+    def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        names = [self.skills[i] for i in skills]
+        step = phase.split(".")[0]
+        video_dir = self.out / "videos" / stage_name(k, self.skills[k]) / step
+        t0 = time.perf_counter()
+        evals = evaluate_skills(self.policy, self.preprocessor, self.postprocessor, names, list(skills),
+                                self.make_env, self.cfg.eval, video_dir if self.cfg.eval.videos_per_skill else None,
+                                self.cfg.progress)
+        record = {
+            skill: {"success": e.success, "success_per_seed": e.success_per_seed,
+                    "episode_lengths": e.episode_lengths, "videos": [str(Path(v).relative_to(self.out))
+                                                                      for v in e.videos]}
+            for skill, e in evals.items()
+        }
+        phase_dir = self.checkpoint_dir(k, step)
+        trajectories = {f"{skill}/{i}": t for skill, e in evals.items() for i, t in enumerate(e.trajectories)}
+        tmp = phase_dir / ".trajectories.tmp.npz"
+        np.savez_compressed(tmp, **{key.replace("/", "__"): v for key, v in trajectories.items()})
+        os.replace(tmp, phase_dir / "trajectories.npz")
+        atomic_write_json(phase_dir / "eval.json", record)
+        logger.info("stage %d %s: %s", k + 1, phase, {s: round(r["success"], 3) for s, r in record.items()})
+        return {"seconds": time.perf_counter() - t0, "success": {s: r["success"] for s, r in record.items()}}
+
+    def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
+        return SleepProblem(self.trainable(), self.policy.memory_chunk,
+                            self.policy_cfg.sleep_config(seed=self.phase_seed(k, "sleep")))
+
+    def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
+               ) -> dict[str, Any]:
+        from sr_imitation.imitation.stream import _config_dict
+
+        n = len(self.skills)
+        return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, _config_dict(self.cfg),
+                            [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
+                            [self.checkpoint_dir(i, "wake") for i in range(n)], memories)

@@ -1,0 +1,144 @@
+"""Algorithm 1 of the paper, written once for every substrate and every continual method.
+
+    for each skill k = 1..K:
+        wake:        train the policy on skill k (+ the method's wake terms, e.g. distillation from M_1..M_{k-1})
+        memory:      store the frozen memory M_k (if the method keeps memories)
+        wake.eval:   evaluate right after the wake (the reference of BWT_wake)
+        if the method sleeps after k:
+            sleep:       theta <- sleep_consolidate(theta; M_1..M_k, anchor theta_{k-1}, gates from theta_i^wake)
+            sleep.eval:  evaluate every learned skill
+
+The substrate (:class:`~sr_imitation.stream.substrate.Substrate`) does what depends on the policy; the method
+(:class:`~sr_imitation.stream.methods.ContinualMethod`) answers what depends on the method; the run directory
+(:class:`~sr_imitation.stream.rundir.RunDirectory`) records each phase after its files are written. Every phase
+seeds its own generators (:meth:`Substrate.begin_phase`), so a run killed at any point and resumed redoes at most
+the interrupted phase and reaches the same numbers as an uninterrupted run.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from collections.abc import Callable
+from typing import Any
+
+from sr_imitation.core.memory import Memory
+from sr_imitation.core.sleep import sleep_consolidate
+from sr_imitation.stream.methods import ContinualMethod
+from sr_imitation.stream.rundir import RunDirectory
+from sr_imitation.stream.substrate import Substrate
+
+logger = logging.getLogger(__name__)
+
+POLICY_PHASES = ("wake", "sleep")
+"""Phases that change the policy (and checkpoint it)."""
+
+
+class StreamEngine:
+    """Runs (or resumes) one stream: ``substrate`` x ``method`` in ``run``.
+
+    ``after_phase(k, phase)`` (tests) is called after each newly completed phase; raising there simulates a kill.
+    """
+
+    def __init__(self, substrate: Substrate, method: ContinualMethod, run: RunDirectory, progress: bool = True,
+                 after_phase: Callable[[int, str], None] | None = None) -> None:
+        if substrate.name not in method.substrates:
+            raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
+        self.substrate = substrate
+        self.method = method
+        self.run_dir = run
+        self.progress = progress
+        self.after_phase = after_phase
+        self.skills = list(substrate.skills)
+        self.memories: list[Memory] = []
+
+    # -- the algorithm --------------------------------------------------------------------------------------
+    def phases(self, k: int) -> list[str]:
+        """The phases of stage ``k`` (0-based) for this method."""
+        out = ["wake"]
+        if self.method.stores_memories:
+            out.append("memory")
+        out.append("wake.eval")
+        if self.method.sleeps_after(k + 1):
+            out += ["sleep", "sleep.eval"]
+        return out
+
+    def final_phase(self, k: int) -> str:
+        """The phase whose checkpoint ends stage ``k``: its sleep if it slept, else its wake."""
+        return "sleep" if self.run_dir.done(k, "sleep") else "wake"
+
+    def run(self, stop_after: int | None = None) -> dict[str, Any]:
+        """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return the progress
+        record instead of the results (partial runs)."""
+        last = len(self.skills) if stop_after is None else stop_after
+        if not 1 <= last <= len(self.skills):
+            raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
+        self.run_dir.prepare()
+        self.substrate.setup()
+        pending_load: tuple[int, str] | None = None
+        for k in range(last):
+            phases = self.phases(k)
+            if not all(self.run_dir.done(k, p) for p in phases):
+                self.method.on_skill_start(k, self.substrate)
+            for phase in phases:
+                if self.run_dir.done(k, phase):  # recorded with all its files: restore what later phases need
+                    if phase in POLICY_PHASES:
+                        pending_load = (k, phase)
+                    elif phase == "memory":
+                        self.memories.append(self.substrate.load_memory(k))
+                    continue
+                if pending_load is not None:
+                    logger.info("resuming from stage %d %s", pending_load[0] + 1, pending_load[1])
+                    self.substrate.load_policy(*pending_load)
+                    pending_load = None
+                self.substrate.begin_phase(k, phase)
+                logger.info("stage %d (%s): %s", k + 1, self.skills[k], phase)
+                record = self._run_phase(k, phase)
+                self.run_dir.mark(k, phase, record)
+                if self.after_phase is not None:
+                    self.after_phase(k, phase)
+            self.method.on_skill_end(k, self.substrate)
+        if last < len(self.skills):
+            return dict(self.run_dir.progress)
+        return self.substrate.report(self.run_dir.progress, self.memories,
+                                     [self.final_phase(k) for k in range(len(self.skills))])
+
+    def _run_phase(self, k: int, phase: str) -> dict[str, Any]:
+        if phase == "wake":
+            memories, weight = self.method.wake_memories(k + 1, self.memories)
+            record, files = self.substrate.wake(k, memories, weight)
+            self.substrate.save_policy(k, "wake", files)
+            return record
+        if phase == "memory":
+            memory = self.substrate.make_memory(k)
+            self.memories.append(memory)
+            return {"bytes": memory.nbytes(), "size": memory.size}
+        if phase == "wake.eval":
+            return self.substrate.evaluate(k, phase, self.substrate.wake_eval_skills(k, "sleep" in self.phases(k)))
+        if phase == "sleep":
+            return self._sleep(k)
+        if phase == "sleep.eval":
+            return self.substrate.evaluate(k, phase, list(range(k + 1)))
+        raise ValueError(f"unknown phase {phase!r}")
+
+    def _sleep(self, k: int) -> dict[str, Any]:
+        """Algorithm 1, lines 7-15: the one place a stream calls the core's sleep."""
+        anchor = self.substrate.parameters_at(k - 1, self.final_phase(k - 1))  # theta_{k-1}^sleep
+        wake_snapshots = [self.substrate.parameters_at(i, "wake") for i in range(k)]  # theta_i^wake, i < k
+        memories = self.memories[: k + 1]
+        problem = self.substrate.sleep_problem(k, memories)
+        before = problem.diagnostics() if problem.diagnostics is not None else {}
+        t0 = time.perf_counter()
+        result = sleep_consolidate(
+            problem.parameters, problem.policy, memories, problem.config, anchor_params=anchor,
+            wake_snapshots=wake_snapshots, is_final_skill=k == len(self.skills) - 1,
+            step_callback=problem.step_callback, progress=self.progress,
+        )
+        seconds = time.perf_counter() - t0
+        record: dict[str, Any] = {"seconds": seconds, **result.summary()}
+        if problem.diagnostics is not None:
+            after = problem.diagnostics()
+            record.update({f"{key}_before": value for key, value in before.items()})
+            record.update({f"{key}_after": value for key, value in after.items()})
+        self.substrate.save_policy(k, "sleep", {"sleep_diagnostics.json": result.to_dict()})
+        return record

@@ -1,0 +1,11 @@
+"""Continual methods as plugins of the stream engine: one file per method, registered by name.
+
+Adding a baseline: write ``sr_imitation/stream/methods/<name>.py`` with a :class:`ContinualMethod` subclass
+decorated by :func:`register_method`, and import it below.
+"""
+
+from sr_imitation.stream.methods import sequential_bc, sleeping_robots  # noqa: F401  (register the methods)
+from sr_imitation.stream.methods.base import ContinualMethod
+from sr_imitation.stream.methods.registry import METHODS, make_method, methods_for, register_method
+
+__all__ = ["METHODS", "ContinualMethod", "make_method", "methods_for", "register_method"]

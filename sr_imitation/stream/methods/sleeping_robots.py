@@ -1,0 +1,52 @@
+"""Sleeping Robots (paper, Algorithm 1) and its wake-only ablation.
+
+Wake: the skill's own objective plus, on substrates whose wake distils (ACT), gamma_k times the summed distillation
+losses of the frozen memories M_1..M_{k-1} (paper Eq. L_wake); a memory M_k after every wake; for k >= 2 a sleep
+over M_1..M_k (Nash bargaining, Eq. 1, with the anchor of Eq. 2), run by the engine.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from typing import Any
+
+from sr_imitation.core.memory import Memory
+from sr_imitation.stream.methods.base import ContinualMethod
+from sr_imitation.stream.methods.registry import register_method
+
+
+@register_method
+class SleepingRobots(ContinualMethod):
+    """SR: wake with distillation from the memories, sleep after every skill from the second on. With sleep turned
+    off by the run's configuration (``--policy.sleep=false``, ``--sleep_enabled=false``) this is the wake-only
+    ablation, as :class:`WakeOnly` is by name."""
+
+    name = "sr"
+    substrates = frozenset({"act", "sac"})
+    stores_memories = True
+
+    def wake_memories(self, skill_number: int, memories: Sequence[Memory]) -> tuple[list[Memory], float]:
+        weight = self.settings.distill_weight
+        if weight is None:  # the substrate's wake has no distillation term (SAC: the paper's wake is plain SAC)
+            return [], 0.0
+        return list(memories), weight(skill_number)
+
+    def sleeps_after(self, skill_number: int) -> bool:
+        return self.settings.sleep and skill_number >= 2
+
+    def describe(self) -> dict[str, Any]:
+        variant = "sleeping_robots" if self.settings.sleep else "sr_wake_only"
+        return {"method": self.name, "variant": variant, **self.settings.extra}
+
+
+@register_method
+class WakeOnly(SleepingRobots):
+    """The paper's "SR Wake-Only" ablation: the same wake (and memories), never a sleep."""
+
+    name = "wake_only"
+
+    def sleeps_after(self, skill_number: int) -> bool:
+        return False
+
+    def describe(self) -> dict[str, Any]:
+        return {"method": self.name, "variant": "sr_wake_only", **self.settings.extra}

@@ -1,0 +1,136 @@
+"""A run directory that cannot change silently: settings fingerprint, stored config, progress, leftovers.
+
+Fresh run: the directory is created, the settings fingerprint (:mod:`sr_imitation.core.fingerprint`) and the stored
+config are written once. Resume: the requested settings are checked against the fingerprint *before anything is
+written* (a refused resume leaves the directory byte-identical), ``progress.json`` is read, and temporary files
+left by a killed atomic write are removed. Nothing stored at the start is ever rewritten.
+
+``progress.json`` records every completed phase under ``"<stage>.<phase>"`` (1-based stage), written atomically
+after the phase's files, so a phase is either recorded with all its outputs or redone.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import shutil
+from collections.abc import Callable, Mapping
+from pathlib import Path
+from typing import Any
+
+from sr_imitation.core.fingerprint import (
+    FINGERPRINT_FILE,
+    SettingsFingerprint,
+    check_settings,
+    read_fingerprint,
+    write_fingerprint,
+)
+from sr_imitation.core.io import CorruptFileError, atomic_write_json
+
+logger = logging.getLogger(__name__)
+
+PROGRESS_FILE = "progress.json"
+PROGRESS_VERSION = 1
+TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")
+"""Names of what an interrupted atomic write leaves (temp files of ``atomic_write_bytes``, staging directories of
+checkpoints): removed on resume, never read."""
+
+
+class RunDirectory:
+    """One run's output directory.
+
+    Args:
+        path: the directory.
+        fingerprint: the requested settings (the whole config minus its documented allow-list).
+        config_file: the stored config's file name (``train_config.json``); ``stored_config`` is its content.
+        legacy_settings: for runs written before fingerprints, the flat settings to compare with, read from the
+            stored config (``None``: such a run is refused as unreadable).
+        resume, overwrite: the per-invocation flags.
+    """
+
+    def __init__(self, path: Path, fingerprint: SettingsFingerprint, config_file: str, stored_config: Mapping[str, Any],
+                 resume: bool, overwrite: bool,
+                 legacy_settings: Callable[[Any], Mapping[str, Any]] | None = None) -> None:
+        self.path = Path(path)
+        self.fingerprint = fingerprint
+        self.config_file = config_file
+        self.stored_config = dict(stored_config)
+        self.resume = resume
+        self.overwrite = overwrite
+        self.legacy_settings = legacy_settings
+        self.progress: dict[str, Any] = {"version": PROGRESS_VERSION, "completed": {}}
+
+    # -- set-up -------------------------------------------------------------------------------------------
+    def prepare(self) -> None:
+        """Create a fresh run or check a resumed one (see the module docstring)."""
+        exists = self.path.exists() and any(self.path.iterdir())
+        if exists and self.overwrite:
+            logger.warning("--overwrite: removing %s", self.path)
+            shutil.rmtree(self.path)
+            exists = False
+        elif exists and not self.resume:
+            raise FileExistsError(
+                f"{self.path} already exists; pass --resume=true to continue it or --overwrite=true to replace it")
+        elif not exists and self.resume:
+            raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume")
+        if exists:
+            legacy = self._check_settings()
+            progress_path = self.path / PROGRESS_FILE
+            if progress_path.exists():
+                try:
+                    self.progress = json.loads(progress_path.read_text())
+                except json.JSONDecodeError as exc:
+                    raise CorruptFileError(progress_path, f"cannot resume: {exc}") from exc
+                if not isinstance(self.progress, dict) or not isinstance(self.progress.get("completed"), dict):
+                    raise CorruptFileError(progress_path, "cannot resume: no 'completed' phases recorded")
+            self._remove_leftovers()
+            if legacy:  # a run from before fingerprints: store the checked settings once
+                write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
+            return
+        self.path.mkdir(parents=True, exist_ok=True)
+        write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
+        atomic_write_json(self.path / self.config_file, self.stored_config)
+
+    def _check_settings(self) -> bool:
+        """Compare with the stored fingerprint (runs without one: their stored config); raise
+        :class:`~sr_imitation.core.fingerprint.SettingsMismatchError` naming every differing key. Returns whether
+        the run had no fingerprint file."""
+        path = self.path / FINGERPRINT_FILE
+        if path.is_file():
+            check_settings(path, read_fingerprint(path), self.fingerprint)
+            return False
+        path = self.path / self.config_file
+        if not path.is_file():
+            raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume (no {FINGERPRINT_FILE} "
+                                    f"or {self.config_file})")
+        if self.legacy_settings is None:
+            raise CorruptFileError(path, f"cannot resume: no {FINGERPRINT_FILE}")
+        from sr_imitation.core.io import read_json
+
+        check_settings(path, self.legacy_settings(read_json(path)), self.fingerprint)
+        return True
+
+    def _remove_leftovers(self) -> None:
+        for pattern in TEMPORARY_PATTERNS:
+            for leftover in sorted(self.path.rglob(pattern)):
+                logger.info("removing %s (left by an interrupted write)", leftover)
+                if leftover.is_dir():
+                    shutil.rmtree(leftover)
+                else:
+                    leftover.unlink()
+
+    # -- progress -----------------------------------------------------------------------------------------
+    @staticmethod
+    def key(k: int, phase: str) -> str:
+        return f"{k + 1}.{phase}"
+
+    def done(self, k: int, phase: str) -> bool:
+        return self.key(k, phase) in self.progress["completed"]
+
+    def record(self, k: int, phase: str) -> dict[str, Any]:
+        return self.progress["completed"][self.key(k, phase)]
+
+    def mark(self, k: int, phase: str, record: dict[str, Any]) -> None:
+        """Record a completed phase (after its files are written)."""
+        self.progress["completed"][self.key(k, phase)] = record
+        atomic_write_json(self.path / PROGRESS_FILE, self.progress)

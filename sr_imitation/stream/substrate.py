@@ -1,0 +1,115 @@
+"""What a substrate (a policy family with its data, environment and files) provides to the stream engine.
+
+The engine (:mod:`sr_imitation.stream.engine`) runs Algorithm 1 and owns the order of the phases, resume and the
+one call of :func:`~sr_imitation.core.sleep.sleep_consolidate`. A substrate owns everything that depends on the
+policy: how a wake trains, what a memory holds, how the policy is evaluated, seeded and saved. Two implement it:
+the ACT imitation substrate (:class:`sr_imitation.imitation.substrate.ACTSubstrate`) and the SAC substrate.
+
+Phases are named ``wake``, ``memory``, ``wake.eval``, ``sleep`` and ``sleep.eval``; ``k`` is the 0-based stage
+index (skill ``skills[k]``).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, ClassVar, Protocol, runtime_checkable
+
+from torch import Tensor
+
+from sr_imitation.core.memory import Memory
+from sr_imitation.core.sleep import SleepConfig
+
+
+@dataclass
+class SleepProblem:
+    """What the core's sleep needs from the substrate at stage k (besides memories, anchor and gate snapshots,
+    which the engine supplies).
+
+    Attributes:
+        parameters: theta, the deployed policy's trainable parameters (updated in place).
+        policy: what the memories evaluate (:meth:`Memory.loss`'s ``policy`` argument).
+        config: the sleep hyperparameters, seeded for this stage.
+        step_callback: called after every sleep update (e.g. the SAC actor's sleep-rate excitability, Eq. 3).
+        diagnostics: called before and after the sleep; its values are recorded as ``<key>_before`` /
+            ``<key>_after`` in the sleep record (e.g. each frozen critic's value of the actor).
+    """
+
+    parameters: Sequence[Tensor]
+    policy: Any
+    config: SleepConfig
+    step_callback: Callable[[int], None] | None = None
+    diagnostics: Callable[[], dict[str, Any]] | None = None
+
+
+@dataclass
+class MethodSettings:
+    """What a substrate tells a continual method about its configuration (substrate-free).
+
+    Attributes:
+        sleep: whether sleeping is enabled by the run's configuration (``--policy.sleep`` on ACT, ``--sleep_enabled``
+            on SAC); a method that sleeps honours it.
+        distill_weight: gamma_k, the weight of wake-time distillation from the memories for the k-th skill
+            (1-based); ``None`` when the substrate's wake has no distillation term (SAC).
+        extra: substrate-specific settings a method may read.
+    """
+
+    sleep: bool = True
+    distill_weight: Callable[[int], float] | None = None
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+@runtime_checkable
+class Substrate(Protocol):
+    """The policy-specific half of a stream run (see the module docstring)."""
+
+    name: ClassVar[str]
+    """Registry name methods refer to in :attr:`ContinualMethod.substrates` (``act``, ``sac``)."""
+
+    skills: list[str]
+
+    def method_settings(self) -> MethodSettings:
+        """The settings continual methods read (sleep on/off, distillation weights)."""
+
+    def setup(self) -> None:
+        """Build the policy, its statistics and environments (after the run directory is prepared)."""
+
+    def begin_phase(self, k: int, phase: str) -> None:
+        """Seed every random generator for ``phase`` of stage ``k`` (from the run seed, independent of whether
+        earlier phases ran in this process: a resumed run continues with the same numbers)."""
+
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
+                                                                                         dict[str, Any]]:
+        """Train the policy on skill ``k`` (with distillation from ``memories`` at ``distill_weight`` where the
+        substrate supports it). Returns the progress record and extra JSON files for the wake checkpoint."""
+
+    def make_memory(self, k: int) -> Memory:
+        """M_k from the policy right after its wake, saved to the run directory."""
+
+    def load_memory(self, k: int) -> Memory:
+        """M_k as :meth:`make_memory` saved it (checked)."""
+
+    def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
+        """Which learned skills the evaluation right after wake k covers (all learned skills when no sleep follows,
+        since it is then the stage's evaluation)."""
+
+    def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        """Evaluate the current policy on ``skills`` (indices), write the phase's evaluation files, return the
+        progress record."""
+
+    def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
+        """The parameters, policy function, seeded config and callbacks of the sleep at stage ``k``."""
+
+    def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
+        """Checkpoint the policy after ``phase`` (``wake`` or ``sleep``) of stage ``k`` with extra JSON files."""
+
+    def load_policy(self, k: int, phase: str) -> None:
+        """Restore the policy saved by :meth:`save_policy` (checked)."""
+
+    def parameters_at(self, k: int, phase: str) -> list[Tensor]:
+        """The trainable parameters (in :class:`SleepProblem.parameters` order) saved after ``phase`` of stage k."""
+
+    def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
+               ) -> dict[str, Any]:
+        """Build results, tables and plots from the recorded phases; ``final_phases[k]`` is the phase whose
+        checkpoint ends stage k (``sleep`` or ``wake``)."""

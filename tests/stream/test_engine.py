@@ -1,0 +1,210 @@
+"""The stream engine on a toy substrate: the phases each method runs, the one sleep call's wiring, resume after a
+kill at every point, the run directory's refusals, and the method registry."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Any
+
+import pytest
+import torch
+
+from sr_imitation.core.fingerprint import SettingsMismatchError, settings_fingerprint
+from sr_imitation.stream import (
+    METHODS,
+    ContinualMethod,
+    RunDirectory,
+    StreamEngine,
+    make_method,
+    methods_for,
+    register_method,
+)
+from sr_imitation.stream import engine as engine_module
+from sr_imitation.stream.methods.registry import METHODS as REGISTRY
+from tests.stream.toy import ToySubstrate
+
+SKILLS = ["a", "b", "c"]
+
+
+class KilledError(Exception):
+    pass
+
+
+def make_engine(out: Path, method: str = "sr", resume: bool = False, settings: dict[str, Any] | None = None,
+                after_phase=None, **substrate_kwargs: Any) -> StreamEngine:
+    substrate = ToySubstrate(out, SKILLS, **substrate_kwargs)
+    defaults = {"seed": 0, "sleep": True, "wake_steps": 30, "sleep_iterations": 15, "distill_weight": 0.5}
+    config = {"method": method, **defaults, **substrate_kwargs, **(settings or {})}
+    run = RunDirectory(out, settings_fingerprint(config), "config.json", config, resume=resume, overwrite=False)
+    return StreamEngine(substrate, make_method(method, "toy", substrate.method_settings()), run, progress=False,
+                        after_phase=after_phase)
+
+
+@pytest.fixture(autouse=True)
+def toy_methods():
+    """The toy substrate supports the built-in methods (they name their substrates; here we add 'toy')."""
+    saved = {name: cls.substrates for name, cls in REGISTRY.items()}
+    for cls in REGISTRY.values():
+        cls.substrates = cls.substrates | {"toy"}
+    yield
+    for name, substrates in saved.items():
+        REGISTRY[name].substrates = substrates
+
+
+@pytest.fixture
+def reference(tmp_path) -> dict[str, Any]:
+    return make_engine(tmp_path / "reference").run()
+
+
+def test_phases_per_method(tmp_path):
+    expected = {
+        "sr": [["wake", "memory", "wake.eval"], ["wake", "memory", "wake.eval", "sleep", "sleep.eval"],
+               ["wake", "memory", "wake.eval", "sleep", "sleep.eval"]],
+        "wake_only": [["wake", "memory", "wake.eval"]] * 3,
+        "sequential_bc": [["wake", "wake.eval"]] * 3,
+    }
+    for method, phases in expected.items():
+        engine = make_engine(tmp_path / method, method)
+        assert [engine.phases(k) for k in range(3)] == phases
+        result = engine.run()
+        done = json.loads((tmp_path / method / "progress.json").read_text())["completed"]
+        assert sorted(done) == sorted(f"{k + 1}.{p}" for k in range(3) for p in phases[k])
+        assert result["final_phases"] == ["sleep" if "sleep" in p else "wake" for p in phases]
+        assert result["memories"] == ([] if method == "sequential_bc" else SKILLS)
+    # sr with sleep turned off by the substrate's configuration is the wake-only ablation
+    assert make_engine(tmp_path / "off", "sr", sleep=False).phases(1) == expected["wake_only"][1]
+
+
+def test_wake_eval_covers_what_the_substrate_asks(tmp_path):
+    engine = make_engine(tmp_path / "r")
+    engine.run()
+    progress = json.loads((tmp_path / "r" / "progress.json").read_text())["completed"]
+    assert list(progress["1.wake.eval"]["success"]) == ["a"]  # no sleep follows: the stage evaluation
+    assert list(progress["2.wake.eval"]["success"]) == ["b"]  # toy: only the new skill before a sleep
+    assert list(progress["3.sleep.eval"]["success"]) == SKILLS
+
+
+def test_the_sleep_gets_the_previous_final_policy_as_anchor_and_earlier_wake_snapshots(tmp_path, monkeypatch):
+    calls = []
+    real = engine_module.sleep_consolidate
+
+    def spy(params, policy, memories, config, anchor_params=None, wake_snapshots=(), is_final_skill=False, **kw):
+        calls.append({"start": [p.detach().clone() for p in params], "anchor": [a.clone() for a in anchor_params],
+                      "snapshots": [[t.clone() for t in s] for s in wake_snapshots],
+                      "memories": [m.skill for m in memories], "final": is_final_skill})
+        return real(params, policy, memories, config, anchor_params=anchor_params, wake_snapshots=wake_snapshots,
+                    is_final_skill=is_final_skill, **kw)
+
+    monkeypatch.setattr(engine_module, "sleep_consolidate", spy)
+    engine = make_engine(tmp_path / "r")
+    engine.run()
+    sub = engine.substrate
+    assert [c["memories"] for c in calls] == [["a", "b"], ["a", "b", "c"]]
+    assert [c["final"] for c in calls] == [False, True]
+    same = lambda xs, ys: all(torch.equal(x, y) for x, y in zip(xs, ys, strict=True))  # noqa: E731
+    # stage 2 (k=1): anchor theta_1^wake (stage 1 did not sleep), gates from theta_1^wake; starts at theta_2^wake
+    assert same(calls[0]["anchor"], sub.parameters_at(0, "wake"))
+    assert len(calls[0]["snapshots"]) == 1 and same(calls[0]["snapshots"][0], sub.parameters_at(0, "wake"))
+    assert same(calls[0]["start"], sub.parameters_at(1, "wake"))
+    # stage 3: anchor theta_2^sleep, gates from theta_1^wake and theta_2^wake
+    assert same(calls[1]["anchor"], sub.parameters_at(1, "sleep"))
+    assert [len(s) for s in calls[1]["snapshots"]] == [4, 4]
+    assert same(calls[1]["snapshots"][1], sub.parameters_at(1, "wake"))
+    record = json.loads((tmp_path / "r" / "progress.json").read_text())["completed"]["3.sleep"]
+    assert len(record["memory_losses_before"]) == 3 and len(record["memory_losses_after"]) == 3
+
+
+def _all_phases(method: str = "sr") -> list[tuple[int, str]]:
+    engine = make_engine(Path("/nonexistent"), method)
+    return [(k, p) for k in range(3) for p in engine.phases(k)]
+
+
+@pytest.mark.parametrize("method", ["sr", "sequential_bc"])
+def test_a_kill_after_any_phase_or_inside_it_resumes_to_identical_results(tmp_path, method):
+    reference = make_engine(tmp_path / "reference", method).run()
+    points = _all_phases(method)[:-1]
+    for n, point in enumerate(points):
+        for inside in (False, True):
+            out = tmp_path / f"kill{n}_{int(inside)}"
+            if inside:  # killed inside the phase after `point`: its files may exist, it is not recorded
+                nxt = _all_phases(method)[n + 1]
+                real = StreamEngine._run_phase
+
+                def killing(self, k, phase, nxt=nxt, real=real):
+                    record = real(self, k, phase)
+                    if (k, phase) == nxt:
+                        raise KilledError
+                    return record
+
+                with pytest.MonkeyPatch.context() as mp:
+                    mp.setattr(StreamEngine, "_run_phase", killing)
+                    with pytest.raises(KilledError):
+                        make_engine(out, method).run()
+            else:
+                def kill(k, phase, point=point):
+                    if (k, phase) == point:
+                        raise KilledError
+
+                with pytest.raises(KilledError):
+                    make_engine(out, method, after_phase=kill).run()
+            resumed = make_engine(out, method, resume=True).run()
+            assert resumed["evals"] == reference["evals"], (point, inside)
+            assert all(torch.equal(a, b) for a, b in zip(resumed["weights"], reference["weights"], strict=True))
+
+
+def test_run_directory_refuses_before_writing(tmp_path):
+    out = tmp_path / "r"
+    with pytest.raises(KilledError):
+        make_engine(out, after_phase=lambda k, p: _raise() if (k, p) == (1, "wake") else None).run()
+    before = {p: p.read_bytes() for p in out.rglob("*") if p.is_file()}
+    with pytest.raises(FileExistsError, match="--resume=true"):
+        make_engine(out).run()
+    with pytest.raises(SettingsMismatchError, match=r"wake_steps: 30 -> 31"):
+        make_engine(out, resume=True, wake_steps=31).run()
+    with pytest.raises(FileNotFoundError, match="holds no run"):
+        make_engine(tmp_path / "empty", resume=True).run()
+    assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    # leftovers of an interrupted atomic write are removed on resume, never read
+    (out / "stage1" / ".wake.safetensors.abc.tmp").write_bytes(b"torn")
+    (out / ".sleep.x1").mkdir()
+    make_engine(out, resume=True).run()
+    assert not list(out.rglob(".*.tmp")) and not (out / ".sleep.x1").exists()
+
+
+def _raise() -> None:
+    raise KilledError
+
+
+def test_registry_names_choices_and_refuses_other_substrates():
+    assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
+    assert methods_for("act") == methods_for("sac") == ["sequential_bc", "sr", "wake_only"]
+    with pytest.raises(ValueError, match=r"unknown method 'ewc'; choose from \['sequential_bc', 'sr', 'wake_only'\]"):
+        make_method("ewc", "act", ToySubstrate(Path("."), SKILLS).method_settings())
+    with pytest.raises(ValueError, match="on the mujoco substrate"):
+        make_method("sr", "mujoco", ToySubstrate(Path("."), SKILLS).method_settings())
+    with pytest.raises(TypeError, match="name and substrates"):
+        register_method(type("Nameless", (ContinualMethod,), {}))
+    with pytest.raises(ValueError, match="registered twice"):
+        register_method(type("Impostor", (ContinualMethod,), {"name": "sr", "substrates": frozenset({"act"})}))
+
+
+def test_a_new_method_is_one_class(tmp_path):
+    """A method that keeps memories, never distils during wake and sleeps only after the last skill."""
+
+    class SleepAtTheEnd(ContinualMethod):
+        name = "sleep_at_the_end"
+        substrates = frozenset({"toy"})
+        stores_memories = True
+
+        def sleeps_after(self, skill_number: int) -> bool:
+            return skill_number == 3
+
+    register_method(SleepAtTheEnd)
+    try:
+        engine = make_engine(tmp_path / "r", "sleep_at_the_end")
+        result = engine.run()
+        assert result["final_phases"] == ["wake", "wake", "sleep"]
+        assert ("sleep", 2) in engine.substrate.calls and ("sleep", 1) not in engine.substrate.calls
+    finally:
+        REGISTRY.pop("sleep_at_the_end")

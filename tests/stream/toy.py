@@ -1,0 +1,114 @@
+"""A toy substrate for the engine's tests (and the smallest example of implementing one): a 2-layer MLP regressing a
+fixed random linear map per skill. Wake = SGD on the skill's map plus distillation from the given memories; memory =
+the core's :class:`OutputDistillationMemory` on stored inputs; evaluation = fraction of test inputs within a
+tolerance; checkpoints = checked safetensors. Substrate-free (torch only), a few milliseconds per phase."""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import torch
+
+from sr_imitation.core.io import atomic_write_json, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
+from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.stream import MethodSettings, SleepProblem
+
+PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
+
+
+class ToySubstrate:
+    name: ClassVar[str] = "toy"
+
+    def __init__(self, out: Path, skills: Sequence[str], seed: int = 0, sleep: bool = True, wake_steps: int = 30,
+                 sleep_iterations: int = 15, distill_weight: float = 0.5) -> None:
+        self.out, self.skills, self.seed, self.sleep = Path(out), list(skills), seed, sleep
+        self.wake_steps, self.sleep_iterations, self.gamma = wake_steps, sleep_iterations, distill_weight
+        self.calls: list[tuple[str, int]] = []
+
+    def method_settings(self) -> MethodSettings:
+        return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma)
+
+    def setup(self) -> None:
+        g = torch.Generator().manual_seed(1000 + self.seed)
+        self.maps = [torch.randn(4, 2, generator=g) for _ in self.skills]
+        self.test_x = torch.randn(64, 4, generator=g)
+        torch.manual_seed(self.seed)
+        self.policy = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Tanh(), torch.nn.Linear(16, 2))
+
+    def policy_fn(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self.policy(obs["x"])
+
+    def begin_phase(self, k: int, phase: str) -> None:
+        torch.manual_seed(self.seed * 1000 + 10 * (k + 1) + PHASE_IDS[phase])
+
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
+                                                                                         dict[str, Any]]:
+        self.calls.append(("wake", k))
+        opt = torch.optim.SGD(self.policy.parameters(), lr=0.05)
+        for _ in range(self.wake_steps):
+            x = torch.randn(32, 4)
+            loss = (self.policy(x) - x @ self.maps[k]).pow(2).sum(1).mean()
+            for m in memories:
+                loss = loss + distill_weight * m.objective(self.policy_fn, 16)
+            opt.zero_grad()
+            loss.backward()
+            opt.step()
+        return {"loss": loss.item()}, {"wake_history.json": {"final_loss": loss.item()}}
+
+    def make_memory(self, k: int) -> Memory:
+        self.calls.append(("memory", k))
+        memory = OutputDistillationMemory.from_snapshot(self.skills[k], self.policy_fn, {"x": torch.randn(64, 4)})
+        memory.save(self.out / "memories" / f"{k}.safetensors")
+        return memory
+
+    def load_memory(self, k: int) -> Memory:
+        return load_memory(self.out / "memories" / f"{k}.safetensors", skill=self.skills[k])
+
+    def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
+        return [k] if sleeps else list(range(k + 1))
+
+    def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        self.calls.append((phase, k))
+        with torch.no_grad():
+            err = {self.skills[i]: (self.policy(self.test_x) - self.test_x @ self.maps[i]).norm(dim=1)
+                   for i in skills}
+        record = {"success": {s: float((e < 1.0).float().mean()) for s, e in err.items()},
+                  "error": {s: float(e.mean()) for s, e in err.items()}}
+        atomic_write_json(self.out / f"stage{k}" / f"{phase}.json", record)
+        return record
+
+    def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
+        self.calls.append(("sleep", k))
+        config = SleepConfig(max_iterations=self.sleep_iterations, batch_size=16, lr=1e-2, early_stop_window=5,
+                             seed=self.seed * 1000 + k)
+        def losses() -> dict[str, Any]:
+            with torch.no_grad():
+                return {"memory_losses": [m.loss(self.policy_fn, dict(m.tensors)).item() for m in memories]}
+
+        return SleepProblem(list(self.policy.parameters()), self.policy_fn, config, diagnostics=losses)
+
+    def _path(self, k: int, phase: str) -> Path:
+        return self.out / f"stage{k}" / f"{phase}.safetensors"
+
+    def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
+        save_checked_safetensors(self._path(k, phase), dict(self.policy.state_dict()), {"stage": k, "phase": phase})
+        for name, obj in files.items():
+            atomic_write_json(self.out / f"stage{k}" / f"{phase}.{name}", obj)
+
+    def load_policy(self, k: int, phase: str) -> None:
+        tensors, _ = load_checked_safetensors(self._path(k, phase))
+        self.policy.load_state_dict(tensors)
+
+    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
+        tensors, _ = load_checked_safetensors(self._path(k, phase))
+        return [tensors[n] for n, _ in self.policy.named_parameters()]
+
+    def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
+               ) -> dict[str, Any]:
+        final = {k: v for k, v in progress["completed"].items() if k.endswith(".eval")}
+        return {"evals": {k: v["success"] for k, v in final.items()},
+                "weights": [p.detach().clone() for p in self.policy.parameters()],
+                "final_phases": list(final_phases), "memories": [m.skill for m in memories]}
