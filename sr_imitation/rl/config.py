@@ -215,8 +215,10 @@ class RLTrainConfig:
     """Explicit skill list (Meta-World v3 ids); overrides ``stream``."""
     max_episode_steps: int = 500
     """Meta-World's time limit (max_path_length)."""
+    method: str = "sr"
+    """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only`` or ``sequential_bc``."""
     sleep_enabled: bool = True
-    """False gives the "SR Wake-Only" ablation."""
+    """False gives the "SR Wake-Only" ablation (with ``method=sr``)."""
     sac: SACConfig = field(default_factory=SACConfig)
     wake: WakeConfig = field(default_factory=WakeConfig)
     excitability: ExcitabilityConfig = field(default_factory=ExcitabilityConfig)
@@ -242,6 +244,10 @@ class RLTrainConfig:
             raise ValueError("--resume and --overwrite are mutually exclusive")
         if self.torch_threads < 1:
             raise ValueError(f"torch_threads must be >= 1, got {self.torch_threads}")
+        from sr_imitation.stream import methods_for
+
+        if self.method not in methods_for("sac"):
+            raise ValueError(f"method: unknown method {self.method!r} for SAC; choose from {methods_for('sac')}")
 
     @property
     def stream_skills(self) -> list[str]:

@@ -93,7 +93,9 @@ class StreamEngine:
                     pending_load = None
                 self.substrate.begin_phase(k, phase)
                 logger.info("stage %d (%s): %s", k + 1, self.skills[k], phase)
+                t0 = time.perf_counter()
                 record = self._run_phase(k, phase)
+                record.setdefault("seconds", time.perf_counter() - t0)
                 self.run_dir.mark(k, phase, record)
                 if self.after_phase is not None:
                     self.after_phase(k, phase)

@@ -13,11 +13,11 @@ from pathlib import Path
 import pytest
 import torch
 
-from sr_imitation.core.io import load_checked_safetensors
 from sr_imitation.core.sleep import SleepConfig
-from sr_imitation.rl import trainer as trainer_module
+from sr_imitation.rl import substrate as substrate_module
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
-from sr_imitation.rl.trainer import WAKE_PREFIX, StreamTrainer
+from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.stream import engine as engine_module
 
 SKILLS = ["reach-v3", "door-open-v3", "drawer-open-v3"]
 
@@ -47,7 +47,7 @@ def recorded_stream(tmp_path_factory):
     out = tmp_path_factory.mktemp("rl_wiring") / "run"
     trainer = StreamTrainer(_config(out))
     wakes, sleeps = [], []
-    real_wake, real_sleep = trainer_module.train_skill, trainer_module.sleep_consolidate
+    real_wake, real_sleep = substrate_module.train_skill, engine_module.sleep_consolidate
 
     def recording_wake(agent, *args, **kwargs):
         result = real_wake(agent, *args, **kwargs)
@@ -66,13 +66,10 @@ def recorded_stream(tmp_path_factory):
         return result
 
     with pytest.MonkeyPatch.context() as mp:
-        mp.setattr(trainer_module, "train_skill", recording_wake)
-        mp.setattr(trainer_module, "sleep_consolidate", recording_sleep)
+        mp.setattr(substrate_module, "train_skill", recording_wake)
+        mp.setattr(engine_module, "sleep_consolidate", recording_sleep)
         trainer.run()
-    saved = []
-    for k in range(len(SKILLS)):
-        tensors, _ = load_checked_safetensors(trainer.stage_dir(k) / "agent.safetensors")
-        saved.append([tensors[f"{WAKE_PREFIX}{i}"] for i in range(sum(n.startswith(WAKE_PREFIX) for n in tensors))])
+    saved = [trainer.substrate.parameters_at(k, "wake") for k in range(len(SKILLS))]
     return wakes, sleeps, saved
 
 

@@ -8,9 +8,10 @@ from pathlib import Path
 
 import draccus
 import pytest
+import torch
 
 from sr_imitation.core.fingerprint import SettingsMismatchError
-from sr_imitation.core.io import CorruptFileError
+from sr_imitation.core.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
 from sr_imitation.rl.envs import SkillEnv
@@ -55,7 +56,7 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     s_final, w = full["success_matrix"], full["success_after_own_wake"]
     assert full["metrics"]["bwt_wake"] == pytest.approx(s_final[1][0] - w[0])
     assert full["metrics"]["bwt"] == pytest.approx(s_final[1][0] - s_final[0][0])
-    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == 2
+    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == 3
     assert "BWT_wake" in (tmp_path / "full" / "report.md").read_text()
     assert len(full["stages"][1]["sleep"]["frozen_critic_value_change"]) == 2
     assert (tmp_path / "full" / "plots" / "success_matrix.png").is_file()
@@ -89,10 +90,18 @@ def test_output_dir_safety_and_loud_failures(tmp_path):
         StreamTrainer(tiny_config(out, skills=["reach-v3"])).run()
     with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: .*seed: 3 -> 4"):
         StreamTrainer(tiny_config(out, skills=["reach-v3"], seed=4, resume=True)).run()
-    ckpt = out / "stages" / "01_reach" / "agent.safetensors"
+    # a killed two-skill run resumes from stage 1's checkpoint: a truncated one is refused naming it
+    killed = tmp_path / "killed"
+
+    def kill(stage):
+        raise SimulatedKillError
+
+    with pytest.raises(SimulatedKillError):
+        StreamTrainer(tiny_config(killed, eval=EvalConfig(episodes=1)), after_stage=kill).run()
+    ckpt = killed / "stages" / "01_reach" / "wake" / "agent.safetensors"
     ckpt.write_bytes(ckpt.read_bytes()[:-10])
-    with pytest.raises(CorruptFileError, match="agent.safetensors"):
-        StreamTrainer(tiny_config(out, skills=["reach-v3"], eval=EvalConfig(episodes=1), resume=True)).run()
+    with pytest.raises(CorruptFileError, match="01_reach/wake/agent.safetensors"):
+        StreamTrainer(tiny_config(killed, eval=EvalConfig(episodes=1), resume=True)).run()
     StreamTrainer(tiny_config(out, skills=["reach-v3"], eval=EvalConfig(episodes=1), overwrite=True)).run()
     assert json.loads((out / "results.json").read_text())["skills"] == ["reach"]
     with pytest.raises(ValueError, match="mutually exclusive"):
@@ -115,6 +124,7 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
     cfg = tiny_config(tmp_path / "paired", eval=EvalConfig(episodes=6, videos_per_skill=0), max_episode_steps=10)
     trainer = StreamTrainer(cfg)
     agent = SACAgent(cfg.sac, cfg.excitability)
+    trainer.substrate.agent = agent
     seen: list[tuple[str, int]] = []
     original_reset = SkillEnv.reset
 
@@ -133,9 +143,9 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
             by_skill.setdefault(skill, []).append(c)
         return rows, by_skill
 
-    rows_1, stage_1 = configurations(lambda: trainer._evaluate(0, agent))
-    rows_2, stage_2 = configurations(lambda: trainer._evaluate(1, agent))
-    wake_rows, after_wake_2 = configurations(lambda: trainer._evaluate(1, agent, only_current=True))
+    rows_1, stage_1 = configurations(lambda: trainer.substrate.evaluate_rows(0, [0]))
+    rows_2, stage_2 = configurations(lambda: trainer.substrate.evaluate_rows(1, [0, 1]))
+    wake_rows, after_wake_2 = configurations(lambda: trainer.substrate.evaluate_rows(1, [1]))
     assert len(stage_1["reach-v3"]) == 6 and len(set(stage_1["reach-v3"])) > 1
     assert stage_2["reach-v3"] == stage_1["reach-v3"]
     assert after_wake_2["door-open-v3"] == stage_2["door-open-v3"] and "reach-v3" not in after_wake_2
@@ -147,5 +157,33 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
     # Another run seed draws other configurations.
     other = StreamTrainer(tiny_config(tmp_path / "other", seed=4, eval=EvalConfig(episodes=6, videos_per_skill=0),
                                       max_episode_steps=10))
-    _, stage_1_other = configurations(lambda: other._evaluate(0, agent))
+    other.substrate.agent = agent
+    _, stage_1_other = configurations(lambda: other.substrate.evaluate_rows(0, [0]))
     assert stage_1_other["reach-v3"] != stage_1["reach-v3"]
+
+
+@pytest.mark.parametrize("point", [(1, "wake"), (1, "wake.eval"), (1, "sleep")])
+def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, point):
+    """The engine records every phase: a run killed after the wake, the after-wake evaluation or the sleep of
+    stage 2 resumes there (nothing is redone) and ends bit-identical to an uninterrupted run."""
+    cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
+    full = StreamTrainer(tiny_config(tmp_path / "full", **cfg)).run()
+
+    def kill(k, phase):
+        if (k, phase) == point:
+            raise SimulatedKillError
+
+    with pytest.raises(SimulatedKillError):
+        StreamTrainer(tiny_config(tmp_path / "killed", **cfg), after_phase=kill).run()
+    redone = []
+    resumed = StreamTrainer(tiny_config(tmp_path / "killed", resume=True, **cfg),
+                            after_phase=lambda k, p: redone.append((k, p))).run()
+    phases = [(1, p) for p in ("wake", "memory", "wake.eval", "sleep", "sleep.eval")]
+    assert redone == phases[phases.index(point) + 1:]
+    for key in ("success_matrix", "success_after_own_wake", "metrics"):
+        assert resumed[key] == full[key], key
+    strip = lambda r: {k: v for k, v in r.items() if k != "seconds"}  # noqa: E731
+    assert strip(resumed["stages"][1]["sleep"]) == strip(full["stages"][1]["sleep"])
+    a, _ = load_checked_safetensors(tmp_path / "full" / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
+    b, _ = load_checked_safetensors(tmp_path / "killed" / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
+    assert a.keys() == b.keys() and all(torch.equal(a[n], b[n]) for n in a)

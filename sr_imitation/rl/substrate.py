@@ -1,0 +1,227 @@
+"""The SAC substrate of the stream engine (:class:`~sr_imitation.stream.substrate.Substrate`) on Meta-World.
+
+Per stage k, under ``stages/<k+1:02d>_<skill>/`` (every file written atomically; checkpoints checksummed):
+
+- ``wake``: SAC on skill k (:func:`~sr_imitation.rl.wake.train_skill`, excitability at the wake rate), which also
+  freezes the critic memory M_k from its replay buffer (``memory.safetensors``, written with the wake);
+  checkpoint ``wake/agent.safetensors`` (the whole agent: theta_k^wake, the gate snapshot of later sleeps);
+- ``wake.eval``: before a sleep, skill k alone (``eval.after_wake``; the reference of BWT_wake); without a sleep,
+  every learned skill (the stage's evaluation, reused as the after-wake one: same policy, same configurations);
+- ``sleep``: Nash-bargained sleep with the actor's sleep-rate excitability after every update (Eq. 3); checkpoint
+  ``sleep/agent.safetensors`` and ``sleep/sleep_diagnostics.json``;
+- stage evaluations write ``trajectories.safetensors`` (SPI inputs) and videos under ``videos/stage_<k>_<skill>/``.
+
+Evaluation is paired (common random numbers): skill i is evaluated on the same Meta-World configurations after its
+wake and after every stage (:func:`~sr_imitation.rl.evaluate.evaluation_configurations`). Seeds: the network from
+``stage_seed(seed, K, 1)``, stage k's wake from ``stage_seed(seed, k)``, its sleep from salts 2 (sleep sampling)
+and 3 (excitability batches), every other phase from salt ``10 + phase id``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import shutil
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any, ClassVar
+
+import numpy as np
+import torch
+
+from sr_imitation.core.excitability import update_excitability
+from sr_imitation.core.io import CorruptFileError, atomic_write_json, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.core.memory import Memory
+from sr_imitation.core.metrics import canonical_skill, policy_motion
+from sr_imitation.rl.config import RLTrainConfig
+from sr_imitation.rl.critic_memory import CriticMemory
+from sr_imitation.rl.envs import SkillEnv
+from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
+from sr_imitation.rl.sac import SACAgent
+from sr_imitation.rl.video import rendering_unavailable
+from sr_imitation.rl.wake import train_skill
+from sr_imitation.stream.substrate import MethodSettings, SleepProblem
+
+logger = logging.getLogger(__name__)
+
+CHECKPOINT_FORMAT = "sr_imitation.rl.stage"
+CHECKPOINT_VERSION = 3
+"""3: one checkpoint per policy-changing phase (``wake/``, ``sleep/``) of the stream engine (2: one per stage with
+the wake snapshot inside; 1: per-stage evaluation draws)."""
+PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
+
+
+def stage_seed(seed: int, stage: int, salt: int = 0) -> int:
+    """Deterministic per-stage seed (independent of whether earlier stages ran in this process)."""
+    return int(np.random.SeedSequence([seed, stage, salt]).generate_state(1)[0])
+
+
+class SACSubstrate:
+    """SAC with an excitability-gated actor on a Meta-World stream."""
+
+    name: ClassVar[str] = "sac"
+
+    def __init__(self, cfg: RLTrainConfig) -> None:
+        self.cfg = cfg
+        self.skills = cfg.stream_skills
+        self.out = Path(cfg.output_dir)
+        self._eval_envs: dict[str, SkillEnv] = {}
+        self._videos = cfg.eval.videos_per_skill > 0
+        self._memories: dict[int, CriticMemory] = {}
+
+    def method_settings(self) -> MethodSettings:
+        return MethodSettings(sleep=self.cfg.sleep_enabled, distill_weight=None,
+                              extra={"aggregator": self.cfg.sleep.aggregator})
+
+    # -- set-up and seeding ---------------------------------------------------------------------------------
+    def setup(self) -> None:
+        torch.set_num_threads(self.cfg.torch_threads)
+        torch.manual_seed(stage_seed(self.cfg.seed, len(self.skills), 1))  # network initialization
+        self.agent = SACAgent(self.cfg.sac, self.cfg.excitability, device=self.cfg.device)
+        if self._videos and (reason := rendering_unavailable()) is not None:
+            logger.warning("no evaluation videos: offscreen rendering is unavailable (%s); set MUJOCO_GL=egl "
+                           "or eval.videos_per_skill=0", reason)
+            self._videos = False
+
+    def begin_phase(self, k: int, phase: str) -> None:
+        seed = stage_seed(self.cfg.seed, k) if phase == "wake" else stage_seed(self.cfg.seed, k, 10 + PHASE_IDS[phase])
+        torch.manual_seed(seed % (2**63))
+        np.random.seed(seed % (2**32))
+
+    # -- files ----------------------------------------------------------------------------------------------
+    def stage_dir(self, k: int) -> Path:
+        return self.out / "stages" / f"{k + 1:02d}_{canonical_skill(self.skills[k])}"
+
+    def video_dir(self, k: int) -> Path:
+        """Videos of the evaluation after stage ``k`` (every learned skill), named like the stage directory."""
+        return self.out / "videos" / f"stage_{k + 1:02d}_{canonical_skill(self.skills[k])}"
+
+    def _header(self, k: int, phase: str) -> dict[str, Any]:
+        return {"format": CHECKPOINT_FORMAT, "format_version": CHECKPOINT_VERSION, "stage": k, "phase": phase,
+                "skill": self.skills[k], "seed": self.cfg.seed}
+
+    def _checkpoint(self, k: int, phase: str) -> Path:
+        return self.stage_dir(k) / phase / "agent.safetensors"
+
+    def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
+        # 0-d tensors (log alpha, normalizer count) are stored as shape (1,): the core digest needs >= 1 dim
+        tensors = {name: t.reshape(-1) if t.ndim == 0 else t for name, t in self.agent.state_dict().items()}
+        save_checked_safetensors(self._checkpoint(k, phase), tensors, self._header(k, phase))
+        for name, obj in files.items():
+            atomic_write_json(self.stage_dir(k) / phase / name, obj)
+
+    def _load_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
+        path = self._checkpoint(k, phase)
+        tensors, header = load_checked_safetensors(path)
+        want = self._header(k, phase)
+        got = {key: header.get(key) for key in want}
+        if got != want:
+            raise CorruptFileError(path, f"checkpoint header {got} does not match the expected {want}")
+        shapes = {n: t.shape for n, t in self.agent.state_dict().items()}
+        return {n: t.reshape(shapes[n]) if n in shapes and t.numel() == shapes[n].numel() else t
+                for n, t in tensors.items()}
+
+    def load_policy(self, k: int, phase: str) -> None:
+        try:
+            self.agent.load_state_dict(self._load_state(k, phase), strict=True)
+        except RuntimeError as exc:
+            raise CorruptFileError(self._checkpoint(k, phase), f"agent weights do not fit this configuration: "
+                                                               f"{exc}") from exc
+
+    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
+        state = self._load_state(k, phase)
+        by_id = {id(p): f"actor.{n}" for n, p in self.agent.actor.named_parameters()}
+        return [state[by_id[id(p)]] for p in self.agent.actor_parameters()]
+
+    # -- phases -----------------------------------------------------------------------------------------------
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
+                                                                                         dict[str, Any]]:
+        if memories:
+            raise ValueError("the SAC wake has no distillation term (the paper's wake is plain SAC)")
+        cfg = self.cfg
+        seed = stage_seed(cfg.seed, k)
+        with SkillEnv(self.skills[k], seed=seed % (2**31), max_episode_steps=cfg.max_episode_steps) as env:
+            wake, memory = train_skill(self.agent, env, k, cfg.sac, cfg.wake, cfg.excitability, cfg.memory,
+                                       seed=seed, progress=cfg.progress)
+        memory.save(self.stage_dir(k) / "memory.safetensors")  # M_k comes from the wake's replay buffer
+        self._memories[k] = memory
+        return {"wake": wake.summary()}, {}
+
+    def make_memory(self, k: int) -> Memory:
+        memory = self._memories.pop(k, None)
+        return memory if memory is not None else self.load_memory(k)
+
+    def load_memory(self, k: int) -> Memory:
+        return CriticMemory.load(self.stage_dir(k) / "memory.safetensors", skill=canonical_skill(self.skills[k]))
+
+    def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
+        if not sleeps:
+            return list(range(k + 1))  # the stage's evaluation, also the after-wake one
+        return [k] if self.cfg.eval.after_wake else []
+
+    def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        stage_eval = list(skills) == list(range(k + 1))  # every learned skill: the stage's evaluation
+        rows, trajectories = self.evaluate_rows(k, skills, videos=stage_eval)
+        if stage_eval:
+            traj = {f"traj.{canonical_skill(s)}": torch.as_tensor(x) for s, x in trajectories.items()}
+            save_checked_safetensors(self.stage_dir(k) / "trajectories.safetensors", traj,
+                                     {**self._header(k, phase), "format": "sr_imitation.rl.traj",
+                                      "spi_features": list(SPI_FEATURES)})
+        logger.info("stage %d %s: success %s", k + 1, phase, [round(r["success_rate"], 3) for r in rows])
+        return {"rows": rows, "stage_evaluation": stage_eval}
+
+    def evaluate_rows(self, k: int, skills: Sequence[int], videos: bool = False
+                      ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+        """Evaluate ``skills`` (indices), each on its paired configurations (the same at every stage); each row
+        lists them, and with ``videos`` its mp4 files (relative to the output directory). Returns the rows and, per
+        skill, the SPI input (:func:`policy_motion` of ``SPI_FEATURES``) of its episodes."""
+        cfg, agent = self.cfg, self.agent
+        rows, trajectories = [], {}
+        spec = cfg.eval.video_spec(self.video_dir(k)) if videos and self._videos else None
+        if spec is not None:
+            shutil.rmtree(spec.directory, ignore_errors=True)  # leftovers of a killed attempt at this stage
+        for i in skills:
+            skill = self.skills[i]
+            env = self._eval_envs.get(skill)
+            if env is None:
+                env = self._eval_envs[skill] = SkillEnv(skill, seed=0, max_episode_steps=cfg.max_episode_steps)
+            configurations = evaluation_configurations(cfg.seed, skill, cfg.eval.episodes)
+            res = evaluate_policy(
+                lambda obs: agent.act(obs, deterministic=cfg.eval.deterministic), env, cfg.eval.episodes,
+                seed=cfg.seed, success_mode=cfg.eval.success_mode, stop_on_success=cfg.eval.stop_on_success,
+                record_trajectories=True, configurations=configurations, video=spec,
+            )
+            rows.append({**res.summary(), "configurations": configurations})
+            if spec is not None:
+                rows[-1]["videos"] = [p.relative_to(self.out).as_posix() for p in res.videos]
+            trajectories[skill] = policy_motion(res.trajectories, SPI_FEATURES)
+        return rows, trajectories
+
+    def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
+        cfg, agent = self.cfg, self.agent
+        sleep_cfg = dataclasses.replace(cfg.sleep, seed=stage_seed(cfg.seed, k, 2) % (2**31))
+        rate = cfg.excitability.rate("sleep")
+        gen = torch.Generator().manual_seed(stage_seed(cfg.seed, k, 3) % (2**31))
+
+        def excitability_step(_iteration: int) -> None:
+            # Eq. 3 at the sleep rate, from the actor's activity on a batch of every memory's states
+            if rate <= 0.0:
+                return
+            states = torch.cat([m.sample(sleep_cfg.batch_size, gen)["state"] for m in memories])
+            with torch.no_grad():
+                agent.policy_fn(states)
+            update_excitability(agent.actor, rate)
+
+        def critic_values() -> dict[str, Any]:
+            return {"frozen_critic_value": [m.value(agent.policy_fn) for m in memories]}  # type: ignore[attr-defined]
+
+        return SleepProblem(agent.actor_parameters(), agent.policy_fn, sleep_cfg, excitability_step, critic_values)
+
+    def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
+               ) -> dict[str, Any]:
+        from sr_imitation.rl.trainer import write_results
+
+        for env in self._eval_envs.values():
+            env.close()
+        self._eval_envs.clear()
+        return write_results(self, progress, memories)
