@@ -17,6 +17,7 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.imitation.cli import _split_config_path, parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.record import RecordConfig, record
@@ -74,5 +75,10 @@ def main(args: list[str] | None = None) -> None:
     ))
 
 
+def entry() -> None:
+    """Console script ``sr-main``: :func:`main` with one-line user errors (``--debug`` for tracebacks)."""
+    run_cli("sr-main", main)
+
+
 if __name__ == "__main__":
-    main()
+    entry()

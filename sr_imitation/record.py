@@ -24,6 +24,7 @@ import draccus
 import numpy as np
 from tqdm import tqdm
 
+from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, skill_from_name
@@ -247,5 +248,10 @@ def main(args: list[str] | None = None) -> None:
         print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
 
 
+def entry() -> None:
+    """Console script ``sr-record``: :func:`main` with one-line user errors."""
+    run_cli("sr-record", main)
+
+
 if __name__ == "__main__":
-    main()
+    entry()

@@ -114,6 +114,15 @@ def _key_text(key: Any) -> str:
     return key if isinstance(key, str) else str(key)
 
 
+def check_finite(cfg: Any) -> None:
+    """Refuse any non-finite float setting of ``cfg`` (NaN, +-inf), naming its dotted key, at parse time: a NaN
+    learning rate or budget otherwise surfaces only after something was written (or trains silently on NaN).
+    Settings that are absent use ``None``, never ``inf``."""
+    for key, value in flatten_settings(cfg).items():
+        if isinstance(value, float) and not math.isfinite(value):
+            raise ValueError(f"{key}: must be a finite number, got {value}")
+
+
 def is_allowed(key: str, allow: Iterable[str]) -> bool:
     """Whether ``key`` or one of its dotted prefixes matches an allow-list pattern."""
     parts = key.split(".")

@@ -78,16 +78,66 @@ def save_checked_safetensors(
 ) -> Path:
     """Save tensors with a JSON header in the safetensors metadata, atomically.
 
-    The header gets ``tensors`` (name -> dtype and shape) and ``sha256`` (of the tensor bytes) added, so
-    :func:`load_checked_safetensors` can detect truncation, bit corruption and mismatches.
+    The header gets ``tensors`` (name -> dtype and shape), ``sha256`` (of the tensor bytes) and
+    ``header_sha256`` (of the header itself, every other key included) added, so :func:`load_checked_safetensors`
+    detects truncation, bit corruption of the data *or* the header, and mismatches.
     """
     tensors = {k: v.detach().cpu().contiguous() for k, v in tensors.items()}
     full = dict(header)
     full["tensors"] = {k: {"dtype": str(v.dtype).removeprefix("torch."), "shape": list(v.shape)}
                        for k, v in sorted(tensors.items())}
     full["sha256"] = tensors_digest(tensors)
+    full["header_sha256"] = header_digest(full)
     data = st_save(tensors, metadata={"sr_header": json.dumps(full, sort_keys=True)})
     return atomic_write_bytes(path, data)
+
+
+def header_digest(header: Mapping[str, Any]) -> str:
+    """sha256 of a header's canonical JSON (sorted keys), without its own ``header_sha256`` entry."""
+    body = {k: v for k, v in header.items() if k != "header_sha256"}
+    return hashlib.sha256(json.dumps(body, sort_keys=True, separators=(",", ":")).encode()).hexdigest()
+
+
+def file_digest(path: str | os.PathLike[str]) -> str:
+    """sha256 of a file's bytes."""
+    h = hashlib.sha256()
+    with open(path, "rb") as f:
+        for block in iter(lambda: f.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+MANIFEST = "checksums.json"
+MANIFEST_FORMAT = "sr_imitation.checksums"
+
+
+def write_manifest(directory: str | os.PathLike[str]) -> Path:
+    """Write ``checksums.json`` in ``directory``: the sha256 of every other file below it (for checkpoints in a
+    third-party layout, e.g. LeRobot's ``pretrained_model/``), itself sealed by a sha256 over its entries."""
+    directory = Path(directory)
+    files = {p.relative_to(directory).as_posix(): file_digest(p) for p in sorted(directory.rglob("*"))
+             if p.is_file() and p.name != MANIFEST}
+    body = {"format": MANIFEST_FORMAT, "files": files}
+    return atomic_write_json(directory / MANIFEST, {**body, "sha256": header_digest(body)})
+
+
+def verify_manifest(directory: str | os.PathLike[str]) -> None:
+    """Check every file listed in ``directory/checksums.json`` (none missing, none changed); ``CorruptFileError``
+    naming the first file that differs. Files added later (evaluation outputs next to a checkpoint) are not part of
+    the checkpoint and are not checked."""
+    directory = Path(directory)
+    path = directory / MANIFEST
+    if not path.is_file():
+        raise CorruptFileError(path, "checkpoint has no checksums.json (written before checksums, or incomplete)")
+    manifest = read_json(path)
+    body = {k: v for k, v in manifest.items() if k != "sha256"} if isinstance(manifest, dict) else {}
+    if body.get("format") != MANIFEST_FORMAT or header_digest(body) != manifest.get("sha256"):
+        raise CorruptFileError(path, "checksum manifest is corrupted (its sha256 does not match its entries)")
+    for name, digest in sorted(body["files"].items()):
+        if not (directory / name).is_file():
+            raise CorruptFileError(directory / name, "missing (listed in checksums.json)")
+        if file_digest(directory / name) != digest:
+            raise CorruptFileError(directory / name, "contents differ from checksums.json (corrupted or edited)")
 
 
 def load_checked_safetensors(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
@@ -124,6 +174,10 @@ def load_checked_safetensors(path: str | os.PathLike[str]) -> tuple[dict[str, to
         actual = {"dtype": str(t.dtype).removeprefix("torch."), "shape": list(t.shape)}
         if actual != spec:
             raise CorruptFileError(path, f"tensor {name!r} is {actual}, header declares {spec}")
+    if "header_sha256" not in header:
+        raise CorruptFileError(path, "header has no header_sha256 (written before header checksums; re-create it)")
+    if header_digest(header) != header["header_sha256"]:
+        raise CorruptFileError(path, "header does not match its header_sha256 (corrupted or edited header)")
     if tensors_digest(tensors) != header.get("sha256"):
         raise CorruptFileError(path, "tensor data does not match the header's sha256 (corrupted file)")
     return tensors, header

@@ -39,7 +39,8 @@ from sr_imitation.core.io import (
     tensors_digest,
 )
 
-MEMORY_FORMAT_VERSION = 1
+MEMORY_FORMAT_VERSION = 2
+"""2: the header is checksummed too (``header_sha256``); 1: tensors only."""
 
 PolicyFn = Callable[[Mapping[str, Tensor]], Tensor]
 """The current shared policy as a function of a batch of buffered inputs (a dict of tensors)."""

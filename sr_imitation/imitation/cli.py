@@ -23,6 +23,7 @@ import draccus
 from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
+from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.core.io import atomic_write_json
 from sr_imitation.core.metrics import SURGICAI_SKILLS
@@ -134,5 +135,15 @@ def eval_main(args: list[str] | None = None) -> None:
     print(f"written: {cfg.output_dir / 'eval.json'}, videos in {cfg.output_dir / 'videos'}")
 
 
+def train_entry() -> None:
+    """Console script ``sr-train``: :func:`train_main` with one-line user errors (``--debug`` for tracebacks)."""
+    run_cli("sr-train", train_main)
+
+
+def eval_entry() -> None:
+    """Console script ``sr-eval``."""
+    run_cli("sr-eval", eval_main)
+
+
 if __name__ == "__main__":
-    train_main()
+    train_entry()

@@ -27,6 +27,7 @@ from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation.core.fingerprint import (
     RUN_DIRECTORY,
     SettingsFingerprint,
+    check_finite,
     settings_fingerprint,
     settings_from_config,
     to_jsonable,
@@ -36,7 +37,7 @@ from sr_imitation.imitation.data import check_stream_datasets
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
 from sr_imitation.imitation.wake import WakeConfig
-from sr_imitation.stream import RunDirectory, StreamEngine, make_method
+from sr_imitation.stream import RunDirectory, StreamEngine, make_method, methods_for
 
 __all__ = ["RESUME_ALLOW_LIST", "StreamConfig", "StreamTrainer", "TrainStreamConfig", "resume_fingerprint",
            "seed_everything", "stage_name", "stored_config_dict", "train_stream"]
@@ -107,6 +108,10 @@ class TrainStreamConfig:
         if self.resume and self.overwrite:
             raise ValueError("--resume and --overwrite exclude each other")
         self.output_dir = Path(self.output_dir)
+        check_finite(self)  # every numeric setting (policy, wake, eval), before anything is written
+        methods = methods_for(ACTSubstrate.name)
+        if self.method not in methods:
+            raise ValueError(f"method: unknown method {self.method!r}; choose from {methods}")
 
 
 def _config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:

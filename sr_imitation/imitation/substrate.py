@@ -31,7 +31,7 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
-from sr_imitation.core.io import CorruptFileError, atomic_write_json
+from sr_imitation.core.io import CorruptFileError, atomic_write_json, verify_manifest, write_manifest
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.data import (
@@ -137,6 +137,7 @@ class ACTSubstrate:
             self.postprocessor.save_pretrained(pretrained)
             for name, obj in files.items():
                 atomic_write_json(tmp / name, obj)
+            write_manifest(tmp)  # sha256 of every file: LeRobot's safetensors carry no checksum of their own
             if final.exists():  # left by a run killed after the rename but before progress.json was written
                 shutil.rmtree(final)
             os.replace(tmp, final)
@@ -144,11 +145,21 @@ class ACTSubstrate:
             shutil.rmtree(tmp, ignore_errors=True)
             raise
 
-    def load_policy(self, k: int, phase: str) -> None:
-        path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"
+    def _checked_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
+        """The checkpoint's weights after checking every file of it against its ``checksums.json``."""
+        directory = self.checkpoint_dir(k, phase)
+        path = directory / "pretrained_model" / "model.safetensors"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: checkpoint recorded in progress.json is missing")
-        state = load_file(str(path))
+        verify_manifest(directory)
+        try:
+            return load_file(str(path))
+        except Exception as exc:  # safetensors raises its own error types without the file name
+            raise CorruptFileError(path, f"unreadable weights ({exc})") from exc
+
+    def load_policy(self, k: int, phase: str) -> None:
+        path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"
+        state = self._checked_state(k, phase)
         missing, unexpected = self.policy.load_state_dict(state, strict=False)
         if missing or unexpected:
             raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
@@ -158,7 +169,7 @@ class ACTSubstrate:
         return [p for p in self.policy.parameters() if p.requires_grad]
 
     def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
-        state = load_file(str(self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"))
+        state = self._checked_state(k, phase)
         names = [n for n, p in self.policy.named_parameters() if p.requires_grad]
         return [state[n] for n in names]
 

@@ -15,6 +15,7 @@ import sys
 
 import draccus
 
+from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
 
@@ -50,5 +51,10 @@ def main(args: list[str] | None = None) -> None:
     train(parse(list(sys.argv[1:] if args is None else args)))
 
 
+def entry() -> None:
+    """Console script ``sr-rl-train``: :func:`main` with one-line user errors (``--debug`` for tracebacks)."""
+    run_cli("sr-rl-train", main)
+
+
 if __name__ == "__main__":
-    main()
+    entry()

@@ -14,7 +14,13 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.core.excitability import ExcitabilityConfig
-from sr_imitation.core.fingerprint import RUN_DIRECTORY, SettingsFingerprint, settings_fingerprint, to_jsonable
+from sr_imitation.core.fingerprint import (
+    RUN_DIRECTORY,
+    SettingsFingerprint,
+    check_finite,
+    settings_fingerprint,
+    to_jsonable,
+)
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
@@ -244,6 +250,7 @@ class RLTrainConfig:
             raise ValueError("--resume and --overwrite are mutually exclusive")
         if self.torch_threads < 1:
             raise ValueError(f"torch_threads must be >= 1, got {self.torch_threads}")
+        check_finite(self)  # every numeric setting, before anything is written
         from sr_imitation.stream import methods_for
 
         if self.method not in methods_for("sac"):

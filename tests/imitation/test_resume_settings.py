@@ -28,6 +28,7 @@ from sr_imitation.core.fingerprint import (
     settings_digest,
     write_fingerprint,
 )
+from sr_imitation.core.io import CorruptFileError
 from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
 from sr_imitation.imitation.stream import (
     RESUME_ALLOW_LIST,
@@ -293,3 +294,25 @@ def test_a_run_without_fingerprint_is_checked_against_its_train_config(stored, t
     (run / "train_config.json").unlink()
     with pytest.raises(FileNotFoundError, match="holds no run to resume"):
         StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
+
+
+@pytest.mark.parametrize("damage", ["flip", "truncate", "config"])
+def test_a_damaged_checkpoint_is_refused_naming_the_file_before_training_on_it(after_stage_1, state_datasets, tmp_path,
+                                                                               damage):
+    """Stage 2 starts from stage 1's checkpoint: one flipped weight byte, a truncated model.safetensors or an edited
+    config.json in it is refused naming the file (before: a different result with no error, or an unnamed
+    SafetensorError)."""
+    run = tmp_path / "run"
+    shutil.copytree(after_stage_1, run)
+    pretrained = run / "skill_1_approach" / "wake" / "pretrained_model"
+    target = pretrained / ("config.json" if damage == "config" else "model.safetensors")
+    data = bytearray(target.read_bytes())
+    if damage == "truncate":
+        data = data[: len(data) // 2]
+    else:
+        data[len(data) - 5] ^= 0x01
+    target.write_bytes(bytes(data))
+    cfg = tiny_stream_config(state_datasets, run, STREAM, use_images=False)
+    cfg.resume = True
+    with pytest.raises(CorruptFileError, match=f"{target.name}: contents differ from checksums.json"):
+        StreamTrainer(cfg, fake_env_factory).run()

@@ -1,0 +1,65 @@
+"""One-line errors for the command-line programs.
+
+A user error (a bad flag value, a missing or damaged file, a refused resume, a dataset that does not fit) is
+reported as ``<prog>: error: <message>`` on stderr with exit status 2, without a traceback; ``--debug`` (or
+``SR_DEBUG=1``) re-raises it with the full traceback. Errors raised while draccus builds the config arrive wrapped
+(``ParsingError: Couldn't instantiate class ...``); the message shown is the innermost one, which names the key.
+Anything else (a bug) keeps its traceback.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+from collections.abc import Callable, Sequence
+from typing import TypeVar
+
+from sr_imitation.core.io import CorruptFileError
+
+USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, PermissionError,
+                                                IsADirectoryError, NotADirectoryError, CorruptFileError)
+"""What counts as a user error (``ValueError`` includes settings mismatches, invalid values, dataset mismatches)."""
+
+T = TypeVar("T")
+
+
+def _user_error(exc: BaseException) -> BaseException | None:
+    """The innermost user error in ``exc``'s cause chain (draccus wraps __post_init__ errors), or None."""
+    found = None
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        if isinstance(exc, USER_ERRORS) or type(exc).__module__.startswith("draccus"):
+            found = exc
+        exc = exc.__cause__ or exc.__context__
+    return found
+
+
+def split_debug(args: Sequence[str]) -> tuple[bool, list[str]]:
+    """Remove ``--debug`` / ``--debug=true|false`` from ``args``; returns (debug, rest)."""
+    debug, rest = os.environ.get("SR_DEBUG", "") not in ("", "0"), []
+    for arg in args:
+        if arg in ("--debug", "--debug=true", "--debug=True"):
+            debug = True
+        elif arg in ("--debug=false", "--debug=False"):
+            debug = False
+        else:
+            rest.append(arg)
+    return debug, rest
+
+
+def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:
+    """Run ``main(args)`` (``sys.argv[1:]`` by default), turning user errors into one line and exit status 2."""
+    debug, rest = split_debug(list(sys.argv[1:] if args is None else args))
+    try:
+        return main(rest)
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: interrupted (resume with --resume=true)\n")
+        raise SystemExit(130) from None
+    except Exception as exc:
+        user = _user_error(exc)
+        if user is None or debug:
+            raise
+        message = " ".join(str(user).split())  # one line
+        sys.stderr.write(f"{prog}: error: {message} (--debug shows the traceback)\n")
+        raise SystemExit(2) from None

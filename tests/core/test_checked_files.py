@@ -1,0 +1,98 @@
+"""Every byte of a checked safetensors file (memories, SAC checkpoints, statistics) is covered: a flip anywhere in
+the header or the data, or a truncation, is refused naming the file; checkpoint manifests (LeRobot layout) the
+same for every file of the directory."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+import torch
+
+from sr_imitation.core.io import (
+    CorruptFileError,
+    load_checked_safetensors,
+    save_checked_safetensors,
+    verify_manifest,
+    write_manifest,
+)
+from sr_imitation.core.memory import OutputDistillationMemory, load_memory
+
+
+def _memory() -> OutputDistillationMemory:
+    g = torch.Generator().manual_seed(0)
+    return OutputDistillationMemory("reach", {"input.x": torch.randn(6, 3, generator=g),
+                                             "target": torch.randn(6, 2, generator=g)}, {"reduction": "mean"})
+
+
+def test_every_single_byte_flip_of_a_memory_file_is_refused_naming_it(tmp_path):
+    path = _memory().save(tmp_path / "m.safetensors")
+    data = path.read_bytes()
+    assert load_memory(path).config["reduction"] == "mean"
+    for position in range(len(data)):
+        for bit in (0x01, 0x20):  # a low bit and the ASCII case/space bit
+            flipped = bytearray(data)
+            flipped[position] ^= bit
+            path.write_bytes(bytes(flipped))
+            with pytest.raises(CorruptFileError) as info:
+                load_memory(path)
+            assert str(path) in str(info.value), position
+    for cut in (1, 8, len(data) // 2, len(data) - 1):
+        path.write_bytes(data[:cut])
+        with pytest.raises(CorruptFileError, match="m.safetensors"):
+            load_memory(path)
+
+
+def test_the_issue_s_header_edit_is_refused(tmp_path):
+    """'reduction' -> 'reducthon' in the JSON header loaded with the default reduction before header checksums."""
+    path = _memory().save(tmp_path / "m.safetensors")
+    data = path.read_bytes()
+    assert data.count(b"reduction") == 1
+    path.write_bytes(data.replace(b"reduction", b"reducthon"))
+    with pytest.raises(CorruptFileError, match="header does not match its header_sha256"):
+        load_memory(path)
+
+
+def test_files_without_a_header_checksum_are_refused(tmp_path):
+    from safetensors.torch import save_file
+
+    tensors = {"w": torch.ones(3)}
+    header = {"format": "x", "tensors": {"w": {"dtype": "float32", "shape": [3]}}}
+    from sr_imitation.core.io import tensors_digest
+
+    header["sha256"] = tensors_digest(tensors)
+    save_file(tensors, str(tmp_path / "old.safetensors"), metadata={"sr_header": json.dumps(header)})
+    with pytest.raises(CorruptFileError, match="old.safetensors: header has no header_sha256"):
+        load_checked_safetensors(tmp_path / "old.safetensors")
+    save_checked_safetensors(tmp_path / "new.safetensors", tensors, {"format": "x"})
+    assert torch.equal(load_checked_safetensors(tmp_path / "new.safetensors")[0]["w"], tensors["w"])
+
+
+def test_checkpoint_manifest_names_the_changed_file(tmp_path):
+    ckpt = tmp_path / "wake"
+    (ckpt / "pretrained_model").mkdir(parents=True)
+    (ckpt / "pretrained_model" / "model.safetensors").write_bytes(bytes(range(200)))
+    (ckpt / "pretrained_model" / "config.json").write_text('{"dim_model": 128}')
+    (ckpt / "wake_history.json").write_text("{}")
+    write_manifest(ckpt)
+    verify_manifest(ckpt)
+    model = ckpt / "pretrained_model" / "model.safetensors"
+    original = model.read_bytes()
+    for change, match in [
+        (lambda: model.write_bytes(original[:-1] + b"\x00"), r"model.safetensors: contents differ"),
+        (lambda: model.write_bytes(original[:100]), r"model.safetensors: contents differ"),
+        (lambda: model.unlink(), r"model.safetensors: missing"),
+    ]:
+        change()
+        with pytest.raises(CorruptFileError, match=match):
+            verify_manifest(ckpt)
+        model.write_bytes(original)
+    (ckpt / "eval.json").write_text("{}")  # written next to the checkpoint later: not part of it
+    verify_manifest(ckpt)
+    manifest = ckpt / "checksums.json"
+    manifest.write_text(manifest.read_text().replace('"format"', '"formaat"'))
+    with pytest.raises(CorruptFileError, match="checksums.json: checksum manifest is corrupted"):
+        verify_manifest(ckpt)
+    manifest.unlink()
+    with pytest.raises(CorruptFileError, match="checksums.json"):
+        verify_manifest(ckpt)

@@ -1,0 +1,95 @@
+"""User errors on the command line are one line naming the key or file (exit status 2), found before anything is
+written; ``--debug`` shows the traceback."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+import sr_imitation.imitation.cli as imitation_cli
+import sr_imitation.rl.cli as rl_cli
+from sr_imitation.core.cli_errors import run_cli, split_debug
+from sr_imitation.core.fingerprint import SettingsMismatchError
+
+
+def _one_line_error(prog, main, args, capsys) -> str:
+    with pytest.raises(SystemExit) as info:
+        run_cli(prog, main, args)
+    assert info.value.code == 2
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith(f"{prog}: error:")]
+    assert len(lines) == 1 and "Traceback" not in err, err
+    return lines[0]
+
+
+@pytest.mark.parametrize("flag, key", [
+    ("--wake.budget_scale=nan", "wake.budget_scale"),
+    ("--sleep.lr=inf", "sleep.lr"),
+    ("--sac.actor_lr=nan", "actor_lr"),
+    ("--eval.episodes=0", "episodes"),
+    ("--method=ewc", "method"),
+])
+def test_rl_bad_values_are_one_line_naming_the_key_and_nothing_is_written(tmp_path, capsys, flag, key):
+    out = tmp_path / "run"
+    line = _one_line_error("sr-rl-train", rl_cli.main,
+                           ["--config_path=configs/sac_mt5_cpu.json", f"--output_dir={out}", flag], capsys)
+    assert key in line, line
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("flag, key", [
+    ("--policy.anchor_strength=nan", "anchor_strength"),
+    ("--policy.sleep_lr=inf", "sleep_lr"),
+    ("--wake.batch_size=0", "batch_size"),
+    ("--method=ewc", "method"),
+])
+def test_imitation_bad_values_are_one_line_naming_the_key_and_nothing_is_written(tmp_path, capsys, flag, key):
+    out = tmp_path / "run"
+    line = _one_line_error("sr-train", imitation_cli.train_main, [f"--output_dir={out}", flag], capsys)
+    assert key in line, line
+    assert not out.exists()
+
+
+def test_an_unknown_flag_value_is_argparse_s_usage_error(tmp_path, capsys):
+    with pytest.raises(SystemExit) as info:
+        run_cli("sr-train", imitation_cli.train_main, [f"--output_dir={tmp_path / 'run'}", "--policy.type=act"])
+    assert info.value.code == 2
+    assert "argument --policy.type: invalid choice: 'act' (choose from 'act_sr')" in capsys.readouterr().err
+
+
+def test_a_missing_dataset_is_one_line_naming_it(tmp_path, capsys):
+    out = tmp_path / "run"
+    line = _one_line_error("sr-train", imitation_cli.train_main,
+                           [f"--output_dir={out}", f"--stream.dataset_root={tmp_path / 'nowhere'}",
+                            "--stream.skills=[approach]"], capsys)
+    assert str(tmp_path / "nowhere" / "approach") in line and not out.exists()
+
+
+def test_a_refused_resume_is_one_line_and_debug_shows_the_traceback(tmp_path, capsys):
+    out = tmp_path / "run"
+    out.mkdir()
+    (out / "settings_fingerprint.json").write_text("{}")
+    line = _one_line_error("sr-rl-train", rl_cli.main,
+                           ["--config_path=configs/sac_mt5_cpu.json", f"--output_dir={out}", "--resume=true"], capsys)
+    assert "settings_fingerprint.json" in line
+    with pytest.raises(Exception) as info:
+        run_cli("sr-rl-train", rl_cli.main, ["--config_path=configs/sac_mt5_cpu.json", f"--output_dir={out}",
+                                             "--resume=true", "--debug"])
+    assert "settings_fingerprint.json" in str(info.value)
+    assert json.loads((out / "settings_fingerprint.json").read_text()) == {}  # nothing rewritten
+
+
+def test_changed_settings_name_every_key(tmp_path, capsys):
+    err = SettingsMismatchError(tmp_path / "f.json", {"a.b": (1, 2), "c": ("x", "y")})
+    with pytest.raises(SystemExit):
+        run_cli("sr-train", lambda args: (_ for _ in ()).throw(err), [])
+    line = capsys.readouterr().err.strip()
+    assert line.startswith("sr-train: error:") and 'a.b: 1 -> 2; c: "x" -> "y"' in line
+
+
+def test_bugs_keep_their_traceback_and_debug_flag_is_parsed():
+    with pytest.raises(KeyError):
+        run_cli("sr-train", lambda args: {}["missing"], [])
+    assert split_debug(["--x=1", "--debug"]) == (True, ["--x=1"])
+    assert split_debug(["--debug=false"]) == (False, [])
