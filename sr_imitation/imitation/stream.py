@@ -33,6 +33,7 @@ from sr_imitation.core.fingerprint import (
     to_jsonable,
 )
 from sr_imitation.core.metrics import SURGICAI_SKILLS
+from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.imitation.data import check_stream_datasets
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
@@ -94,6 +95,7 @@ class TrainStreamConfig:
     wake: WakeConfig = field(default_factory=WakeConfig)
     eval: EvalConfig = field(default_factory=EvalConfig)
     method: str = "sr"
+    wandb: WandbConfig = field(default_factory=WandbConfig)
     output_dir: Path = Path("outputs/needle_stream")
     seed: int = 1000
     resume: bool = False
@@ -126,6 +128,7 @@ RESUME_ALLOW_LIST: dict[str, str] = {
     "resume": "the per-invocation flag that asks for this check",
     "overwrite": "per invocation (it excludes --resume, and a fresh run has nothing to compare with)",
     "progress": "console progress bars only",
+    "wandb": "experiment tracking only (the run log mirrored to Weights & Biases)",
     "eval.videos_per_skill": "which evaluation episodes are also rendered to mp4: the recording env is another "
                              "instance reset with the same seed and rendering only reads the scene (outcomes, "
                              "agent_pos and image observations are identical, checked on the needle env with "
@@ -189,7 +192,8 @@ class StreamTrainer:
         """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
         instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``)."""
         check_stream_datasets(self.cfg.stream, self.policy_cfg_use_images)  # before anything is written
-        engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self.after_phase)
+        engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self.after_phase,
+                              wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg))
         return engine.run(stop_after)
 
     @property

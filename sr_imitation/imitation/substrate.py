@@ -80,6 +80,7 @@ class ACTSubstrate:
         self.skills = list(cfg.stream.skills)
         self._make_env = make_env
         self._data: Any = None
+        self.run_log: Any = None  # set by the engine: wake epochs are logged there
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=bool(self.policy_cfg.sleep), distill_weight=self.policy_cfg.distill_weight,
@@ -188,8 +189,14 @@ class ACTSubstrate:
         data = self._skill_data(k)
         self.policy.set_wake_memories(list(memories), distill_weight, seed=self.phase_seed(k, "wake"))
         t0 = time.perf_counter()
+        log = self.run_log
+
+        def on_epoch(epoch: int, values: dict[str, float]) -> None:
+            if log is not None:
+                log.log("wake", stage=k + 1, step=epoch, **values)
+
         result = wake_train(self.policy, self.preprocessor, data, self.cfg.wake, self.phase_seed(k, "wake"),
-                            self.cfg.progress)
+                            self.cfg.progress, on_epoch=on_epoch)
         self.policy.set_wake_memories([], 0.0)
         history = dataclasses.asdict(result) | {"distill_weight": distill_weight, "n_memories": len(memories)}
         record = {"seconds": time.perf_counter() - t0, "epochs": result.epochs, "best_epoch": result.best_epoch,

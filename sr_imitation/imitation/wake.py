@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -105,6 +106,7 @@ def wake_train(
     cfg: WakeConfig,
     seed: int,
     progress: bool = True,
+    on_epoch: Callable[[int, dict[str, float]], None] | None = None,
 ) -> WakeResult:
     """Train ``policy`` in place on one skill; returns the history and the restored best epoch."""
     device = policy.config.device
@@ -148,6 +150,8 @@ def wake_train(
             best_state = copy.deepcopy(policy.state_dict())
         bar.set_postfix(val_l1=f"{val_l1:.4f}", best=f"{result.best_val_l1:.4f}")
         logger.info("wake %s epoch %d: %s", data.skill, epoch, {k: round(v, 5) for k, v in record.items()})
+        if on_epoch is not None:
+            on_epoch(epoch, record)
         if epoch + 1 >= cfg.min_epochs and epoch - result.best_epoch >= cfg.patience:
             logger.info("wake %s: l1 plateau, stopping after epoch %d (best %d)", data.skill, epoch,
                         result.best_epoch)

@@ -21,6 +21,7 @@ from sr_imitation.core.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
+from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
@@ -237,6 +238,8 @@ class RLTrainConfig:
     overwrite: bool = False
     progress: bool = True
     plots: bool = True
+    wandb: WandbConfig = field(default_factory=WandbConfig)
+    """Mirror the run log (``log.jsonl``) to Weights & Biases (``--wandb.enable=true``; offline by default)."""
 
     def __post_init__(self) -> None:
         self.output_dir = Path(self.output_dir)
@@ -279,6 +282,7 @@ RESUME_ALLOW_LIST: dict[str, str] = {
     "overwrite": "per invocation (it excludes --resume, and a fresh run has nothing to compare with)",
     "progress": "console progress bars only",
     "plots": "PNG plots drawn from results.json at the end",
+    "wandb": "experiment tracking only (the run log mirrored to Weights & Biases)",
     "eval.videos_per_skill": "which evaluation episodes are also rendered to mp4: rendering only reads the "
                              "simulation state, the outcome is identical (tests/rl/test_video.py)",
     "eval.video_height": "video frame size only (see eval.videos_per_skill)",

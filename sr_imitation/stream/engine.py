@@ -23,6 +23,7 @@ from collections.abc import Callable
 from typing import Any
 
 from sr_imitation.core.memory import Memory
+from sr_imitation.core.runlog import RunLog, WandbConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.stream.methods import ContinualMethod
 from sr_imitation.stream.rundir import RunDirectory
@@ -38,10 +39,17 @@ class StreamEngine:
     """Runs (or resumes) one stream: ``substrate`` x ``method`` in ``run``.
 
     ``after_phase(k, phase)`` (tests) is called after each newly completed phase; raising there simulates a kill.
+
+    Logging: every phase logs INFO lines, and the run log (:class:`~sr_imitation.core.runlog.RunLog`,
+    ``<run>/log.jsonl``, always on; mirrored to wandb with ``wandb.enable``) gets one ``phase`` record per completed
+    phase (its numbers flattened), one ``sleep`` record per sleep iteration (objective, memory losses, alpha, gradient
+    norms, anchor coefficient, solver status) and whatever the substrate logs (``wake`` epochs) through
+    ``substrate.run_log`` when it has that attribute.
     """
 
     def __init__(self, substrate: Substrate, method: ContinualMethod, run: RunDirectory, progress: bool = True,
-                 after_phase: Callable[[int, str], None] | None = None) -> None:
+                 after_phase: Callable[[int, str], None] | None = None, wandb: WandbConfig | None = None,
+                 log_config: dict[str, Any] | None = None) -> None:
         if substrate.name not in method.substrates:
             raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
         self.substrate = substrate
@@ -51,6 +59,9 @@ class StreamEngine:
         self.after_phase = after_phase
         self.skills = list(substrate.skills)
         self.memories: list[Memory] = []
+        self.wandb = wandb
+        self.log_config = log_config
+        self.log: RunLog | None = None
 
     # -- the algorithm --------------------------------------------------------------------------------------
     def phases(self, k: int) -> list[str]:
@@ -74,6 +85,15 @@ class StreamEngine:
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
         self.run_dir.prepare()
+        self.log = RunLog(self.run_dir.path, self.wandb, self.log_config)
+        if hasattr(self.substrate, "run_log"):
+            self.substrate.run_log = self.log  # type: ignore[attr-defined]
+        try:
+            return self._run(last)
+        finally:
+            self.log.close()
+
+    def _run(self, last: int) -> dict[str, Any]:
         self.substrate.setup()
         pending_load: tuple[int, str] | None = None
         for k in range(last):
@@ -97,6 +117,8 @@ class StreamEngine:
                 record = self._run_phase(k, phase)
                 record.setdefault("seconds", time.perf_counter() - t0)
                 self.run_dir.mark(k, phase, record)
+                self.log.log("phase", stage=k + 1, phase=phase, **_scalars(record))
+                logger.info("stage %d (%s): %s done in %.1f s", k + 1, self.skills[k], phase, record["seconds"])
                 if self.after_phase is not None:
                     self.after_phase(k, phase)
             self.method.on_skill_end(k, self.substrate)
@@ -131,11 +153,19 @@ class StreamEngine:
         problem = self.substrate.sleep_problem(k, memories)
         before = problem.diagnostics() if problem.diagnostics is not None else {}
         t0 = time.perf_counter()
+        log = self.log
+
+        def on_iteration(iteration: int, values: dict[str, Any]) -> None:
+            if log is not None:
+                log.log("sleep", stage=k + 1, step=iteration, **values)
+
         result = sleep_consolidate(
             problem.parameters, problem.policy, memories, problem.config, anchor_params=anchor,
             wake_snapshots=wake_snapshots, is_final_skill=k == len(self.skills) - 1,
-            step_callback=problem.step_callback, progress=self.progress,
+            step_callback=problem.step_callback, progress=self.progress, on_iteration=on_iteration,
         )
+        logger.info("stage %d sleep: %d iterations (%s), solver %s", k + 1, result.stop_iteration,
+                    result.stop_reason, dict(result.solver_status))
         seconds = time.perf_counter() - t0
         record: dict[str, Any] = {"seconds": seconds, **result.summary()}
         if problem.diagnostics is not None:
@@ -144,3 +174,19 @@ class StreamEngine:
             record.update({f"{key}_after": value for key, value in after.items()})
         self.substrate.save_policy(k, "sleep", {"sleep_diagnostics.json": result.to_dict()})
         return record
+
+
+def _scalars(record: dict[str, Any], prefix: str = "", depth: int = 0) -> dict[str, Any]:
+    """The numbers of a phase record, flattened with ``.`` (two levels deep; lists of numbers kept)."""
+    out: dict[str, Any] = {}
+    for key, value in record.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, bool) or value is None:
+            continue
+        if isinstance(value, int | float):
+            out[name] = value
+        elif isinstance(value, dict) and depth < 2:
+            out.update(_scalars(value, f"{name}.", depth + 1))
+        elif isinstance(value, list) and value and all(isinstance(v, int | float) for v in value):
+            out[name] = value
+    return out

@@ -90,6 +90,7 @@ ALLOWED_CHANGES: dict[str, Any] = {
     "resume": True,
     "overwrite": True,
     "progress": True,
+    "wandb": {"enable": True, "project": "other", "mode": "disabled"},
     "eval.videos_per_skill": 0,
     "eval.video_height": 64,
     "eval.video_width": 96,

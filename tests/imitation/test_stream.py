@@ -214,3 +214,18 @@ def test_in_memory_dataset_serves_the_same_items_as_lerobot(image_datasets):
         for key in ("observation.state", "observation.images.wrist", "action", "action_is_pad"):
             assert torch.allclose(a[key].float(), b[key].float(), atol=1e-6), (i, key)
     assert bool(fast.dataset[9]["action_is_pad"][1]) and not bool(fast.dataset[0]["action_is_pad"].any())
+
+
+def test_the_run_log_has_wake_epochs_sleep_iterations_and_phases(finished_run):
+    from sr_imitation.core.runlog import read_log
+
+    out, results = finished_run
+    records = read_log(out / "log.jsonl")
+    wake = [r for r in records if r["kind"] == "wake"]
+    assert {r["stage"] for r in wake} == {1, 2, 3} and all("val_l1" in r and "l1_loss" in r for r in wake)
+    sleep = [r for r in records if r["kind"] == "sleep"]
+    assert {r["stage"] for r in sleep} == {2, 3}
+    stops = {k: v["stop_iteration"] for k, v in results["sleep"].items()}
+    assert stops == {f"{s}.sleep": sum(r["stage"] == s for r in sleep) for s in (2, 3)}
+    phases = [(r["stage"], r["phase"]) for r in records if r["kind"] == "phase"]
+    assert len(phases) == len(results["phases"]) and (3, "sleep.eval") in phases

@@ -208,3 +208,35 @@ def test_a_new_method_is_one_class(tmp_path):
         assert ("sleep", 2) in engine.substrate.calls and ("sleep", 1) not in engine.substrate.calls
     finally:
         REGISTRY.pop("sleep_at_the_end")
+
+
+def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(tmp_path):
+    from sr_imitation.core.runlog import read_log
+
+    out = tmp_path / "r"
+    with pytest.raises(KilledError):
+        make_engine(out, after_phase=lambda k, p: _raise() if (k, p) == (1, "sleep") else None).run()
+    make_engine(out, resume=True).run()
+    records = read_log(out / "log.jsonl")
+    phases = [(r["stage"], r["phase"]) for r in records if r["kind"] == "phase"]
+    assert phases == [(k + 1, p) for k in range(3) for p in make_engine(tmp_path / "x").phases(k)]
+    sleeps = [r for r in records if r["kind"] == "sleep"]
+    assert {r["stage"] for r in sleeps} == {2, 3} and all(len(r["alpha"]) == r["stage"] for r in sleeps)
+    assert all(r["solver_status"] in ("optimal", "closed_form", "pareto_stationary") for r in sleeps)
+    evals = [r for r in records if r["kind"] == "phase" and r["phase"] == "sleep.eval"]
+    assert set(evals[-1]) >= {"success.a", "success.b", "success.c", "seconds"}
+
+
+def test_wandb_offline_mirrors_the_log_without_network(tmp_path, monkeypatch):
+    pytest.importorskip("wandb")
+    from sr_imitation.core.runlog import WandbConfig
+
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    substrate = ToySubstrate(tmp_path / "r", SKILLS[:2])
+    config = {"method": "sr"}
+    run = RunDirectory(tmp_path / "r", settings_fingerprint(config), "config.json", config, False, False)
+    engine = StreamEngine(substrate, make_method("sr", "toy", substrate.method_settings()), run, progress=False,
+                          wandb=WandbConfig(enable=True, mode="offline"), log_config=config)
+    engine.run()
+    runs = list((tmp_path / "r" / "wandb").glob("offline-run-*"))
+    assert len(runs) == 1 and any(runs[0].rglob("*.wandb"))
