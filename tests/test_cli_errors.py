@@ -93,3 +93,16 @@ def test_bugs_keep_their_traceback_and_debug_flag_is_parsed():
         run_cli("sr-train", lambda args: {}["missing"], [])
     assert split_debug(["--x=1", "--debug"]) == (True, ["--x=1"])
     assert split_debug(["--debug=false"]) == (False, [])
+
+
+@pytest.mark.parametrize("preset", ["configs/needle_cpu.json", "configs/needle_paper.json"])
+def test_needle_presets_are_runnable_by_sr_train_and_sr_main(preset):
+    """The module docstring's ``sr-train --config_path=configs/needle_cpu.json`` failed (DecodingError: fields
+    record, train): a preset's train section is now what sr-train runs, with its record.root datasets."""
+    from sr_imitation.imitation.cli import parse_config
+    from sr_imitation.main_job import MainJobConfig
+
+    main = parse_config(MainJobConfig, preset, [])
+    train = imitation_cli.parse_train_config(preset, ["--seed=5"])
+    assert train.seed == 5 and train.stream.dataset_root == main.record.root
+    assert train.policy.dim_model == main.train.policy.dim_model and train.wake == main.train.wake

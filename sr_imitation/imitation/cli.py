@@ -71,13 +71,36 @@ def _setup_logging() -> None:
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
 
+def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamConfig:
+    """The ``sr-train`` config of a command line. ``--config_path`` may name a run's ``train_config.json`` (its
+    ``output_dir`` "." is the run directory, wherever it was copied) or an ``sr-main`` preset such as
+    ``configs/needle_cpu.json``, whose ``train`` section is used with the datasets at ``record.root`` (flags then
+    address that section as usual: ``--seed=1``)."""
+    if config_path is not None and _is_main_job_preset(config_path):
+        from sr_imitation.main_job import MainJobConfig  # noqa: PLC0415 (main_job imports this module)
+
+        prefixed = [f"--train.{a[2:]}" if a.startswith("--") else a for a in args]
+        cfg = parse_config(MainJobConfig, config_path, prefixed).train
+        cfg.output_dir = Path(cfg.output_dir)
+        return cfg
+    cfg = parse_config(TrainStreamConfig, config_path, args)
+    cfg.output_dir = output_dir_for(config_path, args, cfg.output_dir)
+    return cfg
+
+
+def _is_main_job_preset(config_path: str) -> bool:
+    try:
+        data = json.loads(Path(config_path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return False  # draccus reports it
+    return isinstance(data, dict) and "train" in data and "record" in data
+
+
 def train_main(args: list[str] | None = None) -> None:
     """``sr-train``: run (or resume) a wake-sleep stream."""
     _setup_logging()
     config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = parse_config(TrainStreamConfig, config_path, rest)
-    # A run's train_config.json stores output_dir "." (the run directory itself, wherever it was copied to).
-    cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
+    cfg = parse_train_config(config_path, rest)
     results = train_stream(cfg)
     m = results["metrics"]
     print(f"results: {cfg.output_dir / 'results.json'} (plots: metrics.png, success_matrix.png; videos: videos/)")

@@ -57,22 +57,23 @@ EnvFactory = Callable[[str, bool], gym.Env]
 class EvalConfig:
     """Evaluation protocol.
 
-    Attributes:
-        n_episodes: N, episodes per skill per evaluation seed (paper: 20).
-        seeds: evaluation seeds (paper: three).
-        max_steps: episode limit (SurgicAI: 300).
-        videos_per_skill: episodes per skill (first evaluation seed) saved as mp4; 0 disables videos.
-        video_height, video_width: scene-camera frame size for videos.
-        thresholds: success-threshold preset of the needle environment (``learnable`` or ``surgicai``).
+    Each field is documented below (``--help`` shows it).
     """
 
     n_episodes: int = 20
+    """Episodes per skill per evaluation seed (paper 20)."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
+    """Evaluation seeds (paper three); episodes reset identically at every stage."""
     max_steps: int = 300
+    """Episode step limit (SurgicAI 300)."""
     videos_per_skill: int = 1
+    """Episodes per skill (first seed) also saved as mp4; 0 disables videos."""
     video_height: int = 240
+    """Video frame height."""
     video_width: int = 320
+    """Video frame width."""
     thresholds: str = "learnable"
+    """Success-threshold preset of the needle environment - learnable or surgicai."""
 
     def __post_init__(self) -> None:
         if self.n_episodes < 1 or not self.seeds or self.max_steps < 1 or self.videos_per_skill < 0:

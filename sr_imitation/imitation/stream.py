@@ -51,23 +51,23 @@ logger = logging.getLogger(__name__)
 class StreamConfig:
     """The skill stream: an ordered list of skills, one LeRobot dataset each.
 
-    Attributes:
-        skills: stream order (default: approach, place, insert, regrasp, pullout).
-        dataset_root: datasets live at ``<dataset_root>/<skill>`` (as ``sr-record`` writes them) ...
-        dataset_paths: ... unless listed explicitly here, one path per skill.
-        repo_id_prefix: LeRobot ``repo_id`` label ``<prefix>_<skill>`` (local datasets; nothing is downloaded).
-        video_backend: decoder for video datasets (``pyav``: torchcodec does not load here).
-        pairs: PRS pair list, ``surgicai`` (the paper's seven), ``all`` or ``adjacent``.
-        stats_min_std: floor on the fixed stream statistics' standard deviations.
+    Each field is documented below (``--help`` shows it).
     """
 
     skills: list[str] = field(default_factory=lambda: list(SURGICAI_SKILLS))
+    """Stream order (default - approach, place, insert, regrasp, pullout)."""
     dataset_root: Path = Path("datasets/needle")
+    """Datasets live at <dataset_root>/<skill>, as sr-record writes them ..."""
     dataset_paths: list[Path] | None = None
+    """... unless listed here, one path per skill."""
     repo_id_prefix: str = "local/sr_needle"
+    """LeRobot repo_id label <prefix>_<skill> (local datasets; nothing is downloaded)."""
     video_backend: str = "pyav"
+    """Decoder for video datasets (pyav - torchcodec does not load here)."""
     pairs: str = "surgicai"
+    """PRS pair list - surgicai (the paper's seven), all or adjacent."""
     stats_min_std: float = 1e-2
+    """Floor on the fixed stream statistics' standard deviations."""
 
     def __post_init__(self) -> None:
         if not self.skills:
@@ -88,19 +88,30 @@ class StreamConfig:
 
 @dataclass
 class TrainStreamConfig:
-    """``sr-train`` configuration (draccus: ``--policy.type=act_sr --policy.sleep=true --stream.skills=[...]``)."""
+    """``sr-train`` configuration (draccus - ``--policy.type=act_sr --policy.sleep=true --stream.skills=[...]``)."""
 
     policy: PreTrainedConfig | None = None
+    """The ACT-SR policy (--policy.type=act_sr; its sleep settings are --policy.sleep_*)."""
     stream: StreamConfig = field(default_factory=StreamConfig)
+    """The skills and their datasets."""
     wake: WakeConfig = field(default_factory=WakeConfig)
+    """Wake budget and early stopping."""
     eval: EvalConfig = field(default_factory=EvalConfig)
+    """Evaluation after every wake and sleep."""
     method: str = "sr"
+    """Continual method - sr, wake_only or sequential_bc (sr_imitation/stream/methods)."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
+    """Mirror the run log (log.jsonl) to Weights & Biases (offline by default)."""
     output_dir: Path = Path("outputs/needle_stream")
+    """Run directory (refused if it exists, unless --resume or --overwrite)."""
     seed: int = 1000
+    """Training seed - every phase seeds its generators from it."""
     resume: bool = False
+    """Continue the run in output_dir (settings must equal its settings_fingerprint.json)."""
     overwrite: bool = False
+    """Delete output_dir first."""
     progress: bool = True
+    """Console progress bars."""
 
     def __post_init__(self) -> None:
         if self.policy is None:

@@ -36,24 +36,25 @@ class NonFiniteLossError(FloatingPointError):
 class WakeConfig:
     """Wake budget (paper: up to 100 epochs, early stopping after at least 30, batch 8).
 
-    Attributes:
-        max_epochs / min_epochs: epoch budget and the minimum before early stopping may trigger.
-        patience: epochs without a new best validation l1 after which training stops ("plateau").
-        batch_size: wake batch size (8).
-        val_fraction: share of each skill's episodes held out for the l1 validation loss.
-        max_steps_per_epoch: cap on optimizer steps per epoch (CPU presets); ``None`` = full epochs.
-        grad_clip_norm: gradient clipping, as in lerobot-train (10).
-        num_workers: DataLoader workers (0-1 on a 2-core CPU).
+    Each field is documented below (``--help`` shows it).
     """
 
     max_epochs: int = 100
+    """Epoch budget per skill (paper 100)."""
     min_epochs: int = 30
+    """Epochs before early stopping may trigger (paper 30)."""
     patience: int = 10
+    """Epochs without a new best validation l1 before stopping."""
     batch_size: int = 8
+    """Wake batch size (paper 8)."""
     val_fraction: float = 0.1
+    """Share of each skill's episodes held out for the validation l1."""
     max_steps_per_epoch: int | None = None
+    """Cap on optimizer steps per epoch (CPU presets); null = full epochs."""
     grad_clip_norm: float = 10.0
+    """Gradient clipping, as in lerobot-train."""
     num_workers: int = 0
+    """DataLoader workers (0-1 on a 2-core CPU; do not change results)."""
 
     def __post_init__(self) -> None:
         if not 1 <= self.min_epochs <= self.max_epochs:
