@@ -162,12 +162,18 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
     assert stage_1_other["reach-v3"] != stage_1["reach-v3"]
 
 
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    out = tmp_path_factory.mktemp("uninterrupted") / "full"
+    return out, StreamTrainer(tiny_config(out, eval=EvalConfig(episodes=2, videos_per_skill=0))).run()
+
+
 @pytest.mark.parametrize("point", [(1, "wake"), (1, "wake.eval"), (1, "sleep")])
-def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, point):
+def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, uninterrupted, point):
     """The engine records every phase: a run killed after the wake, the after-wake evaluation or the sleep of
     stage 2 resumes there (nothing is redone) and ends bit-identical to an uninterrupted run."""
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
-    full = StreamTrainer(tiny_config(tmp_path / "full", **cfg)).run()
+    full_out, full = uninterrupted
 
     def kill(k, phase):
         if (k, phase) == point:
@@ -184,6 +190,6 @@ def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, po
         assert resumed[key] == full[key], key
     strip = lambda r: {k: v for k, v in r.items() if k != "seconds"}  # noqa: E731
     assert strip(resumed["stages"][1]["sleep"]) == strip(full["stages"][1]["sleep"])
-    a, _ = load_checked_safetensors(tmp_path / "full" / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
+    a, _ = load_checked_safetensors(full_out / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
     b, _ = load_checked_safetensors(tmp_path / "killed" / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
     assert a.keys() == b.keys() and all(torch.equal(a[n], b[n]) for n in a)
