@@ -167,12 +167,12 @@ class ACTSubstrate:
                                          f"unexpected {unexpected[:5]})")
 
     def trainable(self) -> list[torch.nn.Parameter]:
-        return [p for p in self.policy.parameters() if p.requires_grad]
+        """theta of the sleep: the deployed policy's parameters (ACT's training-only VAE encoder excluded)."""
+        return [p for _, p in self.policy.deployed_named_parameters()]
 
     def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
         state = self._checked_state(k, phase)
-        names = [n for n, p in self.policy.named_parameters() if p.requires_grad]
-        return [state[n] for n in names]
+        return [state[n] for n, _ in self.policy.deployed_named_parameters()]
 
     # -- phases --------------------------------------------------------------------------------------------
     def _skill_data(self, index: int) -> Any:

@@ -44,7 +44,7 @@ def recorded_stream(state_datasets, tmp_path_factory):
 
     def recording_wake(policy, *args, **kwargs):
         result = real_wake(policy, *args, **kwargs)
-        wakes.append(_clone(p for p in policy.parameters() if p.requires_grad))  # theta_i^wake
+        wakes.append(_clone(p for _, p in policy.deployed_named_parameters()))  # theta_i^wake
         return result
 
     def recording_sleep(params, policy, memories, config, anchor_params=None, wake_snapshots=(), **kwargs):
@@ -62,7 +62,7 @@ def recorded_stream(state_datasets, tmp_path_factory):
         mp.setattr(substrate_module, "wake_train", recording_wake)
         mp.setattr(engine_module, "sleep_consolidate", recording_sleep)
         trainer.run()
-    names = [n for n, p in trainer.policy.named_parameters() if p.requires_grad]
+    names = [n for n, _ in trainer.policy.deployed_named_parameters()]
     return out, names, wakes, sleeps
 
 
@@ -109,3 +109,16 @@ def test_sleep_lowers_the_full_buffer_losses_of_the_earlier_memories(recorded_st
         assert call["losses_before"][-1] == 0.0 and min(call["losses_before"][:-1]) > 0
         assert sum(call["losses_after"][:-1]) < sum(call["losses_before"][:-1]), call
         assert max(call["losses_after"]) < max(call["losses_before"]), call
+
+
+def test_sleep_optimizes_the_deployed_policy_only(recorded_stream):
+    """ACT's VAE encoder runs only in training: sleep neither moves it nor measures gate distances on it (issue 10;
+    before, it got only the anchor pull and inflated c_i)."""
+    out, names, wakes, sleeps = recorded_stream
+    assert names and not any(n.startswith("model.vae_encoder") for n in names)
+    for k in (2, 3):
+        stage = out / f"skill_{k}_{SKILLS[k - 1]}"
+        wake, sleep = (load_file(str(stage / p / "pretrained_model" / "model.safetensors")) for p in ("wake", "sleep"))
+        vae = [n for n in wake if n.startswith("model.vae_encoder")]
+        assert vae and all(torch.equal(wake[n], sleep[n]) for n in vae)  # untouched by sleep
+        assert any(not torch.equal(wake[n], sleep[n]) for n in names)  # the deployed policy did move

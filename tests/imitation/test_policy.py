@@ -175,3 +175,26 @@ def test_state_only_mode_feeds_the_state_as_environment_state():
     policy.train()
     loss, _ = policy.forward(batch)
     assert torch.isfinite(loss)
+
+
+def test_the_training_only_vae_encoder_is_all_that_the_deployed_parameters_leave_out():
+    """Exactly the parameters no inference output depends on through a module the deployed policy runs: the VAE
+    encoder gets no gradient from the action chunk; every excluded name belongs to it."""
+    import torch
+    from lerobot.configs.types import FeatureType, PolicyFeature
+
+    from lerobot_policy_act_sr import ACTSRPolicy
+    from tests.imitation.helpers import tiny_policy
+
+    cfg = tiny_policy(use_images=False)
+    cfg.input_features = {"observation.state": PolicyFeature(FeatureType.STATE, (6,)),
+                          "observation.environment_state": PolicyFeature(FeatureType.ENV, (6,))}
+    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (7,))}
+    policy = ACTSRPolicy(cfg)
+    policy.set_observation_normalizer(lambda raw: dict(raw))
+    policy.memory_chunk({"observation.state": torch.randn(4, 6)}).sum().backward()
+    deployed = {n for n, _ in policy.deployed_named_parameters()}
+    excluded = {n for n, p in policy.named_parameters() if p.requires_grad} - deployed
+    assert excluded and all(n.startswith("model.vae_encoder") for n in excluded)
+    assert all(p.grad is None or not p.grad.any() for n, p in policy.named_parameters() if n in excluded)
+    assert any(p.grad is not None and p.grad.any() for n, p in policy.named_parameters() if n in deployed)

@@ -25,6 +25,13 @@ from sr_imitation.core.memory import Memory, summed_objective
 
 ObservationNormalizer = Callable[[Mapping[str, Tensor]], dict[str, Tensor]]
 
+TRAINING_ONLY_PREFIXES = ("model.vae_encoder",)
+"""Parameters of modules only the training forward uses: ACT's VAE encoder (its CLS embedding, input projections,
+transformer and latent output projection) infers the style latent from the demonstration's actions; at inference
+the latent is zero and the encoder is never run. Sleep optimizes the deployed policy only (our choice, issue 10:
+in sleep these parameters received no memory gradient, only the anchor pull, and they inflated the gate distances
+c_i of Eq. 2)."""
+
 
 class ACTSRPolicy(ACTPolicy):
     """ACT + Sleeping Robots (the policy class LeRobot's factory finds for ``act_sr``)."""
@@ -39,6 +46,12 @@ class ACTSRPolicy(ACTPolicy):
         self._distill_weight = 0.0
         self._normalize_observation: ObservationNormalizer | None = None
         self._memory_generator = torch.Generator()
+
+    def deployed_named_parameters(self) -> list[tuple[str, torch.nn.Parameter]]:
+        """The trainable parameters of the deployed policy (inference forward), in module order: everything but
+        :data:`TRAINING_ONLY_PREFIXES`. What sleep optimizes and anchors, and what the gates measure."""
+        return [(n, p) for n, p in self.named_parameters()
+                if p.requires_grad and not n.startswith(TRAINING_ONLY_PREFIXES)]
 
     # -- memories ----------------------------------------------------------------------------------
     def set_observation_normalizer(self, normalize: ObservationNormalizer) -> None:
