@@ -20,6 +20,7 @@ from pathlib import Path
 from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.imitation.cli import _split_config_path, parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.record import RecordConfig, record
 
 logger = logging.getLogger(__name__)
@@ -59,7 +60,7 @@ def run_main_job(cfg: MainJobConfig) -> dict:
 
 
 def main(args: list[str] | None = None) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_config(MainJobConfig, config_path, rest)

@@ -28,6 +28,7 @@ from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, skill_from_name
+from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)
 
@@ -237,7 +238,7 @@ def record(cfg: RecordConfig) -> list[Path]:
 
 def main(args: list[str] | None = None) -> None:
     """Console entry point ``sr-record`` (draccus flags, LeRobot style)."""
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    setup_offscreen_rendering()
     cfg = draccus.parse(RecordConfig, args=args)
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:

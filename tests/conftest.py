@@ -8,9 +8,11 @@ import numpy as np
 import pytest
 import torch
 
+from sr_imitation.offscreen import setup_offscreen_rendering
+
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
-os.environ.setdefault("MUJOCO_GL", "egl")
+setup_offscreen_rendering()
 
 
 @pytest.fixture(autouse=True)

@@ -60,3 +60,19 @@ def test_no_top_level_package_shadows_hugging_face_datasets():
     import datasets  # Hugging Face datasets, which LeRobot imports
 
     assert Path(datasets.__file__).resolve().parent.parent.name == "site-packages"
+
+
+def test_rendering_modules_set_up_egl_before_mujoco_loads(monkeypatch):
+    """sr_imitation.offscreen is the one place: importing a rendering module without MUJOCO_GL set selects EGL before
+    MuJoCo is imported, and a user's own choice is kept."""
+    monkeypatch.delenv("MUJOCO_GL", raising=False)
+    monkeypatch.delenv("PYOPENGL_PLATFORM", raising=False)
+    code = ("import json, os, sys\n"
+            "import sr_imitation.envs.needle.rendering, sr_imitation.rl.video\n"
+            "print(json.dumps({'gl': os.environ.get('MUJOCO_GL'), 'pyopengl': os.environ.get('PYOPENGL_PLATFORM'),\n"
+            "                  'mujoco': 'mujoco' in sys.modules}))\n")
+    assert _run_json(code, timeout=120) == {"gl": "egl", "pyopengl": "egl", "mujoco": True}
+    monkeypatch.setenv("MUJOCO_GL", "glfw")
+    kept = _run_json("import json, os\nfrom sr_imitation.offscreen import setup_offscreen_rendering\n"
+                     "setup_offscreen_rendering()\nprint(json.dumps({'gl': os.environ['MUJOCO_GL']}))\n", timeout=60)
+    assert kept == {"gl": "glfw"}

@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+from sr_imitation.offscreen import setup_offscreen_rendering
+
+setup_offscreen_rendering()
 
 import json  # noqa: E402
 import platform  # noqa: E402

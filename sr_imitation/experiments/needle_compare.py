@@ -34,6 +34,7 @@ from sr_imitation.core.metrics import bwt_curve, mean_sem
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import train_stream
 from sr_imitation.main_job import MainJobConfig
+from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.record import RecordConfig, record
 
 logger = logging.getLogger(__name__)
@@ -214,7 +215,7 @@ def _plot(summary: dict[str, Any], skills: list[str], path: Path) -> None:
 
 
 def main(args: list[str] | None = None) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = draccus.parse(CompareConfig, args=list(sys.argv[1:] if args is None else args))
     summary = run_compare(cfg)

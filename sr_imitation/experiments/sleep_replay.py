@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import json
 import logging
-import os
 import shutil
 import sys
 from dataclasses import dataclass, field
@@ -27,6 +26,7 @@ import draccus
 from sr_imitation.core.io import atomic_write_json, read_json
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stage_name
+from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)
 
@@ -122,7 +122,7 @@ def replay(cfg: SleepReplayConfig) -> dict[str, Any]:
 
 
 def main(args: list[str] | None = None) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = draccus.parse(SleepReplayConfig, args=list(sys.argv[1:] if args is None else args))
     print(json.dumps(replay(cfg), indent=2))  # noqa: T201

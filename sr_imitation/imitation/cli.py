@@ -29,6 +29,7 @@ from sr_imitation.core.io import atomic_write_json
 from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+from sr_imitation.offscreen import setup_offscreen_rendering
 
 
 def _split_config_path(args: list[str]) -> tuple[str | None, list[str]]:
@@ -67,7 +68,7 @@ def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args:
 
 
 def _setup_logging() -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
 
 

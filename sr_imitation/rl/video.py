@@ -13,7 +13,9 @@ from __future__ import annotations
 
 import os
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # must precede the first `import mujoco` to take effect
+from sr_imitation.offscreen import setup_offscreen_rendering
+
+setup_offscreen_rendering()  # must precede the first `import mujoco` to take effect
 
 import functools  # noqa: E402
 import logging  # noqa: E402

@@ -3,7 +3,9 @@
 import os
 import tempfile
 
-os.environ.setdefault("MUJOCO_GL", "egl")
+from sr_imitation.offscreen import setup_offscreen_rendering
+
+setup_offscreen_rendering()
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
 _cache = tempfile.mkdtemp(prefix="sr_needle_test_cache_")

@@ -9,7 +9,6 @@ switch is PSM2 opening its jaw when PULLOUT begins (hand-over). Run::
 from __future__ import annotations
 
 import logging
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -19,6 +18,7 @@ import numpy as np
 from sr_imitation.envs.needle.env import NeedleEnv
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, Skill
+from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)
 
@@ -119,7 +119,7 @@ class ChainedVideoConfig:
 
 
 def main(args: list[str] | None = None) -> None:
-    os.environ.setdefault("MUJOCO_GL", "egl")
+    setup_offscreen_rendering()
     from sr_imitation.envs.needle.video import write_mp4
 
     cfg = draccus.parse(ChainedVideoConfig, args=args)

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-import os
+from sr_imitation.offscreen import setup_offscreen_rendering
 
-os.environ.setdefault("MUJOCO_GL", "egl")  # must precede the first `import mujoco` (integration notes §5)
+setup_offscreen_rendering()  # must precede the first `import mujoco` (integration notes §5)
 
 import mujoco  # noqa: E402
 import numpy as np  # noqa: E402
