@@ -68,6 +68,9 @@ class StreamConfig:
     """PRS pair list - surgicai (the paper's seven), all or adjacent."""
     stats_min_std: float = 1e-2
     """Floor on the fixed stream statistics' standard deviations."""
+    extend_from: Path | None = None
+    """A finished sr-train run with these settings whose skills are this stream's first ones - its stages are
+    copied and the stream continues with the next skill."""
 
     def __post_init__(self) -> None:
         if not self.skills:
@@ -204,7 +207,8 @@ class StreamTrainer:
         instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``)."""
         check_stream_datasets(self.cfg.stream, self.policy_cfg_use_images)  # before anything is written
         engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self.after_phase,
-                              wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg))
+                              wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg),
+                              extend_from=self.cfg.stream.extend_from)
         return engine.run(stop_after)
 
     @property

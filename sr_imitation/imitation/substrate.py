@@ -72,6 +72,7 @@ class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = "act"
+    extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.extend_from")
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
         self.cfg = cfg
@@ -245,6 +246,20 @@ class ACTSubstrate:
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         return SleepProblem(self.trainable(), self.policy.memory_chunk,
                             self.policy_cfg.sleep_config(seed=self.phase_seed(k, "sleep")))
+
+    def source_skills(self, settings: dict[str, Any]) -> list[str]:
+        return list(settings["stream.skills"])
+
+    def import_stages(self, source: Path, n: int) -> None:
+        """Stages 1..n of a finished run: their checkpoint/evaluation directories, memories and the stream's fixed
+        statistics (those of the shared first skill). Videos stay in the source run."""
+        for k in range(n):
+            name = stage_name(k, self.skills[k])
+            shutil.copytree(source / name, self.out / name)
+            if (source / "memories" / f"{name}.safetensors").is_file():
+                (self.out / "memories").mkdir(exist_ok=True)
+                shutil.copy2(source / "memories" / f"{name}.safetensors", self.out / "memories" / f"{name}.safetensors")
+        shutil.copy2(source / "stream_stats.safetensors", self.out / "stream_stats.safetensors")
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:

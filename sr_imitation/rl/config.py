@@ -223,6 +223,9 @@ class RLTrainConfig:
     max_episode_steps: int = 500
     """Meta-World's time limit (max_path_length)."""
     method: str = "sr"
+    extend_from: Path | None = None
+    """A finished run with these settings whose skills are this stream's first ones (MT8 from MT5): its stages are
+    copied and the stream continues with the next skill."""
     """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only`` or ``sequential_bc``."""
     sleep_enabled: bool = True
     """False gives the "SR Wake-Only" ablation (with ``method=sr``)."""

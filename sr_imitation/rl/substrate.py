@@ -35,7 +35,7 @@ from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import canonical_skill, policy_motion
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.envs import SkillEnv
+from sr_imitation.rl.envs import STREAMS, SkillEnv
 from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.video import rendering_unavailable
@@ -60,6 +60,7 @@ class SACSubstrate:
     """SAC with an excitability-gated actor on a Meta-World stream."""
 
     name: ClassVar[str] = "sac"
+    extension_keys: ClassVar[tuple[str, ...]] = ("stream", "skills", "extend_from")
 
     def __init__(self, cfg: RLTrainConfig) -> None:
         self.cfg = cfg
@@ -216,6 +217,15 @@ class SACSubstrate:
             return {"frozen_critic_value": [m.value(agent.policy_fn) for m in memories]}  # type: ignore[attr-defined]
 
         return SleepProblem(agent.actor_parameters(), agent.policy_fn, sleep_cfg, excitability_step, critic_values)
+
+    def source_skills(self, settings: dict[str, Any]) -> list[str]:
+        skills = settings.get("skills")
+        return list(skills) if skills not in (None, {}) else list(STREAMS[settings["stream"]])
+
+    def import_stages(self, source: Path, n: int) -> None:
+        """Stages 1..n of a finished run (checkpoints, memories, trajectories); videos stay in the source run."""
+        for k in range(n):
+            shutil.copytree(source / self.stage_dir(k).relative_to(self.out), self.stage_dir(k))
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:

@@ -82,7 +82,7 @@ class StreamTrainer:
         self.run_dir = RunDirectory(self.out, cfg.resume_fingerprint(), "config.json", cfg.stored_config(),
                                     cfg.resume, cfg.overwrite, legacy_settings=_legacy_settings)
         self.engine = StreamEngine(self.substrate, self.method, self.run_dir, cfg.progress, self._after_phase,
-                                   wandb=cfg.wandb, log_config=cfg.stored_config())
+                                   wandb=cfg.wandb, log_config=cfg.stored_config(), extend_from=cfg.extend_from)
         self.after_stage, self.after_phase = after_stage, after_phase
 
     def _after_phase(self, k: int, phase: str) -> None:

@@ -20,13 +20,23 @@ from __future__ import annotations
 import logging
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
+from sr_imitation.core.fingerprint import (
+    FINGERPRINT_FILE,
+    SettingsFingerprint,
+    check_settings,
+    is_allowed,
+    read_fingerprint,
+    settings_digest,
+)
+from sr_imitation.core.io import read_json
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.runlog import RunLog, WandbConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.stream.methods import ContinualMethod
-from sr_imitation.stream.rundir import RunDirectory
+from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 from sr_imitation.stream.substrate import Substrate
 
 logger = logging.getLogger(__name__)
@@ -49,7 +59,7 @@ class StreamEngine:
 
     def __init__(self, substrate: Substrate, method: ContinualMethod, run: RunDirectory, progress: bool = True,
                  after_phase: Callable[[int, str], None] | None = None, wandb: WandbConfig | None = None,
-                 log_config: dict[str, Any] | None = None) -> None:
+                 log_config: dict[str, Any] | None = None, extend_from: Path | None = None) -> None:
         if substrate.name not in method.substrates:
             raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
         self.substrate = substrate
@@ -61,6 +71,7 @@ class StreamEngine:
         self.memories: list[Memory] = []
         self.wandb = wandb
         self.log_config = log_config
+        self.extend_from = None if extend_from is None else Path(extend_from)
         self.log: RunLog | None = None
 
     # -- the algorithm --------------------------------------------------------------------------------------
@@ -84,7 +95,11 @@ class StreamEngine:
         last = len(self.skills) if stop_after is None else stop_after
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
+        fresh = not (self.run_dir.path.exists() and any(self.run_dir.path.iterdir())) or self.run_dir.overwrite
+        source = self._check_extension() if self.extend_from is not None and fresh else None  # before writing
         self.run_dir.prepare()
+        if source is not None:
+            self._import_stages(*source)
         self.log = RunLog(self.run_dir.path, self.wandb, self.log_config)
         if hasattr(self.substrate, "run_log"):
             self.substrate.run_log = self.log  # type: ignore[attr-defined]
@@ -126,6 +141,44 @@ class StreamEngine:
             return dict(self.run_dir.progress)
         return self.substrate.report(self.run_dir.progress, self.memories,
                                      [self.final_phase(k) for k in range(len(self.skills))])
+
+    # -- extending a finished stream -------------------------------------------------------------------------
+    def _check_extension(self) -> tuple[Path, int, dict[str, Any]]:
+        """Check that ``extend_from`` is a finished run of this configuration whose skills are this stream's first
+        ones (only the substrate's :attr:`extension_keys` may differ); nothing is written. Returns the source, its
+        number of stages and its progress records."""
+        source = self.extend_from
+        if source is None:
+            raise ValueError("no extend_from run given")
+        fingerprint_path = source / FINGERPRINT_FILE
+        if not fingerprint_path.is_file():
+            raise FileNotFoundError(f"{fingerprint_path}: extend_from must name a finished run (no fingerprint)")
+        stored = read_fingerprint(fingerprint_path)
+        allowed = tuple(getattr(self.substrate, "extension_keys", ()))
+        mine = {k: v for k, v in self.run_dir.fingerprint.settings.items() if not is_allowed(k, allowed)}
+        check_settings(fingerprint_path, {k: v for k, v in stored.items() if not is_allowed(k, allowed)},
+                       SettingsFingerprint(mine, settings_digest(mine), self.run_dir.fingerprint.allow))
+        skills = list(self.substrate.source_skills(stored))  # type: ignore[attr-defined]
+        n = len(skills)
+        if not 1 <= n < len(self.skills) or self.skills[:n] != skills:
+            raise ValueError(f"{source}: its skills {skills} are not the first skills of this stream {self.skills}")
+        progress = read_json(source / PROGRESS_FILE)
+        done = progress.get("completed", {}) if isinstance(progress, dict) else {}
+        keys = [RunDirectory.key(k, p) for k in range(n) for p in self.phases(k)]
+        missing = [key for key in keys if key not in done]
+        if missing:
+            raise ValueError(f"{source}: not a finished run of this method (phases {missing[:4]} missing)")
+        return source, n, done
+
+    def _import_stages(self, source: Path, n: int, done: dict[str, Any]) -> None:
+        """Copy the source's stages (checkpoints, memories, evaluations) and their progress records; the engine
+        then continues with stage n + 1 as a resume would (anchor: stage n's final checkpoint)."""
+        self.substrate.import_stages(source, n)  # type: ignore[attr-defined]
+        for k in range(n):
+            for phase in self.phases(k):
+                self.run_dir.progress["completed"][RunDirectory.key(k, phase)] = done[RunDirectory.key(k, phase)]
+        self.run_dir.mark(n - 1, self.phases(n - 1)[-1], done[RunDirectory.key(n - 1, self.phases(n - 1)[-1])])
+        logger.info("extending %s: stages 1-%d imported, continuing with %s", source, n, self.skills[n])
 
     def _run_phase(self, k: int, phase: str) -> dict[str, Any]:
         if phase == "wake":

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
 from torch import Tensor
@@ -108,6 +109,16 @@ class Substrate(Protocol):
 
     def parameters_at(self, k: int, phase: str) -> list[Tensor]:
         """The trainable parameters (in :class:`SleepProblem.parameters` order) saved after ``phase`` of stage k."""
+
+    extension_keys: ClassVar[tuple[str, ...]]
+    """Settings that may differ between a run and the finished run it extends (``extend_from``): the skill list
+    and the extension setting itself (fnmatch patterns over the fingerprint's dotted keys)."""
+
+    def source_skills(self, settings: dict[str, Any]) -> list[str]:
+        """The skills of a finished run, from its stored (flat) settings."""
+
+    def import_stages(self, source: Path, n: int) -> None:
+        """Copy stages 1..n of the finished run ``source`` (checkpoints, memories, evaluation files) into this run."""
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:

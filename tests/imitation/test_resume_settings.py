@@ -23,6 +23,7 @@ from sr_imitation.core.aggregation import AGGREGATORS
 from sr_imitation.core.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
+    SettingsMismatchError,
     diff_settings,
     is_allowed,
     read_fingerprint,
@@ -72,6 +73,7 @@ CHOICES: dict[str, list[Any]] = {
     "policy.tags": [["sr"]],
     "policy.license": ["mit"],
     "stream.dataset_paths": [[f"/data/{s}" for s in STREAM]],
+    "stream.extend_from": ["/runs/previous"],
 }
 COMPANIONS: dict[str, dict[tuple[str, ...], Any]] = {
     # ACT allows a temporal ensemble only with one action step per chunk: change both (the diff names both).
@@ -328,3 +330,24 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file_before_training_on_it(a
     cfg.resume = True
     with pytest.raises(CorruptFileError, match=f"{target.name}: contents differ from checksums.json"):
         StreamTrainer(cfg, fake_env_factory).run()
+
+
+def test_extending_a_finished_one_skill_run_equals_the_two_skill_run(state_datasets, reference, tmp_path):
+    """--stream.extend_from: stage 1 (no sleep, so the final-skill rule cannot matter) is imported, not re-run, and
+    the extended stream ends bit-identical to the stream that had both skills from the start."""
+    source = tmp_path / "one_skill"
+    train_stream(tiny_stream_config(state_datasets, source, STREAM[:1], use_images=False), fake_env_factory)
+    cfg = tiny_stream_config(state_datasets, tmp_path / "extended", STREAM, use_images=False)
+    cfg.stream.extend_from = source
+    ran = []
+    extended = StreamTrainer(cfg, fake_env_factory, after_phase=lambda k, p: ran.append((k, p))).run()
+    assert {k for k, _ in ran} == {1}
+    ref_out, ref_results = reference
+    assert extended["metrics"] == ref_results["metrics"]
+    final, ref = _weights(tmp_path / "extended"), _weights(ref_out)
+    assert all(torch.equal(final[k], ref[k]) for k in ref)
+    other = tiny_stream_config(state_datasets, tmp_path / "refused", STREAM, use_images=False)
+    other.stream.extend_from, other.policy.sleep_lr = source, 0.5
+    with pytest.raises(SettingsMismatchError, match="policy.sleep_lr"):
+        StreamTrainer(other, fake_env_factory).run()
+    assert not (tmp_path / "refused").exists()

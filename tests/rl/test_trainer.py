@@ -193,3 +193,26 @@ def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, un
     a, _ = load_checked_safetensors(full_out / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
     b, _ = load_checked_safetensors(tmp_path / "killed" / "stages" / "02_door-open" / "sleep" / "agent.safetensors")
     assert a.keys() == b.keys() and all(torch.equal(a[n], b[n]) for n in a)
+
+
+def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
+    """MT8 from MT5 in miniature: a finished one-skill run is extended by a second skill; stage 1 is imported (its
+    evaluation and checkpoint are the source's), only stage 2 runs. Not equal to a two-skill run from scratch: the
+    network initialization seed depends on the stream length (stage_seed(seed, K, 1)), as the paper's MT8 continues
+    from MT5's weights rather than re-running them."""
+    cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
+    source = StreamTrainer(tiny_config(tmp_path / "mt1", skills=["reach-v3"], **cfg)).run()
+    ran = []
+    extended = StreamTrainer(tiny_config(tmp_path / "mt2", extend_from=tmp_path / "mt1", **cfg),
+                             after_phase=lambda k, p: ran.append((k, p))).run()
+    assert {k for k, _ in ran} == {1} and "sleep" in [p for _, p in ran]
+    assert extended["success_matrix"][0][:1] == source["success_matrix"][0]
+    assert extended["stages"][0]["eval"] == source["stages"][0]["eval"]
+    a, _ = load_checked_safetensors(tmp_path / "mt1" / "stages" / "01_reach" / "wake" / "agent.safetensors")
+    b, _ = load_checked_safetensors(tmp_path / "mt2" / "stages" / "01_reach" / "wake" / "agent.safetensors")
+    assert all(torch.equal(a[n], b[n]) for n in a)
+    with pytest.raises(SettingsMismatchError, match="sac.hidden_dim"):
+        StreamTrainer(tiny_config(tmp_path / "bad", extend_from=tmp_path / "mt1",
+                                  sac=SACConfig(hidden_dim=16, batch_size=16, utd_ratio=0.5, warmup_steps=40,
+                                                buffer_size=5000), **cfg)).run()
+    assert not (tmp_path / "bad").exists()

@@ -32,13 +32,17 @@ class KilledError(Exception):
 
 
 def make_engine(out: Path, method: str = "sr", resume: bool = False, settings: dict[str, Any] | None = None,
-                after_phase=None, **substrate_kwargs: Any) -> StreamEngine:
-    substrate = ToySubstrate(out, SKILLS, **substrate_kwargs)
-    defaults = {"seed": 0, "sleep": True, "wake_steps": 30, "sleep_iterations": 15, "distill_weight": 0.5}
-    config = {"method": method, **defaults, **substrate_kwargs, **(settings or {})}
+                after_phase=None, skills: list[str] | None = None, extend_from: Path | None = None,
+                **substrate_kwargs: Any) -> StreamEngine:
+    skills = SKILLS if skills is None else skills
+    substrate = ToySubstrate(out, skills, **substrate_kwargs)
+    defaults = {"seed": 0, "sleep": True, "wake_steps": 30, "sleep_iterations": 15, "distill_weight": 0.5,
+                "anchor_after_final": False}
+    config = {"method": method, "skills": skills, "extend_from": None if extend_from is None else str(extend_from),
+              **defaults, **substrate_kwargs, **(settings or {})}
     run = RunDirectory(out, settings_fingerprint(config), "config.json", config, resume=resume, overwrite=False)
     return StreamEngine(substrate, make_method(method, "toy", substrate.method_settings()), run, progress=False,
-                        after_phase=after_phase)
+                        after_phase=after_phase, extend_from=extend_from)
 
 
 @pytest.fixture(autouse=True)
@@ -240,3 +244,43 @@ def test_wandb_offline_mirrors_the_log_without_network(tmp_path, monkeypatch):
     engine.run()
     runs = list((tmp_path / "r" / "wandb").glob("offline-run-*"))
     assert len(runs) == 1 and any(runs[0].rglob("*.wandb"))
+
+
+def test_extending_a_finished_stream_equals_having_had_all_skills_from_the_start(tmp_path):
+    """With the final-skill anchor rule made irrelevant (anchor also after the final skill), extending a finished
+    2-skill run with a third skill is bit-identical to a 3-skill run. With the default rule it is not: the source's
+    stage-2 sleep ran as a final sleep, without anchor (the paper's MT8 continues from MT5 the same way)."""
+    full = make_engine(tmp_path / "full", anchor_after_final=True).run()
+    make_engine(tmp_path / "first2", skills=SKILLS[:2], anchor_after_final=True).run()
+    extended = make_engine(tmp_path / "extended", extend_from=tmp_path / "first2", anchor_after_final=True).run()
+    assert extended["evals"] == full["evals"]
+    assert all(torch.equal(a, b) for a, b in zip(extended["weights"], full["weights"], strict=True))
+    redone = list(ToySubstrate(tmp_path, SKILLS).calls)
+    assert redone == []  # (sanity: a fresh substrate has no calls)
+    make_engine(tmp_path / "first2_default", skills=SKILLS[:2]).run()
+    default = make_engine(tmp_path / "ext_default", extend_from=tmp_path / "first2_default").run()
+    reference = make_engine(tmp_path / "full_default").run()
+    assert not all(torch.equal(a, b) for a, b in zip(default["weights"], reference["weights"], strict=True))
+
+
+def test_extension_runs_only_the_new_stages_and_refuses_mismatches_before_writing(tmp_path):
+    source = tmp_path / "first2"
+    make_engine(source, skills=SKILLS[:2]).run()
+    engine = make_engine(tmp_path / "ext", extend_from=source)
+    engine.run()
+    assert {k for _, k in engine.substrate.calls} == {2}  # stages 1-2 imported, not re-run
+    for kwargs, match in [
+        ({"wake_steps": 31}, r"wake_steps: 30 -> 31"),
+        ({"skills": ["b", "a", "c"]}, r"are not the first skills"),
+        ({"skills": SKILLS[:2]}, r"are not the first skills"),
+    ]:
+        out = tmp_path / f"bad{len(list(tmp_path.iterdir()))}"
+        with pytest.raises(ValueError, match=match):
+            make_engine(out, extend_from=source, **kwargs).run()
+        assert not out.exists()
+    killed = tmp_path / "killed_source"
+    with pytest.raises(KilledError):
+        make_engine(killed, skills=SKILLS[:2], after_phase=lambda k, p: _raise() if (k, p) == (1, "sleep") else None
+                    ).run()
+    with pytest.raises(ValueError, match="not a finished run"):
+        make_engine(tmp_path / "from_killed", extend_from=killed).run()

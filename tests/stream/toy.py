@@ -22,9 +22,12 @@ PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4
 class ToySubstrate:
     name: ClassVar[str] = "toy"
 
+    extension_keys: ClassVar[tuple[str, ...]] = ("skills", "extend_from")
+
     def __init__(self, out: Path, skills: Sequence[str], seed: int = 0, sleep: bool = True, wake_steps: int = 30,
-                 sleep_iterations: int = 15, distill_weight: float = 0.5) -> None:
+                 sleep_iterations: int = 15, distill_weight: float = 0.5, anchor_after_final: bool = False) -> None:
         self.out, self.skills, self.seed, self.sleep = Path(out), list(skills), seed, sleep
+        self.anchor_after_final = anchor_after_final
         self.wake_steps, self.sleep_iterations, self.gamma = wake_steps, sleep_iterations, distill_weight
         self.calls: list[tuple[str, int]] = []
 
@@ -33,8 +36,8 @@ class ToySubstrate:
 
     def setup(self) -> None:
         g = torch.Generator().manual_seed(1000 + self.seed)
-        self.maps = [torch.randn(4, 2, generator=g) for _ in self.skills]
         self.test_x = torch.randn(64, 4, generator=g)
+        self.maps = [torch.randn(4, 2, generator=g) for _ in self.skills]  # skill k's map: the same in any stream
         torch.manual_seed(self.seed)
         self.policy = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Tanh(), torch.nn.Linear(16, 2))
 
@@ -83,7 +86,7 @@ class ToySubstrate:
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         self.calls.append(("sleep", k))
         config = SleepConfig(max_iterations=self.sleep_iterations, batch_size=16, lr=1e-2, early_stop_window=5,
-                             seed=self.seed * 1000 + k)
+                             seed=self.seed * 1000 + k, anchor_after_final=self.anchor_after_final)
         def losses() -> dict[str, Any]:
             with torch.no_grad():
                 return {"memory_losses": [m.loss(self.policy_fn, dict(m.tensors)).item() for m in memories]}
@@ -105,6 +108,18 @@ class ToySubstrate:
     def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
         tensors, _ = load_checked_safetensors(self._path(k, phase))
         return [tensors[n] for n, _ in self.policy.named_parameters()]
+
+    def source_skills(self, settings: dict[str, Any]) -> list[str]:
+        return list(settings["skills"])
+
+    def import_stages(self, source: Path, n: int) -> None:
+        import shutil
+
+        for k in range(n):
+            shutil.copytree(source / f"stage{k}", self.out / f"stage{k}")
+            (self.out / "memories").mkdir(exist_ok=True)
+            if (source / "memories" / f"{k}.safetensors").exists():
+                shutil.copy2(source / "memories" / f"{k}.safetensors", self.out / "memories" / f"{k}.safetensors")
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:
