@@ -17,8 +17,8 @@ import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from sr_imitation.core.cli_errors import run_cli
-from sr_imitation.imitation.cli import _split_config_path, parse_config
+from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.record import RecordConfig, record
@@ -62,7 +62,7 @@ def run_main_job(cfg: MainJobConfig) -> dict:
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
+    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_config(MainJobConfig, config_path, rest)
     results = run_main_job(cfg)
     out = Path(cfg.train.output_dir)

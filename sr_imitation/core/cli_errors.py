@@ -35,6 +35,17 @@ def _user_error(exc: BaseException) -> BaseException | None:
     return found
 
 
+def split_config_path(args: Sequence[str]) -> tuple[str | None, list[str]]:
+    """Remove ``--config_path=<file>`` from ``args``; returns (path or None, rest)."""
+    path, rest = None, []
+    for arg in args:
+        if arg.startswith("--config_path="):
+            path = arg.split("=", 1)[1]
+        else:
+            rest.append(arg)
+    return path, rest
+
+
 def split_debug(args: Sequence[str]) -> tuple[bool, list[str]]:
     """Remove ``--debug`` / ``--debug=true|false`` from ``args``; returns (debug, rest)."""
     debug, rest = os.environ.get("SR_DEBUG", "") not in ("", "0"), []

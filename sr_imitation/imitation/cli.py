@@ -23,23 +23,13 @@ import draccus
 from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
-from sr_imitation.core.cli_errors import run_cli
+from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.core.io import atomic_write_json
 from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
-
-
-def _split_config_path(args: list[str]) -> tuple[str | None, list[str]]:
-    path, rest = None, []
-    for arg in args:
-        if arg.startswith("--config_path="):
-            path = arg.split("=", 1)[1]
-        else:
-            rest.append(arg)
-    return path, rest
 
 
 @contextlib.contextmanager
@@ -100,7 +90,7 @@ def _is_main_job_preset(config_path: str) -> bool:
 def train_main(args: list[str] | None = None) -> None:
     """``sr-train``: run (or resume) a wake-sleep stream."""
     _setup_logging()
-    config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
+    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_train_config(config_path, rest)
     results = train_stream(cfg)
     m = results["metrics"]
@@ -134,7 +124,7 @@ def eval_main(args: list[str] | None = None) -> None:
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
-    config_path, rest = _split_config_path(list(sys.argv[1:] if args is None else args))
+    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = draccus.parse(EvalCommandConfig, config_path=config_path, args=rest)
     path = Path(cfg.policy.path)
     if not (path / "config.json").is_file():

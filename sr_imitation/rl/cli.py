@@ -15,7 +15,7 @@ import sys
 
 import draccus
 
-from sr_imitation.core.cli_errors import run_cli
+from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
 
@@ -35,12 +35,7 @@ def train(cfg: RLTrainConfig) -> dict:
 def parse(args: list[str]) -> RLTrainConfig:
     """The config ``args`` describe; a run's own ``config.json`` stores output_dir "." (the run directory itself),
     resolved to the file's directory unless ``--output_dir`` is given."""
-    config_path, rest = None, []
-    for arg in args:
-        if arg.startswith("--config_path="):
-            config_path = arg.split("=", 1)[1]
-        else:
-            rest.append(arg)
+    config_path, rest = split_config_path(args)
     cfg = draccus.parse(RLTrainConfig, config_path=config_path, args=rest)
     cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
     return cfg
