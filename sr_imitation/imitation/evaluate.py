@@ -22,8 +22,9 @@ import gymnasium as gym
 import numpy as np
 import torch
 from lerobot.envs.utils import preprocess_observation
-from lerobot.utils.io_utils import write_video
 from tqdm.auto import tqdm
+
+from sr_imitation.video import write_mp4
 
 logger = logging.getLogger(__name__)
 
@@ -182,8 +183,7 @@ def evaluate_skills(
                     trajectories.append(states)
                     if record and frames:
                         path = Path(video_dir) / f"{skill}_episode{episode}_{'success' if ok else 'failure'}.mp4"
-                        path.parent.mkdir(parents=True, exist_ok=True)
-                        write_video(str(path), np.stack(frames), fps=run_env.metadata.get("render_fps", 30))
+                        write_mp4(path, frames, fps=run_env.metadata.get("render_fps", 30))
                         videos.append(str(path))
                     bar.update(1)
                 per_seed.append(wins / cfg.n_episodes)

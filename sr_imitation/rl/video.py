@@ -122,40 +122,38 @@ class SkillRenderer:
 
 
 class VideoWriter:
-    """Streams frames into ``<directory>/.<stem>.partial.mp4``; :meth:`finish` renames it to ``<stem>_<suffix>.mp4``.
+    """Streams frames into ``<directory>/.<stem>.partial.mp4`` (the project's one writer, :mod:`sr_imitation.video`);
+    :meth:`finish` renames it to ``<stem>_<suffix>.mp4``.
 
     Frames are encoded as they arrive (no episode-length buffer in memory). :meth:`discard` (or leaving the
     ``with`` block without :meth:`finish`) removes the partial file.
     """
 
     def __init__(self, directory: Path, stem: str, fps: float) -> None:
-        import imageio.v2 as imageio
+        from sr_imitation.video import Mp4Writer
 
         self.directory = Path(directory)
-        self.directory.mkdir(parents=True, exist_ok=True)
         self.stem = stem
-        self._tmp = self.directory / f".{stem}.partial.mp4"
-        self._writer: Any = imageio.get_writer(self._tmp, fps=fps, macro_block_size=MACRO_BLOCK)
+        self._writer: Any = Mp4Writer(self.directory / f"{stem}.mp4", fps)
         self.frames = 0
 
     def append(self, frame: np.ndarray) -> None:
-        self._writer.append_data(frame)
+        self._writer.append(frame)
         self.frames += 1
 
     def finish(self, suffix: str) -> Path:
         """Close the stream and move it to its final name; returns the path."""
-        self._writer.close()
+        written = self._writer.close()
         self._writer = None
         path = self.directory / f"{self.stem}_{suffix}.mp4"
-        os.replace(self._tmp, path)
+        os.replace(written, path)
         logger.debug("wrote %s (%d frames)", path, self.frames)
         return path
 
     def discard(self) -> None:
         if self._writer is not None:
-            self._writer.close()
+            self._writer.discard()
             self._writer = None
-        self._tmp.unlink(missing_ok=True)
 
     def __enter__(self) -> VideoWriter:
         return self
