@@ -205,15 +205,11 @@ class StreamTrainer:
     def run(self, stop_after: int | None = None) -> dict[str, Any]:
         """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
         instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``)."""
-        check_stream_datasets(self.cfg.stream, self.policy_cfg_use_images)  # before anything is written
+        check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)  # before anything is written
         engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self.after_phase,
                               wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg),
                               extend_from=self.cfg.stream.extend_from)
         return engine.run(stop_after)
-
-    @property
-    def policy_cfg_use_images(self) -> bool:
-        return bool(self.cfg.policy.use_images)  # type: ignore[union-attr]
 
 
 def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> dict[str, Any]:

@@ -16,6 +16,7 @@ Seeding: every phase seeds Python, NumPy and torch from ``seed * 1000 + 10 * sta
 from __future__ import annotations
 
 import dataclasses
+import logging
 import os
 import random
 import shutil
@@ -50,8 +51,6 @@ from sr_imitation.stream.substrate import MethodSettings, SleepProblem
 
 if TYPE_CHECKING:
     from sr_imitation.imitation.stream import TrainStreamConfig
-
-import logging
 
 logger = logging.getLogger(__name__)
 

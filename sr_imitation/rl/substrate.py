@@ -162,7 +162,7 @@ class SACSubstrate:
 
     def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
         stage_eval = list(skills) == list(range(k + 1))  # every learned skill: the stage's evaluation
-        rows, trajectories = self.evaluate_rows(k, skills, videos=stage_eval)
+        rows, trajectories = self.evaluate_rows(k, skills, videos=stage_eval, trajectories=stage_eval)
         if stage_eval:
             traj = {f"traj.{canonical_skill(s)}": torch.as_tensor(x) for s, x in trajectories.items()}
             save_checked_safetensors(self.stage_dir(k) / "trajectories.safetensors", traj,
@@ -171,13 +171,14 @@ class SACSubstrate:
         logger.info("stage %d %s: success %s", k + 1, phase, [round(r["success_rate"], 3) for r in rows])
         return {"rows": rows, "stage_evaluation": stage_eval}
 
-    def evaluate_rows(self, k: int, skills: Sequence[int], videos: bool = False
+    def evaluate_rows(self, k: int, skills: Sequence[int], videos: bool = False, trajectories: bool = True
                       ) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
         """Evaluate ``skills`` (indices), each on its paired configurations (the same at every stage); each row
-        lists them, and with ``videos`` its mp4 files (relative to the output directory). Returns the rows and, per
-        skill, the SPI input (:func:`policy_motion` of ``SPI_FEATURES``) of its episodes."""
+        lists them, and with ``videos`` its mp4 files (relative to the output directory). Returns the rows and, with
+        ``trajectories`` (only stage evaluations keep them), per skill the SPI input (:func:`policy_motion` of
+        ``SPI_FEATURES``) of its episodes."""
         cfg, agent = self.cfg, self.agent
-        rows, trajectories = [], {}
+        rows, motions = [], {}
         spec = cfg.eval.video_spec(self.video_dir(k)) if videos and self._videos else None
         if spec is not None:
             shutil.rmtree(spec.directory, ignore_errors=True)  # leftovers of a killed attempt at this stage
@@ -190,13 +191,14 @@ class SACSubstrate:
             res = evaluate_policy(
                 lambda obs: agent.act(obs, deterministic=cfg.eval.deterministic), env, cfg.eval.episodes,
                 seed=cfg.seed, success_mode=cfg.eval.success_mode, stop_on_success=cfg.eval.stop_on_success,
-                record_trajectories=True, configurations=configurations, video=spec,
+                record_trajectories=trajectories, configurations=configurations, video=spec,
             )
             rows.append({**res.summary(), "configurations": configurations})
             if spec is not None:
                 rows[-1]["videos"] = [p.relative_to(self.out).as_posix() for p in res.videos]
-            trajectories[skill] = policy_motion(res.trajectories, SPI_FEATURES)
-        return rows, trajectories
+            if trajectories:
+                motions[skill] = policy_motion(res.trajectories, SPI_FEATURES)
+        return rows, motions
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         cfg, agent = self.cfg, self.agent

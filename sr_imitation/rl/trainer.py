@@ -25,7 +25,6 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.fingerprint import settings_from_config
 from sr_imitation.core.io import atomic_write_bytes, atomic_write_json, load_checked_safetensors
 from sr_imitation.core.metrics import (
     MT5_PAIRS,
@@ -58,13 +57,6 @@ def prs_pairs(skills: list[str]) -> tuple[tuple[str, str], ...]:
     return present or all_pairs(names)
 
 
-def _legacy_settings(saved: Any) -> dict[str, Any]:
-    """Settings of a run written before fingerprints (its config.json held them under ``fingerprint``)."""
-    if not isinstance(saved, dict) or not isinstance(saved.get("fingerprint"), dict):
-        return {"<config.json>": "no fingerprint"}
-    return settings_from_config(saved["fingerprint"])
-
-
 class StreamTrainer:
     """Runs (or resumes) one seed of the stream described by ``cfg`` on the stream engine.
 
@@ -79,8 +71,9 @@ class StreamTrainer:
         self.out = Path(cfg.output_dir)
         self.substrate = SACSubstrate(cfg)
         self.method = make_method(cfg.method, SACSubstrate.name, self.substrate.method_settings())
+        # Runs from before the engine (one checkpoint per stage) cannot be resumed by it: no legacy settings.
         self.run_dir = RunDirectory(self.out, cfg.resume_fingerprint(), "config.json", cfg.stored_config(),
-                                    cfg.resume, cfg.overwrite, legacy_settings=_legacy_settings)
+                                    cfg.resume, cfg.overwrite)
         self.engine = StreamEngine(self.substrate, self.method, self.run_dir, cfg.progress, self._after_phase,
                                    wandb=cfg.wandb, log_config=cfg.stored_config(), extend_from=cfg.extend_from)
         self.after_stage, self.after_phase = after_stage, after_phase

@@ -95,7 +95,7 @@ class StreamEngine:
         last = len(self.skills) if stop_after is None else stop_after
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
-        fresh = not (self.run_dir.path.exists() and any(self.run_dir.path.iterdir())) or self.run_dir.overwrite
+        fresh = self.run_dir.starts_fresh()
         source = self._check_extension() if self.extend_from is not None and fresh else None  # before writing
         self.run_dir.prepare()
         if source is not None:
@@ -174,10 +174,8 @@ class StreamEngine:
         """Copy the source's stages (checkpoints, memories, evaluations) and their progress records; the engine
         then continues with stage n + 1 as a resume would (anchor: stage n's final checkpoint)."""
         self.substrate.import_stages(source, n)  # type: ignore[attr-defined]
-        for k in range(n):
-            for phase in self.phases(k):
-                self.run_dir.progress["completed"][RunDirectory.key(k, phase)] = done[RunDirectory.key(k, phase)]
-        self.run_dir.mark(n - 1, self.phases(n - 1)[-1], done[RunDirectory.key(n - 1, self.phases(n - 1)[-1])])
+        keys = [RunDirectory.key(k, phase) for k in range(n) for phase in self.phases(k)]
+        self.run_dir.mark_all({key: done[key] for key in keys})
         logger.info("extending %s: stages 1-%d imported, continuing with %s", source, n, self.skills[n])
 
     def _run_phase(self, k: int, phase: str) -> dict[str, Any]:

@@ -25,7 +25,7 @@ from sr_imitation.core.fingerprint import (
     read_fingerprint,
     write_fingerprint,
 )
-from sr_imitation.core.io import CorruptFileError, atomic_write_json
+from sr_imitation.core.io import CorruptFileError, atomic_write_json, read_json
 
 logger = logging.getLogger(__name__)
 
@@ -61,6 +61,10 @@ class RunDirectory:
         self.progress: dict[str, Any] = {"version": PROGRESS_VERSION, "completed": {}}
 
     # -- set-up -------------------------------------------------------------------------------------------
+    def starts_fresh(self) -> bool:
+        """Whether :meth:`prepare` will start a new run (nothing there yet, or ``overwrite``)."""
+        return self.overwrite or not (self.path.exists() and any(self.path.iterdir()))
+
     def prepare(self) -> None:
         """Create a fresh run or check a resumed one (see the module docstring)."""
         exists = self.path.exists() and any(self.path.iterdir())
@@ -105,8 +109,6 @@ class RunDirectory:
                                     f"or {self.config_file})")
         if self.legacy_settings is None:
             raise CorruptFileError(path, f"cannot resume: no {FINGERPRINT_FILE}")
-        from sr_imitation.core.io import read_json
-
         check_settings(path, self.legacy_settings(read_json(path)), self.fingerprint)
         return True
 
@@ -132,5 +134,9 @@ class RunDirectory:
 
     def mark(self, k: int, phase: str, record: dict[str, Any]) -> None:
         """Record a completed phase (after its files are written)."""
-        self.progress["completed"][self.key(k, phase)] = record
+        self.mark_all({self.key(k, phase): record})
+
+    def mark_all(self, records: dict[str, dict[str, Any]]) -> None:
+        """Record several completed phases (keyed as :meth:`key`) in one write of ``progress.json``."""
+        self.progress["completed"].update(records)
         atomic_write_json(self.path / PROGRESS_FILE, self.progress)

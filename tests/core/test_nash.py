@@ -9,8 +9,9 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
-from scipy.optimize import linprog, minimize
+from scipy.optimize import minimize
 
+from sr_imitation.benchmarks.nash import agreement_margin, scipy_reference
 from sr_imitation.core.aggregation import (
     FrankWolfeNashAggregator,
     NashAggregator,
@@ -52,24 +53,8 @@ def _assert_on_simplex(alpha: np.ndarray) -> None:
     assert abs(alpha.sum() - 1.0) < 1e-9
 
 
-def _lp_margin(c: np.ndarray) -> tuple[float, np.ndarray]:
-    k = c.shape[0]
-    res = linprog(np.r_[np.zeros(k), -1.0], A_ub=np.c_[-c, np.ones(k)], b_ub=np.zeros(k),
-                  A_eq=np.r_[np.ones(k), 0.0][None], b_eq=[1.0], bounds=[(0, None)] * k + [(None, None)])
-    a = np.clip(res.x[:k], 0.0, None)
-    return float(-res.fun), a / a.sum()
-
-
 def _scipy_reference(c: np.ndarray, start: np.ndarray) -> float:
-    k = c.shape[0]
-    res = minimize(lambda a: -np.log(np.maximum(c @ a, -EPS / 2) + EPS).sum(), start,
-                   jac=lambda a: -c @ (1.0 / (np.maximum(c @ a, -EPS / 2) + EPS)), method="SLSQP",
-                   bounds=[(0.0, 1.0)] * k,
-                   constraints=[{"type": "eq", "fun": lambda a: a.sum() - 1.0, "jac": lambda a: np.ones(k)},
-                                {"type": "ineq", "fun": lambda a: c @ a, "jac": lambda a: c}],
-                   options={"maxiter": 2000, "ftol": 1e-15})
-    a = np.clip(res.x, 0.0, None)
-    return nash_objective(a / a.sum(), c)
+    return nash_objective(scipy_reference(c, start, EPS), c)
 
 
 def _scipy_min_norm(c: np.ndarray) -> float:
@@ -109,7 +94,7 @@ def test_matches_the_constrained_scipy_reference_whenever_an_agreeing_direction_
     checked = 0
     for j in _family(seed, 40):
         c = _cos(j)
-        margin, start = _lp_margin(c)
+        margin, start = agreement_margin(c)
         if margin < 1e-3:
             continue
         checked += 1
@@ -128,7 +113,7 @@ def test_matches_the_constrained_scipy_reference_whenever_an_agreeing_direction_
 def test_duality_gap_certificate_and_kkt_conditions(seed):
     for j in _family(100 + seed, 30):
         c = _cos(j)
-        if len(j) < 3 or _lp_margin(c)[0] < 1e-3:
+        if len(j) < 3 or agreement_margin(c)[0] < 1e-3:
             continue
         sol = solve_nash(c)
         u = c @ sol.alpha
@@ -150,7 +135,7 @@ def test_the_maximizer_agrees_with_every_memory_when_the_margin_exceeds_k_minus_
         k = int(rng.integers(3, 9))
         j = _conflict(rng, k, int(rng.integers(2, 5)))
         c = _cos(j)
-        margin, _ = _lp_margin(c)
+        margin, _ = agreement_margin(c)
         if not (k - 1) * EPS < margin < 0.05:
             continue
         seen += 1
@@ -168,7 +153,7 @@ def test_frank_wolfe_ablation_can_oppose_a_memory_where_the_exact_solver_does_no
     while n < 60:
         j = _conflict(rng, int(rng.integers(3, 6)), int(rng.integers(3, 8)))
         c = _cos(j)
-        if _lp_margin(c)[0] < 1e-3:
+        if agreement_margin(c)[0] < 1e-3:
             continue
         n += 1
         fw = FrankWolfeNashAggregator(iterations=iterations, warm_start=False)(_gram(j))
@@ -318,7 +303,7 @@ def test_warm_start_that_opposes_a_memory_is_replaced():
     while True:
         j = _conflict(rng, 4, 3)
         c = _cos(j)
-        if _lp_margin(c)[0] > 1e-3 and (c @ np.array([0.0, 0.0, 0.0, 1.0])).min() < 0:
+        if agreement_margin(c)[0] > 1e-3 and (c @ np.array([0.0, 0.0, 0.0, 1.0])).min() < 0:
             break
     agg = NashAggregator()
     agg._alpha_prev = np.array([0.0, 0.0, 0.0, 1.0])  # a vertex whose direction opposes a memory

@@ -17,19 +17,12 @@ from sr_imitation.imitation.stream import StreamTrainer
 from sr_imitation.stream import engine as engine_module
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder
 
 
-def _clone(tensors) -> list[torch.Tensor]:
-    return [t.detach().clone() for t in tensors]
-
-
-def _same(a, b) -> bool:
-    return len(a) == len(b) and all(x.shape == y.shape and torch.equal(x, y) for x, y in zip(a, b, strict=True))
-
-
-def _full_buffer_losses(policy, memories) -> list[float]:
+def _full_buffer_losses(policy, memories) -> dict[str, list[float]]:
     with torch.no_grad():
-        return [float(m.loss(policy, {key: m.tensors[key] for key in m.buffer_keys})) for m in memories]
+        return {"losses": [float(m.loss(policy, {key: m.tensors[key] for key in m.buffer_keys})) for m in memories]}
 
 
 @pytest.fixture(scope="module")
@@ -40,27 +33,16 @@ def recorded_stream(state_datasets, tmp_path_factory):
                              sleep_max_iterations=20, sleep_early_stop_window=20)
     trainer = StreamTrainer(cfg, fake_env_factory)
     wakes, sleeps = [], []
-    real_wake, real_sleep = substrate_module.wake_train, engine_module.sleep_consolidate
+    real_wake = substrate_module.wake_train
 
     def recording_wake(policy, *args, **kwargs):
         result = real_wake(policy, *args, **kwargs)
-        wakes.append(_clone(p for _, p in policy.deployed_named_parameters()))  # theta_i^wake
-        return result
-
-    def recording_sleep(params, policy, memories, config, anchor_params=None, wake_snapshots=(), **kwargs):
-        params = list(params)
-        call = {"start": _clone(params), "anchor": None if anchor_params is None else _clone(anchor_params),
-                "wake_snapshots": [_clone(s) for s in wake_snapshots], "skills": [m.skill for m in memories],
-                "losses_before": _full_buffer_losses(policy, memories), "kwargs": kwargs}
-        result = real_sleep(params, policy, memories, config, anchor_params=anchor_params,
-                            wake_snapshots=wake_snapshots, **kwargs)
-        call.update(end=_clone(params), result=result, losses_after=_full_buffer_losses(policy, memories))
-        sleeps.append(call)
+        wakes.append(clone(p for _, p in policy.deployed_named_parameters()))  # theta_i^wake
         return result
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(substrate_module, "wake_train", recording_wake)
-        mp.setattr(engine_module, "sleep_consolidate", recording_sleep)
+        mp.setattr(engine_module, "sleep_consolidate", sleep_recorder(sleeps, _full_buffer_losses))
         trainer.run()
     names = [n for n, _ in trainer.policy.deployed_named_parameters()]
     return out, names, wakes, sleeps
@@ -73,30 +55,14 @@ def _checkpoint(out, names, k: int, phase: str) -> list[torch.Tensor]:
 
 def test_stage_k_sleep_gets_the_k_minus_1_earlier_wake_snapshots_and_the_previous_sleep_as_anchor(recorded_stream):
     out, names, wakes, sleeps = recorded_stream
-    assert len(wakes) == 3 and len(sleeps) == 2
+    assert_sleep_wiring(wakes, sleeps, SKILLS)
     for k, call in zip((2, 3), sleeps, strict=True):
-        assert call["skills"] == SKILLS[:k]
-        # The sleep starts at theta_k^wake ...
-        assert _same(call["start"], wakes[k - 1])
-        # ... the gate sees theta_i^wake for i < k: exactly k - 1 of them, those of skills 1..k-1, as saved ...
-        assert len(call["wake_snapshots"]) == k - 1
+        # ... as saved: the gate snapshots are the wake checkpoints, the anchor the previous stage's final one ...
         for i, snapshot in enumerate(call["wake_snapshots"], start=1):
-            assert _same(snapshot, wakes[i - 1]), (k, i)
-            assert _same(snapshot, _checkpoint(out, names, i, "wake")), (k, i)
-        # ... so no c_i is 0 at the start of sleep (c_k would be), and the recorded c_i are those distances.
-        distances = call["result"].anchor_distances
-        assert len(distances) == k - 1 and min(distances) > 0
-        for c, snapshot in zip(distances, call["wake_snapshots"], strict=True):
-            expected = torch.sqrt(sum(((a - b) ** 2).sum() for a, b in zip(call["start"], snapshot, strict=True)))
-            assert c == pytest.approx(float(expected), rel=1e-5)
-        # The anchor is theta_{k-1}^sleep (theta_1^wake for k = 2): what the previous stage ended with.
-        previous_end = wakes[0] if k == 2 else sleeps[k - 3]["end"]
-        assert _same(call["anchor"], previous_end)
-        assert _same(call["anchor"], _checkpoint(out, names, k - 1, "wake" if k == 2 else "sleep"))
-        assert not _same(call["anchor"], call["start"])
-        assert call["kwargs"]["is_final_skill"] is (k == len(SKILLS))
+            assert same(snapshot, _checkpoint(out, names, i, "wake")), (k, i)
+        assert same(call["anchor"], _checkpoint(out, names, k - 1, "wake" if k == 2 else "sleep"))
         # The sleep's end is what the stage saved.
-        assert _same(call["end"], _checkpoint(out, names, k, "sleep"))
+        assert same(call["end"], _checkpoint(out, names, k, "sleep"))
 
 
 def test_sleep_lowers_the_full_buffer_losses_of_the_earlier_memories(recorded_stream):

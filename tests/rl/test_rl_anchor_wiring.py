@@ -11,13 +11,13 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
-import torch
 
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl import substrate as substrate_module
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream import engine as engine_module
+from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder
 
 SKILLS = ["reach-v3", "door-open-v3", "drawer-open-v3"]
 
@@ -34,40 +34,21 @@ def _config(out: Path) -> RLTrainConfig:
     )
 
 
-def _clone(tensors) -> list[torch.Tensor]:
-    return [t.detach().clone() for t in tensors]
-
-
-def _same(a, b) -> bool:
-    return len(a) == len(b) and all(x.shape == y.shape and torch.equal(x, y) for x, y in zip(a, b, strict=True))
-
-
 @pytest.fixture(scope="module")
 def recorded_stream(tmp_path_factory):
     out = tmp_path_factory.mktemp("rl_wiring") / "run"
     trainer = StreamTrainer(_config(out))
     wakes, sleeps = [], []
-    real_wake, real_sleep = substrate_module.train_skill, engine_module.sleep_consolidate
+    real_wake = substrate_module.train_skill
 
     def recording_wake(agent, *args, **kwargs):
         result = real_wake(agent, *args, **kwargs)
-        wakes.append(_clone(agent.actor_parameters()))  # theta_i^wake
-        return result
-
-    def recording_sleep(params, policy, memories, config, anchor_params=None, wake_snapshots=(), **kwargs):
-        params = list(params)
-        call = {"start": _clone(params), "anchor": None if anchor_params is None else _clone(anchor_params),
-                "wake_snapshots": [_clone(s) for s in wake_snapshots], "skills": [m.skill for m in memories],
-                "kwargs": kwargs}
-        result = real_sleep(params, policy, memories, config, anchor_params=anchor_params,
-                            wake_snapshots=wake_snapshots, **kwargs)
-        call.update(end=_clone(params), result=result)
-        sleeps.append(call)
+        wakes.append(clone(agent.actor_parameters()))  # theta_i^wake
         return result
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(substrate_module, "train_skill", recording_wake)
-        mp.setattr(engine_module, "sleep_consolidate", recording_sleep)
+        mp.setattr(engine_module, "sleep_consolidate", sleep_recorder(sleeps))
         trainer.run()
     saved = [trainer.substrate.parameters_at(k, "wake") for k in range(len(SKILLS))]
     return wakes, sleeps, saved
@@ -77,27 +58,10 @@ def test_stage_k_sleep_gets_the_k_minus_1_earlier_wake_snapshots_and_the_previou
     wakes, sleeps, saved = recorded_stream
     assert len(wakes) == 3 and len(sleeps) == 2
     for i, snapshot in enumerate(saved):  # each stage saved its own theta^wake
-        assert _same(snapshot, wakes[i]), i
+        assert same(snapshot, wakes[i]), i
+    assert_sleep_wiring(wakes, sleeps, [s.removesuffix("-v3") for s in SKILLS])
     for k, call in zip((2, 3), sleeps, strict=True):
-        assert call["skills"] == [s.removesuffix("-v3") for s in SKILLS[:k]]
-        # The sleep starts at theta_k^wake ...
-        assert _same(call["start"], wakes[k - 1])
-        # ... the gate sees theta_i^wake for i < k: exactly k - 1 of them, those of skills 1..k-1 ...
-        assert len(call["wake_snapshots"]) == k - 1
-        for i, snapshot in enumerate(call["wake_snapshots"], start=1):
-            assert _same(snapshot, wakes[i - 1]), (k, i)
-        # ... so no c_i is 0 at the start of sleep (c_k would be), and the recorded c_i are those distances.
-        distances = call["result"].anchor_distances
-        assert len(distances) == k - 1 and min(distances) > 0
-        for c, snapshot in zip(distances, call["wake_snapshots"], strict=True):
-            expected = torch.sqrt(sum(((a - b) ** 2).sum() for a, b in zip(call["start"], snapshot, strict=True)))
-            assert c == pytest.approx(float(expected), rel=1e-5)
-        # The anchor is theta_{k-1}^sleep (theta_1^wake for k = 2): what the previous stage ended with.
-        previous_end = wakes[0] if k == 2 else sleeps[k - 3]["end"]
-        assert _same(call["anchor"], previous_end)
-        assert not _same(call["anchor"], call["start"])
         is_final = k == len(SKILLS)
-        assert call["kwargs"]["is_final_skill"] is is_final
         # MT5: gate tau = 150 is open for these small networks; no anchor after the final skill.
         assert call["result"].anchor_lambda == (0.0 if is_final else 1e-2)
-        assert call["result"].stop_iteration == 10 and not _same(call["end"], call["start"])
+        assert call["result"].stop_iteration == 10 and not same(call["end"], call["start"])

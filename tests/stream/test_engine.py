@@ -23,6 +23,7 @@ from sr_imitation.stream import (
 from sr_imitation.stream import engine as engine_module
 from sr_imitation.stream.methods.registry import METHODS as REGISTRY
 from tests.stream.toy import ToySubstrate
+from tests.stream.wiring import same, sleep_recorder
 
 SKILLS = ["a", "b", "c"]
 
@@ -90,31 +91,21 @@ def test_wake_eval_covers_what_the_substrate_asks(tmp_path):
 
 
 def test_the_sleep_gets_the_previous_final_policy_as_anchor_and_earlier_wake_snapshots(tmp_path, monkeypatch):
-    calls = []
-    real = engine_module.sleep_consolidate
-
-    def spy(params, policy, memories, config, anchor_params=None, wake_snapshots=(), is_final_skill=False, **kw):
-        calls.append({"start": [p.detach().clone() for p in params], "anchor": [a.clone() for a in anchor_params],
-                      "snapshots": [[t.clone() for t in s] for s in wake_snapshots],
-                      "memories": [m.skill for m in memories], "final": is_final_skill})
-        return real(params, policy, memories, config, anchor_params=anchor_params, wake_snapshots=wake_snapshots,
-                    is_final_skill=is_final_skill, **kw)
-
-    monkeypatch.setattr(engine_module, "sleep_consolidate", spy)
+    calls: list[dict[str, Any]] = []
+    monkeypatch.setattr(engine_module, "sleep_consolidate", sleep_recorder(calls))
     engine = make_engine(tmp_path / "r")
     engine.run()
     sub = engine.substrate
-    assert [c["memories"] for c in calls] == [["a", "b"], ["a", "b", "c"]]
-    assert [c["final"] for c in calls] == [False, True]
-    same = lambda xs, ys: all(torch.equal(x, y) for x, y in zip(xs, ys, strict=True))  # noqa: E731
+    assert [c["skills"] for c in calls] == [["a", "b"], ["a", "b", "c"]]
+    assert [c["kwargs"]["is_final_skill"] for c in calls] == [False, True]
     # stage 2 (k=1): anchor theta_1^wake (stage 1 did not sleep), gates from theta_1^wake; starts at theta_2^wake
     assert same(calls[0]["anchor"], sub.parameters_at(0, "wake"))
-    assert len(calls[0]["snapshots"]) == 1 and same(calls[0]["snapshots"][0], sub.parameters_at(0, "wake"))
+    assert len(calls[0]["wake_snapshots"]) == 1 and same(calls[0]["wake_snapshots"][0], sub.parameters_at(0, "wake"))
     assert same(calls[0]["start"], sub.parameters_at(1, "wake"))
     # stage 3: anchor theta_2^sleep, gates from theta_1^wake and theta_2^wake
     assert same(calls[1]["anchor"], sub.parameters_at(1, "sleep"))
-    assert [len(s) for s in calls[1]["snapshots"]] == [4, 4]
-    assert same(calls[1]["snapshots"][1], sub.parameters_at(1, "wake"))
+    assert [len(s) for s in calls[1]["wake_snapshots"]] == [4, 4]
+    assert same(calls[1]["wake_snapshots"][1], sub.parameters_at(1, "wake"))
     record = json.loads((tmp_path / "r" / "progress.json").read_text())["completed"]["3.sleep"]
     assert len(record["memory_losses_before"]) == 3 and len(record["memory_losses_after"]) == 3
 
