@@ -71,8 +71,8 @@ def main(args: list[str] | None = None) -> None:
     print(f"results:  {(out / 'results.json').resolve()}  (table: results.md; plots: metrics.png, "  # noqa: T201
           "success_matrix.png; videos: videos/, expert_suture.mp4)")
     print("final " + ", ".join(  # noqa: T201
-        f"{k.upper()}={m[k]['final_mean']:.3f}" for k in ("afsr", "prs", "bwt", "bwt_wake", "spi")
-        if k in m and m[k]["final_mean"] is not None
+        f"{k.upper()}={m[k]['final']:.3f}" for k in ("afsr", "prs", "bwt", "bwt_wake", "spi")
+        if k in m and m[k]["final"] is not None
     ))
 
 

@@ -39,8 +39,9 @@ def test_rl_bad_values_are_one_line_naming_the_key_and_nothing_is_written(tmp_pa
 
 
 @pytest.mark.parametrize("flag, key", [
-    ("--policy.anchor_strength=nan", "anchor_strength"),
-    ("--policy.sleep_lr=inf", "sleep_lr"),
+    ("--sleep.anchor_strength=nan", "anchor_strength"),
+    ("--sleep.lr=inf", "lr"),
+    ("--policy.distill_weight_later=nan", "distill_weight_later"),
     ("--wake.batch_size=0", "batch_size"),
     ("--method=ewc", "method"),
 ])

@@ -16,7 +16,7 @@ from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.imitation.cli import act_sr_choices_only, parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig
 
-ARGS = ["--policy.type=act_sr", "--policy.sleep_lr=1e-4", "--seed=3"]
+ARGS = ["--policy.type=act_sr", "--sleep.lr=1e-4", "--seed=3"]
 
 
 def main() -> None:

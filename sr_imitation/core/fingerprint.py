@@ -1,7 +1,7 @@
 """Settings fingerprints: a run directory that cannot change its settings silently.
 
 A run stores, at its start, every setting of its configuration as a flat mapping of dotted keys
-(``policy.sleep_batch_size``, ``wake.budgets.reach.max_episodes``) minus an explicit allow-list of settings that
+(``sleep.batch_size``, ``wake.budgets.reach.max_episodes``) minus an explicit allow-list of settings that
 cannot change results (where the run is, progress bars, video count, ...), together with the sha256 of that
 mapping. A resume computes the same mapping from the requested configuration and refuses, before writing anything,
 if any key differs, was added or was removed; the error is one line naming the file and every differing key with

@@ -41,46 +41,45 @@ class SleepConfig:
     """Sleep hyperparameters. Defaults follow the paper's MT5 table ("Sleep-consolidation hyperparameters");
     :meth:`surgicai` gives the SurgicAI table's values.
 
-    Attributes:
-        lr: Adam learning rate eta_sleep (MT5 5e-4, SurgicAI 1e-5).
-        max_iterations: N_sleep (MT5 4000, SurgicAI 1000).
-        batch_size: samples drawn from each memory per iteration (MT5 64, SurgicAI 8).
-        aggregator: ``nash`` (Eq. 1, solved exactly), ``nash_fw`` (the paper's Frank-Wolfe with ``fw_iterations``;
-            approximate, the ablation), ``mean_grad`` (raw-gradient mean: the paper's Mean-grad ablation),
-            ``mean_normalized`` or ``pcgrad`` (see ``sr_imitation.core.aggregation``).
-        fw_iterations: Frank-Wolfe iterations per solve of ``nash_fw`` (paper: MT5 50, SurgicAI 5); the exact
-            ``nash`` solver stops at its tolerance instead.
-        eps: gradient-normalization constant (1e-5).
-        early_stop_tol: delta; stop when the windowed objective changes by less than this (1e-3).
-        early_stop_window: window length in iterations (MT5 100).
-        early_stop_relative: compare the change of window means relative to the previous window mean (True)
-            or in absolute terms (False). The paper does not say; relative keeps the rule meaningful for the
-            small distillation losses of imitation memories.
-        anchor_strength: lambda of Eq. 2 (1e-2).
-        anchor_tau: tau of Eq. 2 (MT5 150); ``None`` means the anchor is always on (no gate).
-        anchor_after_final: apply the anchor in the sleep after the final skill (MT5: no).
-        max_nonfinite_steps: consecutive skipped (non-finite) steps before raising.
-        seed: seeds the memory batch sampler (and PCGrad's projection order).
-        joint_forward: evaluate same-kind memories in one forward pass on their concatenated batches, then take
-            the k gradients by k backward passes (same values as one pass per memory). Off by default: on 2 CPU
-            cores it was not faster (docs/BENCHMARKS.md).
+    Each field is documented below (``sr-train --help`` shows it).
     """
 
+    enabled: bool = True
+    """Sleep at all - false is the paper's SR Wake-Only ablation (read by the continual method; sleep_consolidate
+    ignores it)."""
     lr: float = 5e-4
+    """Adam learning rate eta_sleep (MT5 5e-4, SurgicAI 1e-5)."""
     max_iterations: int = 4000
+    """N_sleep, iterations per sleep at most (MT5 4000, SurgicAI 1000)."""
     batch_size: int = 64
+    """Samples drawn from each memory per iteration (MT5 64, SurgicAI 8)."""
     aggregator: str = "nash"
+    """nash (Eq. 1 solved exactly), nash_fw (the paper's Frank-Wolfe with fw_iterations - approximate, the
+    ablation), mean_grad (raw-gradient mean - the paper's Mean-grad ablation), mean_normalized or pcgrad."""
     fw_iterations: int = 50
+    """Frank-Wolfe iterations per solve of nash_fw (paper - MT5 50, SurgicAI 5); nash stops at its tolerance."""
     eps: float = 1e-5
+    """Gradient-normalization constant of g / (||g|| + eps)."""
     early_stop_tol: float = 1e-3
+    """delta - stop when the windowed sleep objective changes by less than this."""
     early_stop_window: int = 100
+    """Window length in iterations of the plateau rule (MT5 100, SurgicAI 50)."""
     early_stop_relative: bool = True
+    """Compare the change of window means relative to the previous window mean (true) or absolutely (false); the
+    paper does not say (our choice - keeps the rule meaningful for the small imitation losses)."""
     anchor_strength: float = 1e-2
+    """lambda of the proximal anchor (Eq. 2); 0 is the no-anchor ablation."""
     anchor_tau: float | None = 150.0
+    """tau of the anchor gate (Eq. 2; MT5 150); null - always on (SurgicAI)."""
     anchor_after_final: bool = False
+    """Apply the anchor in the sleep after the final skill (MT5 no, SurgicAI yes)."""
     max_nonfinite_steps: int = 10
+    """Consecutive skipped (non-finite) steps before the sleep raises."""
     seed: int = 0
+    """Seeds the memory batch sampler (and PCGrad's order); stream substrates set it per stage from --seed."""
     joint_forward: bool = False
+    """Evaluate same-kind memories in one forward pass, then k backward passes (same values; not faster on 2 CPU
+    cores, docs/BENCHMARKS.md)."""
 
     def __post_init__(self) -> None:
         checks = {
@@ -113,10 +112,7 @@ class SleepConfig:
     @classmethod
     def surgicai(cls, **overrides: Any) -> SleepConfig:
         """Paper Table "Sleep-consolidation hyperparameters for SurgicAI" (anchor always on, no gate)."""
-        base = {"lr": 1e-5, "max_iterations": 1000, "batch_size": 8, "fw_iterations": 5, "early_stop_window": 50,
-                    "anchor_tau": None, "anchor_after_final": True}
-        base.update(overrides)
-        return cls(**base)
+        return SurgicAISleepConfig(**overrides)
 
     def make_aggregator(self) -> Aggregator:
         kwargs: dict[str, Any] = {"eps": self.eps}
@@ -125,6 +121,29 @@ class SleepConfig:
         elif self.aggregator == "pcgrad":
             kwargs["seed"] = self.seed
         return make_aggregator(self.aggregator, **kwargs)
+
+
+@dataclass
+class SurgicAISleepConfig(SleepConfig):
+    """:class:`SleepConfig` with the defaults of the paper's Table "Sleep-consolidation hyperparameters for
+    SurgicAI" (Adam 1e-5, at most 1000 iterations, batch 8, 5 Frank-Wolfe iterations for ``nash_fw``, window 50,
+    anchor always on, also after the final skill). A class of its own, not a factory: draccus fills the fields a
+    config file or flag leaves out from the class defaults, so ``--sleep.lr=1e-4`` must not bring back MT5's."""
+
+    lr: float = 1e-5
+    """Adam learning rate eta_sleep (SurgicAI table - 1e-5)."""
+    max_iterations: int = 1000
+    """N_sleep, iterations per sleep at most (SurgicAI table - 1000)."""
+    batch_size: int = 8
+    """Samples drawn from each memory per iteration (SurgicAI table - 8)."""
+    fw_iterations: int = 5
+    """Frank-Wolfe iterations per solve of nash_fw (SurgicAI table - 5); nash stops at its tolerance."""
+    early_stop_window: int = 50
+    """Window length in iterations of the plateau rule (SurgicAI table - 50)."""
+    anchor_tau: float | None = None
+    """tau of the anchor gate (Eq. 2); null - always on (the SurgicAI setting)."""
+    anchor_after_final: bool = True
+    """Apply the anchor in the sleep after the final skill (SurgicAI - yes)."""
 
 
 @dataclass

@@ -1,11 +1,12 @@
 """Re-run one sleep phase of a finished stream with other sleep settings (sleep ablations without new wakes).
 
     python -m sr_imitation.experiments.sleep_replay --run=outputs/needle_compare/sr_seed0 --stage=3 \\
-        --output_dir=outputs/replay/noanchor_s0_k3 --set.anchor_strength=0
+        --output_dir=outputs/replay/noanchor_s0_k3 --sleep.anchor_strength=0
 
 The replay copies what stage k's sleep starts from (the stream statistics, memories M_1..M_k, the checkpoints of
 stages < k and stage k's wake checkpoint, and their ``progress.json`` entries) into ``output_dir``, applies the
-``--set.*`` overrides to the policy's sleep settings, and resumes the stream there: stage k's sleep and its
+``--sleep.*`` flags (``sr-train``'s own sleep flags, parsed and checked by its config) to the run's sleep settings,
+and resumes the stream there: stage k's sleep and its
 evaluation run exactly as in the original run except for the overrides (same phase seeds). ``replay.json``
 puts the original and the replayed sleep side by side: memory losses at the first and last sleep iteration,
 stop reason, and success after sleep per skill.
@@ -13,11 +14,12 @@ stop reason, and success after sleep per skill.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import logging
 import shutil
 import sys
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -25,25 +27,11 @@ import draccus
 
 from sr_imitation.core.io import atomic_write_json, read_json
 from sr_imitation.imitation.cli import parse_config
-from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stage_name
+from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stored_config_dict
+from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)
-
-
-@dataclass
-class SleepOverrides:
-    """Policy sleep settings to change (``None``: keep the original run's value)."""
-
-    sleep_lr: float | None = None
-    sleep_max_iterations: int | None = None
-    sleep_batch_size: int | None = None
-    anchor_strength: float | None = None
-    aggregator: str | None = None
-    sleep_fw_iterations: int | None = None
-
-    def as_dict(self) -> dict[str, Any]:
-        return {k: v for k, v in vars(self).items() if v is not None}
 
 
 @dataclass
@@ -51,7 +39,6 @@ class SleepReplayConfig:
     run: Path = Path("outputs/needle_cpu")
     stage: int = 2
     output_dir: Path = Path("outputs/sleep_replay")
-    set: SleepOverrides = field(default_factory=SleepOverrides)
     overwrite: bool = False
     progress: bool = True
 
@@ -63,9 +50,13 @@ def _read_json(path: Path) -> dict[str, Any]:
         raise FileNotFoundError(f"{path}: not found (is {path.parent} an sr-train output directory?)") from exc
 
 
-def prepare_replay(cfg: SleepReplayConfig) -> TrainStreamConfig:
-    """Copy the state before stage ``cfg.stage``'s sleep into ``cfg.output_dir``; return the replay's config."""
+def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainStreamConfig:
+    """Copy the state before stage ``cfg.stage``'s sleep into ``cfg.output_dir``; return the replay's config (the
+    original run's, with ``sleep_args`` such as ``--sleep.anchor_strength=0`` applied)."""
     src, out, k = Path(cfg.run), Path(cfg.output_dir), cfg.stage
+    other = [a for a in sleep_args if not a.startswith("--sleep.")]
+    if other:
+        raise ValueError(f"a sleep replay changes sleep settings only (--sleep.*), got {other}")
     saved = _read_json(src / "train_config.json")
     progress = _read_json(src / "progress.json")
     skills = saved["stream"]["skills"]
@@ -81,27 +72,29 @@ def prepare_replay(cfg: SleepReplayConfig) -> TrainStreamConfig:
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     shutil.copy2(src / "stream_stats.safetensors", out / "stream_stats.safetensors")
+    source = parse_config(TrainStreamConfig, src / "train_config.json", [])
+    source.output_dir = src
+    original, replayed = ACTSubstrate(source), ACTSubstrate(dataclasses.replace(source, output_dir=out))
     (out / "memories").mkdir()
-    for i in range(k):
-        name = stage_name(i, skills[i])
-        shutil.copy2(src / "memories" / f"{name}.safetensors", out / "memories" / f"{name}.safetensors")
-        phases = ["wake"] if i == k - 1 else [p for p in ("wake", "sleep") if (src / name / p).is_dir()]
+    for i in range(k):  # the substrate's own file layout
+        shutil.copy2(original.memory_path(i), replayed.memory_path(i))
+        phases = ["wake"] if i == k - 1 else [p for p in ("wake", "sleep") if original.checkpoint_dir(i, p).is_dir()]
         for phase in phases:
-            shutil.copytree(src / name / phase, out / name / phase)
+            shutil.copytree(original.checkpoint_dir(i, phase), replayed.checkpoint_dir(i, phase))
     keep = {key: rec for key, rec in progress["completed"].items()
             if int(key.split(".")[0]) < k or key in (f"{k}.wake", f"{k}.memory", f"{k}.wake.eval")}
     atomic_write_json(out / "progress.json", {**progress, "completed": keep})
-    saved["policy"].update(cfg.set.as_dict())
     saved["output_dir"] = str(out)
     atomic_write_json(out / "train_config.json", saved)
-    train = parse_config(TrainStreamConfig, out / "train_config.json", [])
+    train = parse_config(TrainStreamConfig, out / "train_config.json", list(sleep_args))
+    atomic_write_json(out / "train_config.json", {**stored_config_dict(train), "output_dir": str(out)})
     train.resume, train.progress = True, cfg.progress
     return train
 
 
-def replay(cfg: SleepReplayConfig) -> dict[str, Any]:
+def replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> dict[str, Any]:
     """Run the replay and write ``replay.json`` (original vs replayed sleep of stage ``cfg.stage``)."""
-    train = prepare_replay(cfg)
+    train = prepare_replay(cfg, sleep_args)
     StreamTrainer(train).run(stop_after=cfg.stage)
     progress = _read_json(Path(cfg.output_dir) / "progress.json")
     original = _read_json(Path(cfg.run) / "progress.json")["completed"]
@@ -115,7 +108,7 @@ def replay(cfg: SleepReplayConfig) -> dict[str, Any]:
             "success_after_sleep": ev.get("success"),
         }
 
-    result = {"run": str(cfg.run), "stage": cfg.stage, "overrides": cfg.set.as_dict(),
+    result = {"run": str(cfg.run), "stage": cfg.stage, "overrides": list(sleep_args),
               "original": view(original), "replay": view(progress["completed"])}
     atomic_write_json(Path(cfg.output_dir) / "replay.json", result)
     return result
@@ -124,8 +117,10 @@ def replay(cfg: SleepReplayConfig) -> dict[str, Any]:
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
-    cfg = draccus.parse(SleepReplayConfig, args=list(sys.argv[1:] if args is None else args))
-    print(json.dumps(replay(cfg), indent=2))  # noqa: T201
+    args = list(sys.argv[1:] if args is None else args)
+    sleep_args = [a for a in args if a.startswith("--sleep.")]
+    cfg = draccus.parse(SleepReplayConfig, args=[a for a in args if a not in sleep_args])
+    print(json.dumps(replay(cfg, sleep_args), indent=2))  # noqa: T201
 
 
 if __name__ == "__main__":

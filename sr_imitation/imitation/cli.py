@@ -1,7 +1,7 @@
 """Command-line entry points ``sr-train`` and ``sr-eval`` (draccus, LeRobot's flag style).
 
     sr-train --config_path=configs/needle_cpu.json
-    sr-train --policy.type=act_sr --policy.sleep=true --stream.skills=[approach,place,insert] \\
+    sr-train --policy.type=act_sr --sleep.enabled=true --stream.skills=[approach,place,insert] \\
              --stream.dataset_root=datasets/needle --output_dir=outputs/run1
     sr-train --config_path=outputs/run1/train_config.json --resume=true   # resumes outputs/run1, wherever it is
     sr-eval --policy.path=outputs/run1/skill_5_pullout/sleep/pretrained_model --skills=[approach,pullout]
@@ -79,6 +79,12 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     return cfg
 
 
+def parse_train_args(args: list[str]) -> TrainStreamConfig:
+    """:func:`parse_train_config` of a whole command line (``--config_path`` included)."""
+    config_path, rest = split_config_path(list(args))
+    return parse_train_config(config_path, rest)
+
+
 def _is_main_job_preset(config_path: str) -> bool:
     try:
         data = json.loads(Path(config_path).read_text())
@@ -90,14 +96,13 @@ def _is_main_job_preset(config_path: str) -> bool:
 def train_main(args: list[str] | None = None) -> None:
     """``sr-train``: run (or resume) a wake-sleep stream."""
     _setup_logging()
-    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = parse_train_config(config_path, rest)
+    cfg = parse_train_args(list(sys.argv[1:] if args is None else args))
     results = train_stream(cfg)
     m = results["metrics"]
     print(f"results: {cfg.output_dir / 'results.json'} (plots: metrics.png, success_matrix.png; videos: videos/)")
     names = ("afsr", "prs", "bwt", "bwt_wake", "spi")
-    print("final " + ", ".join(f"{k.upper()}={m[k]['final_mean']:.3f}" for k in names
-                               if k in m and m[k]["final_mean"] is not None)
+    print("final " + ", ".join(f"{k.upper()}={m[k]['final']:.3f}" for k in names
+                               if k in m and m[k]["final"] is not None)
           + " (BWT: reference after stage i; BWT_WAKE: reference right after skill i's own wake)")
 
 

@@ -61,8 +61,8 @@ class EvalConfig:
     Each field is documented below (``--help`` shows it).
     """
 
-    n_episodes: int = 20
-    """Episodes per skill per evaluation seed (paper 20)."""
+    episodes: int = 20
+    """Episodes per skill per evaluation seed (paper 20; 3 seeds x 20 = the paper's 60 per skill)."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
     """Evaluation seeds (paper three); episodes reset identically at every stage."""
     max_steps: int = 300
@@ -77,8 +77,8 @@ class EvalConfig:
     """Success-threshold preset of the needle environment - learnable or surgicai."""
 
     def __post_init__(self) -> None:
-        if self.n_episodes < 1 or not self.seeds or self.max_steps < 1 or self.videos_per_skill < 0:
-            raise ValueError("n_episodes, seeds, max_steps must be positive and videos_per_skill >= 0")
+        if self.episodes < 1 or not self.seeds or self.max_steps < 1 or self.videos_per_skill < 0:
+            raise ValueError("episodes, seeds, max_steps must be positive and videos_per_skill >= 0")
 
 
 @dataclass
@@ -163,7 +163,7 @@ def evaluate_skills(
     """Evaluate on every skill in ``skills`` (stream positions ``skill_indices``) over all evaluation seeds."""
     policy.eval()
     results: dict[str, SkillEvaluation] = {}
-    total = len(skills) * len(cfg.seeds) * cfg.n_episodes
+    total = len(skills) * len(cfg.seeds) * cfg.episodes
     bar = tqdm(total=total, desc="eval", disable=not progress, leave=False)
     for skill, index in zip(skills, skill_indices, strict=True):
         per_seed, lengths, trajectories, videos = [], [], [], []
@@ -172,7 +172,7 @@ def evaluate_skills(
         try:
             for s_i, eval_seed in enumerate(cfg.seeds):
                 wins = 0
-                for episode in range(cfg.n_episodes):
+                for episode in range(cfg.episodes):
                     record = video_env is not None and s_i == 0 and episode < cfg.videos_per_skill
                     run_env = video_env if record else env
                     seed = EVAL_SEED_OFFSET + 10_000 * eval_seed + 100 * index + episode
@@ -186,7 +186,7 @@ def evaluate_skills(
                         write_mp4(path, frames, fps=run_env.metadata.get("render_fps", 30))
                         videos.append(str(path))
                     bar.update(1)
-                per_seed.append(wins / cfg.n_episodes)
+                per_seed.append(wins / cfg.episodes)
         finally:
             env.close()
             if video_env is not None:

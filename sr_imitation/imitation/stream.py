@@ -34,11 +34,13 @@ from sr_imitation.core.fingerprint import (
 )
 from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.core.runlog import WandbConfig
+from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.imitation.data import check_stream_datasets
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
 from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method, methods_for
+from sr_imitation.stream.config import check_shared_settings
 
 __all__ = ["RESUME_ALLOW_LIST", "StreamConfig", "StreamTrainer", "TrainStreamConfig", "resume_fingerprint",
            "seed_everything", "stage_name", "stored_config_dict", "train_stream"]
@@ -90,15 +92,36 @@ class StreamConfig:
 
 
 @dataclass
-class TrainStreamConfig:
-    """``sr-train`` configuration (draccus - ``--policy.type=act_sr --policy.sleep=true --stream.skills=[...]``)."""
+class MemoryConfig:
+    """The frozen actor memory M_k stored after each skill's wake (paper Table "Sleep-consolidation
+    hyperparameters for SurgicAI": 1024 buffered observations per skill)."""
 
+    buffer_size: int = 1024
+    """|B_k| - observations sampled from the skill's demonstrations into its memory."""
+
+    def __post_init__(self) -> None:
+        if self.buffer_size < 1:
+            raise ValueError(f"memory.buffer_size must be >= 1, got {self.buffer_size}")
+
+
+@dataclass
+class TrainStreamConfig:
+    """``sr-train`` on the imitation substrate (ACT-SR on the needle stream), e.g.
+    ``sr-train --policy.type=act_sr --stream.skills=[approach,place] --sleep.enabled=true``.
+    ``sr-train --substrate=sac --help`` shows the Meta-World SAC substrate's flags instead."""
+
+    substrate: str = "act"
+    """The substrate sr-train runs - act (this one) or sac (Meta-World SAC, see --substrate=sac --help)."""
     policy: PreTrainedConfig | None = None
-    """The ACT-SR policy (--policy.type=act_sr; its sleep settings are --policy.sleep_*)."""
+    """The ACT-SR policy (--policy.type=act_sr): architecture, wake optimizer, wake distillation weights."""
     stream: StreamConfig = field(default_factory=StreamConfig)
     """The skills and their datasets."""
     wake: WakeConfig = field(default_factory=WakeConfig)
     """Wake budget and early stopping."""
+    memory: MemoryConfig = field(default_factory=MemoryConfig)
+    """The skill memories."""
+    sleep: SurgicAISleepConfig = field(default_factory=SurgicAISleepConfig)
+    """Sleep consolidation (defaults - the paper's SurgicAI table; --sleep.enabled=false is SR wake-only)."""
     eval: EvalConfig = field(default_factory=EvalConfig)
     """Evaluation after every wake and sleep."""
     method: str = "sr"
@@ -121,8 +144,7 @@ class TrainStreamConfig:
             self.policy = ACTSRConfig()
         if not isinstance(self.policy, ACTSRConfig):
             raise ValueError(f"sr-train trains ACT-SR policies (--policy.type=act_sr), got {self.policy.type!r}")
-        if self.resume and self.overwrite:
-            raise ValueError("--resume and --overwrite exclude each other")
+        check_shared_settings(self, ACTSubstrate.name)
         self.output_dir = Path(self.output_dir)
         check_finite(self)  # every numeric setting (policy, wake, eval), before anything is written
         methods = methods_for(ACTSubstrate.name)

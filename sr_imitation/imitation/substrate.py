@@ -83,8 +83,8 @@ class ACTSubstrate:
         self.run_log: Any = None  # set by the engine: wake epochs are logged there
 
     def method_settings(self) -> MethodSettings:
-        return MethodSettings(sleep=bool(self.policy_cfg.sleep), distill_weight=self.policy_cfg.distill_weight,
-                              extra={"aggregator": self.policy_cfg.aggregator})
+        return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=self.policy_cfg.distill_weight,
+                              extra={"aggregator": self.cfg.sleep.aggregator})
 
     # -- set-up ------------------------------------------------------------------------------------------
     def setup(self) -> None:
@@ -205,7 +205,7 @@ class ACTSubstrate:
 
     def make_memory(self, k: int) -> Memory:
         data = self._skill_data(k)
-        buffer = sample_observation_buffer(data, self.policy_cfg.memory_buffer_size, self.buffer_keys,
+        buffer = sample_observation_buffer(data, self.cfg.memory.buffer_size, self.buffer_keys,
                                            self.phase_seed(k, "memory"))
         snapshot = str(self.checkpoint_dir(k, "wake").relative_to(self.out))
         memory = ActorMemory.from_observations(self.skills[k], self.policy.memory_chunk, buffer, snapshot=snapshot,
@@ -244,7 +244,7 @@ class ACTSubstrate:
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         return SleepProblem(self.trainable(), self.policy.memory_chunk,
-                            self.policy_cfg.sleep_config(seed=self.phase_seed(k, "sleep")))
+                            dataclasses.replace(self.cfg.sleep, seed=self.phase_seed(k, "sleep")))
 
     def source_skills(self, settings: dict[str, Any]) -> list[str]:
         return list(settings["stream.skills"])
@@ -262,9 +262,9 @@ class ACTSubstrate:
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:
-        from sr_imitation.imitation.stream import _config_dict
+        from sr_imitation.imitation.stream import stored_config_dict
 
-        n = len(self.skills)
-        return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, _config_dict(self.cfg),
+        n = len(self.skills)  # the stored config: no absolute run location in results.json
+        return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, stored_config_dict(self.cfg),
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
                             [self.checkpoint_dir(i, "wake") for i in range(n)], memories)

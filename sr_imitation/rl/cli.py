@@ -1,11 +1,13 @@
-"""``sr-rl-train``: run (or resume) the Meta-World stream with SAC wake, critic memories and Nash sleep.
+"""``sr-train --substrate=sac`` (alias ``sr-rl-train``): the Meta-World stream with SAC wake, critic memories and
+Nash sleep.
 
-LeRobot-style flags through draccus, e.g.::
+LeRobot-style flags through draccus, the same names as the imitation substrate's for shared concepts, e.g.::
 
-    sr-rl-train --config_path=configs/sac_mt5_cpu.json --seed=1 --output_dir=outputs/sac_cpu_s1
-    sr-rl-train --config_path=configs/sac_mt5_cpu.json --output_dir=outputs/sac_cpu_s1 --resume=true
-    sr-rl-train --config_path=outputs/sac_cpu_s1/config.json --resume=true   # resumes that run, wherever it is
-    sr-rl-train --config_path=configs/sac_mt5_cpu.json --sleep_enabled=false   # SR wake-only ablation
+    sr-train --config_path=configs/sac_mt5_cpu.json --seed=1 --output_dir=outputs/sac_cpu_s1
+    sr-train --config_path=configs/sac_mt5_cpu.json --output_dir=outputs/sac_cpu_s1 --resume=true
+    sr-train --config_path=outputs/sac_cpu_s1/config.json --resume=true   # resumes that run, wherever it is
+    sr-train --config_path=configs/sac_mt5_cpu.json --sleep.enabled=false   # SR wake-only ablation
+    sr-train --config_path=configs/sac_mt5_cpu.json --stream.name=mt8 --stream.extend_from=outputs/sac_cpu_s1
 """
 
 
@@ -26,8 +28,7 @@ def train(cfg: RLTrainConfig) -> dict:
     from sr_imitation.rl.trainer import StreamTrainer
 
     results = StreamTrainer(cfg).run()
-    logger.info("final metrics: %s", json.dumps({k: v for k, v in results["metrics"].items()
-                                                  if not k.endswith("_curve")}))
+    logger.info("final metrics: %s", json.dumps({k: v["final"] for k, v in results["metrics"].items()}))
     logger.info("results written to %s", cfg.output_dir / "results.json")
     return results
 
@@ -47,7 +48,7 @@ def main(args: list[str] | None = None) -> None:
 
 
 def entry() -> None:
-    """Console script ``sr-rl-train``: :func:`main` with one-line user errors (``--debug`` for tracebacks)."""
+    """``python -m sr_imitation.rl.cli``: :func:`main` with one-line user errors (``--debug`` for tracebacks)."""
     run_cli("sr-rl-train", main)
 
 

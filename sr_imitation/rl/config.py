@@ -25,6 +25,7 @@ from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
+from sr_imitation.stream.config import check_shared_settings
 
 
 @dataclass
@@ -212,48 +213,78 @@ class EvalConfig:
 
 
 @dataclass
-class RLTrainConfig:
-    """Everything one ``sr-rl-train`` run needs; loadable with ``--config_path=configs/sac_mt5_*.json``."""
+class StreamConfig:
+    """The Meta-World skill stream (paper Appendix A.1: MT5, its reverse, and MT8 continuing MT5)."""
 
-    output_dir: Path = Path("outputs/sac_mt5")
-    seed: int = 0
-    stream: str = "mt5"
+    name: str = "mt5"
+    """A named stream - mt5, mt5-reverse or mt8 (``sr_imitation.rl.envs.STREAMS``)."""
     skills: list[str] | None = None
-    """Explicit skill list (Meta-World v3 ids); overrides ``stream``."""
-    max_episode_steps: int = 500
-    """Meta-World's time limit (max_path_length)."""
-    method: str = "sr"
+    """Explicit skill list (Meta-World v3 ids); overrides ``name``."""
     extend_from: Path | None = None
     """A finished run with these settings whose skills are this stream's first ones (MT8 from MT5): its stages are
     copied and the stream continues with the next skill."""
+
+    def __post_init__(self) -> None:
+        if self.skills is None and self.name not in STREAMS:
+            raise ValueError(f"stream.name: unknown stream {self.name!r}; choose from {sorted(STREAMS)}")
+        if self.skills is not None and len(self.skills) == 0:
+            raise ValueError("stream.skills must not be empty")
+
+    @property
+    def skill_list(self) -> list[str]:
+        return list(self.skills) if self.skills is not None else list(STREAMS[self.name])
+
+
+@dataclass
+class RLTrainConfig:
+    """``sr-train --substrate=sac``: SAC wake, frozen critic memories and Nash sleep on Meta-World (e.g.
+    ``--config_path=configs/sac_mt5_cpu.json``). The flags shared with the imitation substrate have the same names
+    (``--method``, ``--stream.*``, ``--sleep.*``, ``--memory.*``, ``--eval.*``, ``--seed``, ``--output_dir``)."""
+
+    substrate: str = "sac"
+    """The substrate sr-train runs - sac (this one) or act (ACT-SR on the needle stream)."""
+    output_dir: Path = Path("outputs/sac_mt5")
+    """Run directory (refused if it exists, unless --resume or --overwrite)."""
+    seed: int = 0
+    """Training seed - every phase seeds its generators from it."""
+    stream: StreamConfig = field(default_factory=StreamConfig)
+    """The skills (--stream.name=mt5|mt5-reverse|mt8 or --stream.skills=[...]) and --stream.extend_from."""
+    max_episode_steps: int = 500
+    """Meta-World's time limit (max_path_length)."""
+    method: str = "sr"
     """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only`` or ``sequential_bc``."""
-    sleep_enabled: bool = True
-    """False gives the "SR Wake-Only" ablation (with ``method=sr``)."""
     sac: SACConfig = field(default_factory=SACConfig)
+    """SAC (Table "SAC hyperparameters")."""
     wake: WakeConfig = field(default_factory=WakeConfig)
+    """Wake budgets and early stopping (Table "Wake-phase budgets")."""
     excitability: ExcitabilityConfig = field(default_factory=ExcitabilityConfig)
-    sleep: SleepConfig = field(default_factory=SleepConfig.mt5)
+    """Homeostatic excitability of the actor (Eq. 3)."""
+    sleep: SleepConfig = field(default_factory=SleepConfig)
+    """Sleep consolidation (defaults - the paper's MT5 table; --sleep.enabled=false is SR wake-only)."""
     memory: CriticMemoryConfig = field(default_factory=CriticMemoryConfig)
+    """The frozen critic memories."""
     eval: EvalConfig = field(default_factory=EvalConfig)
+    """Evaluation after every stage (and right after each wake)."""
     device: str = "cpu"
+    """Torch device (cpu or cuda)."""
     torch_threads: int = 1
+    """Torch intra-op threads (results are reproducible at a fixed count)."""
     resume: bool = False
+    """Continue the run in output_dir (settings must equal its settings_fingerprint.json)."""
     overwrite: bool = False
+    """Delete output_dir first."""
     progress: bool = True
+    """Console progress bars."""
     plots: bool = True
+    """Draw PNG plots from results.json at the end."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
     """Mirror the run log (``log.jsonl``) to Weights & Biases (``--wandb.enable=true``; offline by default)."""
 
     def __post_init__(self) -> None:
         self.output_dir = Path(self.output_dir)
-        if self.skills is None and self.stream not in STREAMS:
-            raise ValueError(f"unknown stream {self.stream!r}; choose from {sorted(STREAMS)}")
-        if self.skills is not None and len(self.skills) == 0:
-            raise ValueError("skills must not be empty")
         if self.max_episode_steps < 1:
             raise ValueError(f"max_episode_steps must be >= 1, got {self.max_episode_steps}")
-        if self.resume and self.overwrite:
-            raise ValueError("--resume and --overwrite are mutually exclusive")
+        check_shared_settings(self, "sac")
         if self.torch_threads < 1:
             raise ValueError(f"torch_threads must be >= 1, got {self.torch_threads}")
         check_finite(self)  # every numeric setting, before anything is written
@@ -264,7 +295,7 @@ class RLTrainConfig:
 
     @property
     def stream_skills(self) -> list[str]:
-        return list(self.skills) if self.skills is not None else list(STREAMS[self.stream])
+        return self.stream.skill_list
 
     def stored_config(self) -> dict[str, Any]:
         """``config.json`` of a run: the whole config (draccus reads it back with ``--config_path``) without the

@@ -60,7 +60,7 @@ class SACSubstrate:
     """SAC with an excitability-gated actor on a Meta-World stream."""
 
     name: ClassVar[str] = "sac"
-    extension_keys: ClassVar[tuple[str, ...]] = ("stream", "skills", "extend_from")
+    extension_keys: ClassVar[tuple[str, ...]] = ("stream.name", "stream.skills", "stream.extend_from")
 
     def __init__(self, cfg: RLTrainConfig) -> None:
         self.cfg = cfg
@@ -71,7 +71,7 @@ class SACSubstrate:
         self._memories: dict[int, CriticMemory] = {}
 
     def method_settings(self) -> MethodSettings:
-        return MethodSettings(sleep=self.cfg.sleep_enabled, distill_weight=None,
+        return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=None,
                               extra={"aggregator": self.cfg.sleep.aggregator})
 
     # -- set-up and seeding ---------------------------------------------------------------------------------
@@ -221,8 +221,8 @@ class SACSubstrate:
         return SleepProblem(agent.actor_parameters(), agent.policy_fn, sleep_cfg, excitability_step, critic_values)
 
     def source_skills(self, settings: dict[str, Any]) -> list[str]:
-        skills = settings.get("skills")
-        return list(skills) if skills not in (None, {}) else list(STREAMS[settings["stream"]])
+        skills = settings.get("stream.skills")
+        return list(skills) if skills not in (None, {}) else list(STREAMS[settings["stream.name"]])
 
     def import_stages(self, source: Path, n: int) -> None:
         """Stages 1..n of a finished run (checkpoints, memories, trajectories); videos stay in the source run."""

@@ -48,8 +48,8 @@ class MethodSettings:
     """What a substrate tells a continual method about its configuration (substrate-free).
 
     Attributes:
-        sleep: whether sleeping is enabled by the run's configuration (``--policy.sleep`` on ACT, ``--sleep_enabled``
-            on SAC); a method that sleeps honours it.
+        sleep: whether sleeping is enabled by the run's configuration (``--sleep.enabled`` on every substrate);
+            a method that sleeps honours it.
         distill_weight: gamma_k, the weight of wake-time distillation from the memories for the k-th skill
             (1-based); ``None`` when the substrate's wake has no distillation term (SAC).
         extra: substrate-specific settings a method may read.

@@ -9,8 +9,9 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_policy_act_sr import ACTSRConfig
+from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.stream import StreamConfig, TrainStreamConfig
+from sr_imitation.imitation.stream import MemoryConfig, StreamConfig, TrainStreamConfig
 from sr_imitation.imitation.wake import WakeConfig
 
 IMAGE = 16
@@ -91,20 +92,27 @@ def fake_env_factory(skill: str, render: bool) -> gym.Env:
 
 def tiny_policy(**overrides) -> ACTSRConfig:
     base = dict(device="cpu", dim_model=32, n_heads=2, dim_feedforward=64, n_encoder_layers=1,
-                n_vae_encoder_layers=1, chunk_size=4, n_action_steps=4, memory_buffer_size=16,
-                sleep_max_iterations=3, sleep_batch_size=4, distill_batch_size=4, sleep_early_stop_window=2)
+                n_vae_encoder_layers=1, chunk_size=4, n_action_steps=4, distill_batch_size=4)
     base.update(overrides)
     return ACTSRConfig(**base)
 
 
+def tiny_sleep(**overrides) -> SurgicAISleepConfig:
+    """Three sleep iterations on batches of 4 (a plateau window of 2 cannot fire before the budget ends)."""
+    return SurgicAISleepConfig(**{"max_iterations": 3, "batch_size": 4, "early_stop_window": 2, **overrides})
+
+
 def tiny_stream_config(
-    dataset_root: Path, output_dir: Path, skills: list[str], **policy_overrides
+    dataset_root: Path, output_dir: Path, skills: list[str], sleep: dict | None = None, **policy_overrides
 ) -> TrainStreamConfig:
+    """A tiny ACT-SR stream; ``sleep`` overrides :func:`tiny_sleep`'s settings, the keywords the policy's."""
     return TrainStreamConfig(
         policy=tiny_policy(**policy_overrides),
         stream=StreamConfig(skills=skills, dataset_root=dataset_root),
+        memory=MemoryConfig(buffer_size=16),
+        sleep=tiny_sleep(**(sleep or {})),
         wake=WakeConfig(max_epochs=2, min_epochs=1, patience=1, batch_size=4, max_steps_per_epoch=2),
-        eval=EvalConfig(n_episodes=2, seeds=[0, 1], max_steps=6, videos_per_skill=1),
+        eval=EvalConfig(episodes=2, seeds=[0, 1], max_steps=6, videos_per_skill=1),
         output_dir=output_dir,
         seed=7,
         progress=False,

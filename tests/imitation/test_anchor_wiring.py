@@ -29,8 +29,8 @@ def _full_buffer_losses(policy, memories) -> dict[str, list[float]]:
 def recorded_stream(state_datasets, tmp_path_factory):
     out = tmp_path_factory.mktemp("wiring") / "stream"
     # A sleep long and fast enough to measurably lower the memory losses; the plateau rule cannot fire.
-    cfg = tiny_stream_config(state_datasets, out, SKILLS, use_images=False, sleep_lr=1e-3,
-                             sleep_max_iterations=20, sleep_early_stop_window=20)
+    cfg = tiny_stream_config(state_datasets, out, SKILLS, use_images=False,
+                             sleep={"lr": 1e-3, "max_iterations": 20, "early_stop_window": 20})
     trainer = StreamTrainer(cfg, fake_env_factory)
     wakes, sleeps = [], []
     real_wake = substrate_module.wake_train

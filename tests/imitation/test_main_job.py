@@ -18,8 +18,8 @@ from sr_imitation.main_job import main as main_job
 TINY_POLICY = {
     "type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2, "dim_feedforward": 64,
     "n_encoder_layers": 1, "n_vae_encoder_layers": 1, "chunk_size": 8, "n_action_steps": 8,
-    "memory_buffer_size": 32, "sleep_max_iterations": 4, "sleep_batch_size": 4, "sleep_early_stop_window": 2,
 }
+TINY_SLEEP = {"max_iterations": 4, "batch_size": 4, "early_stop_window": 2}
 
 
 @pytest.fixture(scope="module")
@@ -29,9 +29,11 @@ def main_job_run(tmp_path_factory):
         "record": {"num_episodes": 2, "root": str(tmp / "datasets"), "image_size": 32},
         "train": {
             "policy": TINY_POLICY,
+            "memory": {"buffer_size": 32},
+            "sleep": TINY_SLEEP,
             "stream": {"skills": ["approach", "place"]},
             "wake": {"max_epochs": 1, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 2},
-            "eval": {"n_episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 1,
+            "eval": {"episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 1,
                      "video_height": 64, "video_width": 64},
             "output_dir": str(tmp / "run"),
             "progress": False,
@@ -71,20 +73,20 @@ def _check_results_against_files(run: Path, skills: list[str]) -> dict:
     m = results["metrics"]
     assert set(m) >= {"afsr", "prs", "bwt", "bwt_wake", "spi"}
     # AFSR_k = mean of row k up to the diagonal (Eq. 4); BWT / BWT_wake and PRS for the pair (approach, place).
-    assert m["afsr"]["mean_curve"] == pytest.approx([np.mean(s[k][: k + 1]) for k in range(n)])
-    assert m["afsr"]["final_mean"] == pytest.approx(np.mean(s[-1]))
-    assert m["bwt"]["final_mean"] == pytest.approx(s[1][0] - s[0][0])
-    assert m["bwt_wake"]["final_mean"] == pytest.approx(s[1][0] - results["success_after_own_wake"][0])
+    assert m["afsr"]["curve"] == pytest.approx([np.mean(s[k][: k + 1]) for k in range(n)])
+    assert m["afsr"]["final"] == pytest.approx(np.mean(s[-1]))
+    assert m["bwt"]["final"] == pytest.approx(s[1][0] - s[0][0])
+    assert m["bwt_wake"]["final"] == pytest.approx(s[1][0] - results["success_after_own_wake"][0])
     assert results["pairs"] == [["approach", "place"]]
-    assert m["prs"]["mean_curve"][0] is None and m["prs"]["final_mean"] == pytest.approx(min(s[1][0], s[1][1]))
-    assert 0.0 <= m["spi"]["final_mean"] <= 1.0 + 1e-9
+    assert m["prs"]["curve"][0] is None and m["prs"]["final"] == pytest.approx(min(s[1][0], s[1][1]))
+    assert 0.0 <= m["spi"]["final"] <= 1.0 + 1e-9
     # results.md shows the same numbers.
     md = (run / "results.md").read_text()
     for k, skill in enumerate(skills):
         assert _table_row(md, skill) == [f"{x:.2f}" if x is not None else "" for x in s[k]]
     assert _table_row(md, "right after own wake") == [f"{x:.2f}" for x in results["success_after_own_wake"]]
-    assert _table_row(md, "AFSR")[0].startswith(f"{m['afsr']['final_mean']:.3f}")
-    assert _table_row(md, "PRS")[0].startswith(f"{m['prs']['final_mean']:.3f}")
+    assert _table_row(md, "AFSR")[0].startswith(f"{m['afsr']['final']:.3f}")
+    assert _table_row(md, "PRS")[0].startswith(f"{m['prs']['final']:.3f}")
     return results
 
 
@@ -97,7 +99,7 @@ def test_main_job_records_trains_evaluates_and_reports(main_job_run):
         info = json.loads((tmp / "datasets" / skill / "meta" / "info.json").read_text())
         assert info["total_episodes"] == 2 and info["total_frames"] > 2
     results = _check_results_against_files(run, skills)
-    assert results["skills"] == skills and results["eval_seeds"] == [0]
+    assert results["skills"] == skills and results["config"]["eval"]["seeds"] == [0] and results["eval_units"] == 1
     # One evaluation seed of one episode: every success is 0 or 1.
     assert all(x in (0.0, 1.0) for row in results["success_matrix"] for x in row if x is not None)
     for name in ("metrics.png", "success_matrix.png"):
@@ -143,8 +145,8 @@ def test_the_report_is_rebuilt_from_the_evaluation_files(main_job_run, tmp_path)
     assert results["success_matrix"] == [[0.5, None], [0.25, 1.0]]
     assert results["success_after_own_wake"] == [0.5, 0.5]
     m = results["metrics"]
-    assert m["afsr"]["mean_curve"] == pytest.approx([0.5, 0.625])
-    assert m["bwt"]["final_mean"] == pytest.approx(-0.25) and m["prs"]["final_mean"] == pytest.approx(0.25)
+    assert m["afsr"]["curve"] == pytest.approx([0.5, 0.625])
+    assert m["bwt"]["final"] == pytest.approx(-0.25) and m["prs"]["final"] == pytest.approx(0.25)
     assert "| AFSR | 0.625 |" in (run / "results.md").read_text()
 
 
@@ -170,7 +172,7 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     if not exe.exists():
         pytest.fail(f"lerobot-train is not installed next to {sys.executable}")
     out = tmp_path / "lerobot_out"
-    cmd = [str(exe), "--policy.type=act_sr", "--policy.sleep=true", "--policy.device=cpu",
+    cmd = [str(exe), "--policy.type=act_sr", "--policy.device=cpu",
            "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64",
            "--policy.n_encoder_layers=1", "--policy.n_vae_encoder_layers=1", "--policy.chunk_size=8",
            "--policy.n_action_steps=8", "--dataset.repo_id=local/sr_needle_approach",
@@ -180,7 +182,7 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     config = json.loads(next(out.rglob("pretrained_model/config.json")).read_text())
-    assert config["type"] == "act_sr" and config["sleep"] is True
+    assert config["type"] == "act_sr" and "sleep" not in config  # sleep settings are the stream's, not the policy's
     shutil.rmtree(out)
 
 
@@ -189,7 +191,7 @@ def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
 
     tmp, _ = main_job_run
     checkpoint = tmp / "run" / "skill_2_place" / "sleep" / "pretrained_model"
-    eval_main([f"--policy.path={checkpoint}", "--skills=[place]", "--eval.n_episodes=1", "--eval.seeds=[3]",
+    eval_main([f"--policy.path={checkpoint}", "--skills=[place]", "--eval.episodes=1", "--eval.seeds=[3]",
                "--eval.max_steps=20", "--eval.video_height=64", "--eval.video_width=64", "--progress=false",
                f"--output_dir={tmp_path}"])
     record = json.loads((tmp_path / "eval.json").read_text())
@@ -204,26 +206,26 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
     tmp, config_path = main_job_run
     summary = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr_no_anchor", "sequential_bc"],
                                         output_root=tmp_path))
-    assert set(summary) == {"sr_no_anchor", "sequential_bc"}
-    # three tables (metrics, final success, success after own wake), each a header + two variants
-    assert (tmp_path / "summary.md").read_text().count("\n| ") == 9
+    assert set(summary["variants"]) == {"sr_no_anchor", "sequential_bc"}
+    # four tables (metrics, per run, final success, success after own wake), each a header + two rows
+    assert (tmp_path / "summary.md").read_text().count("\n| ") == 12
     assert (tmp_path / "summary.png").stat().st_size > 0
     saved = json.loads((tmp_path / "summary.json").read_text())
     run = tmp_path / "sr_no_anchor_seed0"
-    final = json.loads((run / "results.json").read_text())["metrics"]["afsr"]["final_mean"]
-    assert saved["summary"]["sr_no_anchor"]["afsr"]["per_seed"] == [final]
-    assert set(saved["summary"]["sr_no_anchor"]["final_success"]) == set(saved["skills"])
+    final = json.loads((run / "results.json").read_text())["metrics"]["afsr"]["final"]
+    assert saved["variants"]["sr_no_anchor"]["afsr"]["per_seed"] == [final]
+    assert set(saved["variants"]["sr_no_anchor"]["final_success"]) == set(saved["skills"])
     bc = json.loads((tmp_path / "sequential_bc_seed0" / "results.json").read_text())
-    assert bc["sleep"] == {} and bc["memory_bytes"] == {}  # no sleep, no memories for sequential BC
+    assert bc["memory_bytes"] == {} and not any("sleep" in stage for stage in bc["stages"])  # no memories, no sleep
     # The ablation's override reached the run: it slept, without the anchor.
-    assert json.loads((run / "train_config.json").read_text())["policy"]["anchor_strength"] == 0.0
+    assert json.loads((run / "train_config.json").read_text())["sleep"]["anchor_strength"] == 0.0
     assert json.loads((run / "progress.json").read_text())["completed"]["2.sleep"]["anchor_lambda"] == 0.0
     with pytest.raises(ValueError, match="unknown variants"):
         CompareConfig(variants=["sr_typo"])
 
 
 def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_job_run, tmp_path):
-    from sr_imitation.experiments.sleep_replay import SleepOverrides, SleepReplayConfig, replay
+    from sr_imitation.experiments.sleep_replay import SleepReplayConfig, replay
 
     tmp, _ = main_job_run
     run = tmp / "run"
@@ -231,10 +233,12 @@ def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_j
     # Same settings, same phase seeds: the replayed sleep is the original one, loss for loss.
     assert same["replay"] == same["original"]
     assert same["replay"]["final_memory_losses"] is not None
-    off = replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "off", progress=False,
-                                   set=SleepOverrides(anchor_strength=0.0)))
+    off = replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "off", progress=False),
+                 ["--sleep.anchor_strength=0"])
     assert off["original"]["anchor_lambda"] > 0 and off["replay"]["anchor_lambda"] == 0.0
-    assert json.loads((tmp_path / "off" / "train_config.json").read_text())["policy"]["anchor_strength"] == 0.0
+    assert json.loads((tmp_path / "off" / "train_config.json").read_text())["sleep"]["anchor_strength"] == 0.0
+    with pytest.raises(ValueError, match="sleep settings only"):
+        replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "x", progress=False), ["--seed=3"])
     # The source run is untouched, and an existing replay is not overwritten without the flag.
     assert "2.sleep" in json.loads((run / "progress.json").read_text())["completed"]
     with pytest.raises(FileExistsError, match="--overwrite"):

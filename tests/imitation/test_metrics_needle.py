@@ -11,7 +11,8 @@ from sr_imitation.envs.needle import SKILL_NAMES, NeedleEnv
 from sr_imitation.envs.needle.env import STATE_DIM, STATE_NAMES
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.imitation.evaluate import NEEDLE_STATE_DIM, SPI_FEATURES, spi_features
-from sr_imitation.imitation.report import _curves, _spi_curves
+from sr_imitation.imitation.report import _spi_curves
+from sr_imitation.stream.results import metric_curves
 
 
 def _episode(env: NeedleEnv, seed: int, policy: str, max_steps: int) -> np.ndarray:
@@ -96,8 +97,8 @@ def test_report_bwt_wake_per_evaluation_seed():
     nan = float("nan")
     s_final = np.array([[[1.0, nan], [0.5, 0.4]], [[0.8, nan], [0.6, 0.2]]])  # [seed, k, i]
     s_wake = np.array([[[0.7, nan], [0.9, 0.3]], [[0.6, nan], [0.5, 0.1]]])
-    curves = _curves(s_final, ["a", "b"], [], s_wake)
+    curves = metric_curves(s_final, ["a", "b"], [], np.stack([np.diag(w) for w in s_wake]))
     np.testing.assert_allclose(curves["bwt"][:, 1], [0.5 - 1.0, 0.6 - 0.8])
     np.testing.assert_allclose(curves["bwt_wake"][:, 1], [0.5 - 0.7, 0.6 - 0.6])
     np.testing.assert_allclose(curves["bwt_wake"][0], bwt_curve(s_final[0], [0.7, 0.3]), equal_nan=True)
-    assert "bwt_wake" not in _curves(s_final, ["a", "b"], [])
+    assert "bwt_wake" not in metric_curves(s_final, ["a", "b"], [], None)

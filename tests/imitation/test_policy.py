@@ -13,7 +13,9 @@ from lerobot.policies.factory import get_policy_class
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.core.memory import load_memory
+from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.stream import TrainStreamConfig
 from tests.imitation.helpers import ACTION_DIM, IMAGE, STATE_DIM, tiny_policy
 
 
@@ -42,18 +44,34 @@ def test_paper_defaults_and_validation():
     assert cfg.pretrained_backbone_weights is None  # nothing downloads at run time
     assert (cfg.optimizer_lr, cfg.optimizer_lr_backbone, cfg.optimizer_weight_decay) == (1e-4, 1e-5, 1e-4)
     assert [cfg.distill_weight(k) for k in (1, 2, 3, 5)] == [0.0, 1.0, 0.5, 0.5]
-    sleep = cfg.sleep_config()
+    # The stream's sleep and memory defaults are the SurgicAI table's (sr-train --sleep.* --memory.*).
+    stream = TrainStreamConfig(policy=cfg)
+    sleep = stream.sleep
     assert (sleep.lr, sleep.max_iterations, sleep.batch_size, sleep.fw_iterations) == (1e-5, 1000, 8, 5)
-    assert (sleep.anchor_strength, sleep.early_stop_tol, cfg.memory_buffer_size) == (1e-2, 1e-3, 1024)
+    assert (sleep.anchor_strength, sleep.early_stop_tol, stream.memory.buffer_size) == (1e-2, 1e-3, 1024)
+    assert (sleep.anchor_tau, sleep.anchor_after_final, sleep.early_stop_window, sleep.enabled) == (None, True, 50,
+                                                                                                   True)
     with pytest.raises(ValueError, match="aggregator"):
-        ACTSRConfig(device="cpu", aggregator="sum")
-    with pytest.raises(ValueError, match="sleep_lr"):
-        ACTSRConfig(device="cpu", sleep_lr=0.0)
-    for key in ("anchor_strength", "distill_weight_second", "sleep_early_stop_tol", "sleep_lr"):
-        with pytest.raises(ValueError, match=key):  # NaN is refused at parse time, not at the first sleep
+        SurgicAISleepConfig(aggregator="sum")
+    with pytest.raises(ValueError, match="lr"):
+        SurgicAISleepConfig(lr=0.0)
+    for key in ("distill_weight_second", "distill_weight_later", "distill_batch_size"):
+        with pytest.raises(ValueError, match=key):  # NaN is refused at parse time, not at the first wake
             ACTSRConfig(device="cpu", **{key: float("nan")})
     with pytest.raises(ValueError, match="mean_grad"):
-        ACTSRConfig(device="cpu", aggregator="mean")  # the old name, with a hint
+        SurgicAISleepConfig(aggregator="mean")  # the old name, with a hint
+    with pytest.raises(ValueError, match="sleep.seed"):
+        TrainStreamConfig(policy=cfg, sleep=SurgicAISleepConfig(seed=3))
+
+
+def test_sleep_defaults_survive_a_partial_flag():
+    """draccus fills the fields a flag leaves out from the class defaults: --sleep.lr alone must keep the SurgicAI
+    table's other values (not MT5's tau = 150 / 4000 iterations)."""
+    from sr_imitation.imitation.cli import parse_config
+
+    cfg = parse_config(TrainStreamConfig, None, ["--sleep.lr=1e-4"])
+    assert cfg.sleep.lr == 1e-4
+    assert (cfg.sleep.anchor_tau, cfg.sleep.max_iterations, cfg.sleep.batch_size) == (None, 1000, 8)
 
 
 def test_lerobot_factory_finds_the_policy_and_draccus_parses_flags():
@@ -63,20 +81,20 @@ def test_lerobot_factory_finds_the_policy_and_draccus_parses_flags():
         "from lerobot.configs.train import TrainPipelineConfig\n"
         "from lerobot.utils.import_utils import register_third_party_plugins\n"
         "register_third_party_plugins()\n"
-        "cfg = draccus.parse(TrainPipelineConfig, args=['--policy.type=act_sr', '--policy.sleep=false',\n"
-        "    '--policy.aggregator=mean_grad', '--policy.device=cpu', '--dataset.repo_id=x/y'])\n"
-        "assert type(cfg.policy).__name__ == 'ACTSRConfig' and cfg.policy.sleep is False\n"
-        "assert cfg.policy.aggregator == 'mean_grad' and cfg.policy.type == 'act_sr'\n"
+        "cfg = draccus.parse(TrainPipelineConfig, args=['--policy.type=act_sr', '--policy.distill_weight_later=0.25',\n"
+        "    '--policy.device=cpu', '--dataset.repo_id=x/y'])\n"
+        "assert type(cfg.policy).__name__ == 'ACTSRConfig' and cfg.policy.distill_weight_later == 0.25\n"
+        "assert cfg.policy.type == 'act_sr'\n"
     )
     subprocess.run([sys.executable, "-c", code], check=True, timeout=300)
 
 
 def test_save_and_load_round_trip(tmp_path):
-    policy = ACTSRPolicy(_features(tiny_policy(sleep=False, aggregator="pcgrad")))
+    policy = ACTSRPolicy(_features(tiny_policy(distill_weight_later=0.25)))
     policy.save_pretrained(tmp_path)
     cfg = PreTrainedConfig.from_pretrained(tmp_path)
     assert isinstance(cfg, ACTSRConfig) and cfg.type == "act_sr"
-    assert cfg.sleep is False and cfg.aggregator == "pcgrad"
+    assert cfg.distill_weight_later == 0.25
     loaded = ACTSRPolicy.from_pretrained(tmp_path, config=cfg)
     batch = _batch()
     torch.testing.assert_close(loaded.predict_action_chunk(batch), policy.predict_action_chunk(batch))

@@ -1,9 +1,10 @@
 """``sr-train --resume``: every results-affecting setting is fingerprinted and checked before anything is written;
 the allow-list is accepted; a copied run directory resumes where it is.
 
-Before this check (issue 10), resuming with another ``--policy.sleep_batch_size``, ``--policy.n_action_steps`` or
-``--policy.anchor_tau`` exited 0 and mixed settings within one run, and ``--policy.dim_feedforward`` rewrote
-train_config.json before failing, after which every plain resume failed.
+Before this check (issue 10), resuming with another sleep batch size (now ``--sleep.batch_size``),
+``--policy.n_action_steps`` or sleep anchor gate (now ``--sleep.anchor_tau``) exited 0 and mixed settings within
+one run, and ``--policy.dim_feedforward`` rewrote train_config.json before failing, after which every plain resume
+failed.
 """
 
 from __future__ import annotations
@@ -49,7 +50,7 @@ MAPPING = ["MEAN_STD", "MIN_MAX", "IDENTITY"]
 CHOICES: dict[str, list[Any]] = {
     # strings with a small set of valid values: the other ones
     "method": methods_for("act"),
-    "policy.aggregator": sorted(AGGREGATORS),
+    "sleep.aggregator": sorted(AGGREGATORS),
     "policy.distill_reduction": ["mean", "sum"],
     "policy.feedforward_activation": ["relu", "gelu"],
     "policy.vision_backbone": ["resnet18", "resnet34"],
@@ -64,7 +65,7 @@ CHOICES: dict[str, list[Any]] = {
     "stream.dataset_root": ["/elsewhere/needle"],
     "stream.skills": [[*STREAM, "insert"]],
     # settings that are None in the tiny config: a value of their declared type
-    "policy.anchor_tau": [0.5],
+    "sleep.anchor_tau": [0.5],
     "policy.temporal_ensemble_coeff": [0.01],
     "policy.pretrained_path": ["outputs/other/pretrained_model"],
     "policy.pretrained_backbone_weights": ["ResNet18_Weights.IMAGENET1K_V1"],
@@ -84,6 +85,8 @@ SKIP: dict[str, str] = {
     "policy.n_obs_steps": "ACT handles one observation step only: ACTConfig.__post_init__ refuses any other value",
     "policy.device": "only cpu exists on the test machine and LeRobot turns an unavailable device into cpu at "
                      "parse time; test_a_run_made_on_another_device_is_refused covers it",
+    "substrate": "sr-train dispatches on it; TrainStreamConfig refuses any other value than act at parse time",
+    "sleep.seed": "set per stage from --seed by the substrate; any other value than 0 is refused at parse time",
     "policy.use_amp": "LeRobot refuses use_amp on cpu at parse time (nothing else is valid here); like device, a "
                       "run stored with it is refused by the same key comparison",
 }
@@ -120,7 +123,7 @@ def _parse(tree: dict[str, Any], tmp: Path, out: Path) -> TrainStreamConfig:
 def test_decode_is_what_parse_gives_for_a_config_file(stored, tmp_path):
     out, saved = stored
     path = tmp_path / "requested.json"
-    path.write_text(json.dumps(with_leaf(saved, ("policy", "sleep_lr"), 0.5)))
+    path.write_text(json.dumps(with_leaf(saved, ("sleep", "lr"), 0.5)))
     parsed = cli.parse_config(TrainStreamConfig, path, [])
     parsed.output_dir, parsed.resume = out, True
     assert resume_fingerprint(parsed) == resume_fingerprint(_parse(json.loads(path.read_text()), tmp_path, out))
@@ -163,8 +166,9 @@ def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
     assert not any(is_allowed(k, RESUME_ALLOW_LIST) for k in settings)
     expected = {".".join(p) for p, _ in leaves(saved) if not is_allowed(".".join(p), RESUME_ALLOW_LIST)}
     assert set(settings) == expected
-    assert {"policy.sleep_batch_size", "policy.n_action_steps", "policy.anchor_tau", "policy.dim_feedforward",
-            "policy.optimizer_lr", "policy.sleep_fw_iterations", "policy.distill_batch_size"} <= set(settings)
+    assert {"sleep.batch_size", "policy.n_action_steps", "sleep.anchor_tau", "policy.dim_feedforward",
+            "policy.optimizer_lr", "sleep.fw_iterations", "policy.distill_batch_size", "sleep.enabled",
+            "memory.buffer_size", "substrate"} <= set(settings)
     for pattern in RESUME_ALLOW_LIST:  # no stale entries: each one names a setting of the config
         assert any(is_allowed(".".join(p), [pattern]) for p, _ in leaves(saved)) or pattern in ("resume",
                                                                                                 "overwrite"), pattern
@@ -246,9 +250,9 @@ def test_refused_resumes_leave_the_run_byte_identical_and_a_plain_resume_still_w
     resume = [f"--config_path={run / 'train_config.json'}", "--resume=true"]
     before = tree_state(run)
     for flag, key, change in [
-        ("--policy.sleep_batch_size=8", "policy.sleep_batch_size", "4 -> 8"),
+        ("--sleep.batch_size=8", "sleep.batch_size", "4 -> 8"),
         ("--policy.n_action_steps=2", "policy.n_action_steps", "4 -> 2"),
-        ("--policy.anchor_tau=0.5", "policy.anchor_tau", "null -> 0.5"),
+        ("--sleep.anchor_tau=0.5", "sleep.anchor_tau", "null -> 0.5"),
         ("--policy.dim_feedforward=128", "policy.dim_feedforward", "64 -> 128"),
     ]:
         err = assert_refused_naming(lambda f=flag: cli.train_main([*resume, f]), key)
@@ -298,9 +302,9 @@ def test_a_run_without_fingerprint_is_checked_against_its_train_config(stored, t
     (run / FINGERPRINT_FILE).unlink()
     old_style = {**saved, "output_dir": str(tmp_path / "old")}  # the old absolute output_dir is allow-listed
     (run / "train_config.json").write_text(json.dumps(old_style))
-    changed = _parse(with_leaf(saved, ("policy", "sleep_lr"), 2e-5), tmp_path, run)
+    changed = _parse(with_leaf(saved, ("sleep", "lr"), 2e-5), tmp_path, run)
     before = tree_state(run)
-    err = assert_refused_naming(lambda: StreamTrainer(changed)._prepare_output_dir(), "policy.sleep_lr")
+    err = assert_refused_naming(lambda: StreamTrainer(changed)._prepare_output_dir(), "sleep.lr")
     assert "train_config.json: cannot resume" in str(err) and tree_state(run) == before
     StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
     assert read_fingerprint(run / FINGERPRINT_FILE) == read_fingerprint(out / FINGERPRINT_FILE)
@@ -347,7 +351,7 @@ def test_extending_a_finished_one_skill_run_equals_the_two_skill_run(state_datas
     final, ref = _weights(tmp_path / "extended"), _weights(ref_out)
     assert all(torch.equal(final[k], ref[k]) for k in ref)
     other = tiny_stream_config(state_datasets, tmp_path / "refused", STREAM, use_images=False)
-    other.stream.extend_from, other.policy.sleep_lr = source, 0.5
-    with pytest.raises(SettingsMismatchError, match="policy.sleep_lr"):
+    other.stream.extend_from, other.sleep.lr = source, 0.5
+    with pytest.raises(SettingsMismatchError, match="sleep.lr"):
         StreamTrainer(other, fake_env_factory).run()
     assert not (tmp_path / "refused").exists()

@@ -46,12 +46,13 @@ def test_a_stream_writes_every_stage_memory_and_report(finished_run):
     s = results["success_matrix"]
     assert len(s) == 3 and s[0][1] is None and all(0.0 <= x <= 1.0 for x in s[2])
     assert set(results["metrics"]) == {"afsr", "prs", "bwt", "bwt_wake", "spi"}
-    assert results["metrics"]["prs"]["mean_curve"][0] is None  # PRS only for k >= 2
-    sleeps = results["sleep"]
+    assert results["metrics"]["prs"]["curve"][0] is None  # PRS only for k >= 2
+    assert (results["substrate"], results["label"], results["eval_units"]) == ("act", "sr", 2)
+    sleeps = {f"{st['stage'] + 1}.sleep": st["sleep"] for st in results["stages"] if "sleep" in st}
     assert set(sleeps) == {"2.sleep", "3.sleep"}
-    policy = tiny_stream_config(Path("unused"), out, SKILLS).policy
+    sleep_cfg = tiny_stream_config(Path("unused"), out, SKILLS).sleep
     # N_sleep = 3 < 2 windows of 2: the plateau rule cannot fire, every sleep runs its whole budget.
-    assert policy.sleep_max_iterations == 3 and policy.sleep_early_stop_window == 2
+    assert sleep_cfg.max_iterations == 3 and sleep_cfg.early_stop_window == 2
     for k in (2, 3):
         record, name = sleeps[f"{k}.sleep"], f"skill_{k}_{SKILLS[k - 1]}"
         diag = json.loads((out / name / "sleep" / "sleep_diagnostics.json").read_text())
@@ -72,7 +73,7 @@ def test_a_stream_writes_every_stage_memory_and_report(finished_run):
         assert all(len(x) == k and all(v >= 0 for v in x) for x in diag["memory_losses"] + diag["grad_norms"])
         assert record["final_alpha"] == diag["alpha"][-1] and record["final_memory_losses"] == diag["memory_losses"][-1]
         # The anchor (SurgicAI setting: always on, also after the final skill) and Eq. 2's c_i for i < k only.
-        assert record["anchor_lambda"] == diag["anchor_lambda"] == policy.anchor_strength > 0
+        assert record["anchor_lambda"] == diag["anchor_lambda"] == sleep_cfg.anchor_strength > 0
         assert len(diag["anchor_distances"]) == k - 1 and all(d > 0 for d in diag["anchor_distances"])
         # The recorded objective is alpha . L, plus the anchor term (which is >= 0).
         for alpha, losses, objective in zip(diag["alpha"], diag["memory_losses"], diag["sleep_objective"],
@@ -129,7 +130,7 @@ def test_resume_after_a_kill_reaches_the_same_results(finished_run, state_datase
         train_stream(cfg, fake_env_factory)
     cfg.resume = True
     resumed = train_stream(cfg, fake_env_factory)
-    assert resumed["success_matrix_per_seed"] == reference["success_matrix_per_seed"]
+    assert resumed["success_matrix_per_unit"] == reference["success_matrix_per_unit"]
     assert resumed["metrics"] == reference["metrics"]
     final, ref = _weights(out / "skill_3_insert" / "sleep"), _weights(reference_out / "skill_3_insert" / "sleep")
     assert all(torch.equal(final[k], ref[k]) for k in ref)
@@ -194,7 +195,7 @@ def test_image_stream_runs_end_to_end(image_datasets, tmp_path):
     results = train_stream(cfg, fake_env_factory)
     memory = load_memory(tmp_path / "img" / "memories" / "skill_1_approach.safetensors")
     assert memory.tensors["input.observation.images.wrist"].dtype == torch.uint8
-    assert results["skills"] == SKILLS[:2] and "2.sleep" in results["sleep"]
+    assert results["skills"] == SKILLS[:2] and "sleep" in results["stages"][1]
 
 
 def test_in_memory_dataset_serves_the_same_items_as_lerobot(image_datasets):
@@ -225,7 +226,9 @@ def test_the_run_log_has_wake_epochs_sleep_iterations_and_phases(finished_run):
     assert {r["stage"] for r in wake} == {1, 2, 3} and all("val_l1" in r and "l1_loss" in r for r in wake)
     sleep = [r for r in records if r["kind"] == "sleep"]
     assert {r["stage"] for r in sleep} == {2, 3}
-    stops = {k: v["stop_iteration"] for k, v in results["sleep"].items()}
-    assert stops == {f"{s}.sleep": sum(r["stage"] == s for r in sleep) for s in (2, 3)}
+    stops = {st["stage"] + 1: st["sleep"]["stop_iteration"] for st in results["stages"] if "sleep" in st}
+    assert stops == {s: sum(r["stage"] == s for r in sleep) for s in (2, 3)}
     phases = [(r["stage"], r["phase"]) for r in records if r["kind"] == "phase"]
-    assert len(phases) == len(results["phases"]) and (3, "sleep.eval") in phases
+    recorded = [(st["stage"] + 1, p) for st in results["stages"] for p in ("wake", "memory", "wake.eval", "sleep",
+                                                                           "sleep.eval") if p in st]
+    assert sorted(phases) == sorted(recorded) and (3, "sleep.eval") in phases

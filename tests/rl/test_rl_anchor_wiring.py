@@ -14,7 +14,14 @@ import pytest
 
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl import substrate as substrate_module
-from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
+from sr_imitation.rl.config import (
+    CriticMemoryConfig,
+    EvalConfig,
+    RLTrainConfig,
+    SACConfig,
+    StreamConfig,
+    WakeConfig,
+)
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream import engine as engine_module
 from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder
@@ -24,7 +31,7 @@ SKILLS = ["reach-v3", "door-open-v3", "drawer-open-v3"]
 
 def _config(out: Path) -> RLTrainConfig:
     return RLTrainConfig(
-        output_dir=out, seed=5, skills=SKILLS, max_episode_steps=20,
+        output_dir=out, seed=5, stream=StreamConfig(skills=SKILLS), max_episode_steps=20,
         sac=SACConfig(hidden_dim=16, batch_size=16, utd_ratio=0.5, warmup_steps=20, buffer_size=2000),
         wake=WakeConfig(budget_scale=0.002),
         # tau = 150 (MT5): the gate is on for these small networks; 10 iterations, the plateau rule cannot fire.

@@ -13,18 +13,28 @@ import torch
 from sr_imitation.core.fingerprint import SettingsMismatchError
 from sr_imitation.core.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.core.sleep import SleepConfig
-from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, RLTrainConfig, SACConfig, WakeConfig
+from sr_imitation.rl.config import (
+    CriticMemoryConfig,
+    EvalConfig,
+    RLTrainConfig,
+    SACConfig,
+    StreamConfig,
+    WakeConfig,
+)
 from sr_imitation.rl.envs import SkillEnv
-from sr_imitation.rl.report import summarize
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.stream.results import RESULTS_VERSION
+from sr_imitation.stream.summary import group_runs, render_markdown, summarize
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 
 
-def tiny_config(out: Path, **overrides) -> RLTrainConfig:
+def tiny_config(out: Path, skills: list[str] | None = None, extend_from: Path | None = None,
+                **overrides) -> RLTrainConfig:
+    stream = StreamConfig(skills=skills or ["reach-v3", "door-open-v3"], extend_from=extend_from)
     base = {
-        "output_dir": out, "seed": 3, "skills": ["reach-v3", "door-open-v3"], "max_episode_steps": 30,
+        "output_dir": out, "seed": 3, "stream": stream, "max_episode_steps": 30,
         "sac": SACConfig(hidden_dim=32, batch_size=16, utd_ratio=0.5, warmup_steps=40, buffer_size=5000),
         "wake": WakeConfig(budget_scale=0.002),
         "sleep": SleepConfig.mt5(max_iterations=12, early_stop_window=5, fw_iterations=5, batch_size=16),
@@ -43,8 +53,8 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     full = StreamTrainer(tiny_config(tmp_path / "full", plots=True)).run()
     assert full["skills"] == ["reach", "door-open"]
     assert len(full["success_matrix"]) == 2 and full["success_matrix"][0][1] is None
-    assert set(full["metrics"]) == {f"{m}{suffix}" for m in ("afsr", "prs", "bwt", "bwt_wake", "spi")
-                                    for suffix in ("", "_curve")}
+    assert set(full["metrics"]) == {"afsr", "prs", "bwt", "bwt_wake", "spi"}
+    assert full["substrate"] == "sac" and full["label"] == "sr" and full["eval_units"] == 1
     assert "sleep" in full["stages"][1] and "sleep" not in full["stages"][0]
     # After-wake evaluation (on by default): stage 1 has no sleep and reuses its stage evaluation; stage 2 is
     # evaluated before its sleep on the same configurations as its stage evaluation.
@@ -54,14 +64,13 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     assert wake_rows[1]["configurations"] == full["stages"][1]["eval"][1]["configurations"]
     assert full["success_after_own_wake"] == [row["success_rate"] for row in wake_rows]
     s_final, w = full["success_matrix"], full["success_after_own_wake"]
-    assert full["metrics"]["bwt_wake"] == pytest.approx(s_final[1][0] - w[0])
-    assert full["metrics"]["bwt"] == pytest.approx(s_final[1][0] - s_final[0][0])
-    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == 3
-    assert "BWT_wake" in (tmp_path / "full" / "report.md").read_text()
+    assert full["metrics"]["bwt_wake"]["final"] == pytest.approx(s_final[1][0] - w[0])
+    assert full["metrics"]["bwt"]["final"] == pytest.approx(s_final[1][0] - s_final[0][0])
+    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == RESULTS_VERSION == 4
     assert len(full["stages"][1]["sleep"]["frozen_critic_value_change"]) == 2
-    assert (tmp_path / "full" / "plots" / "success_matrix.png").is_file()
-    assert (tmp_path / "full" / "report.md").is_file()
-    assert "| full | sleeping_robots | 3 |" in summarize([tmp_path / "full"])
+    assert (tmp_path / "full" / "success_matrix.png").is_file() and (tmp_path / "full" / "metrics.png").is_file()
+    assert "BWT_wake" in (tmp_path / "full" / "results.md").read_text()
+    assert f"| sr | 3 | {tmp_path / 'full'} |" in render_markdown(summarize(group_runs([tmp_path / "full"])))
     videos = [[row["videos"] for row in stage["eval"]] for stage in full["stages"]]  # one per learned skill
     assert [[len(v) for v in stage] for stage in videos] == [[1], [1, 1]]
     assert videos[1][0][0].startswith("videos/stage_02_door-open/reach_episode0_")
@@ -104,7 +113,7 @@ def test_output_dir_safety_and_loud_failures(tmp_path):
         StreamTrainer(tiny_config(killed, eval=EvalConfig(episodes=1), resume=True)).run()
     StreamTrainer(tiny_config(out, skills=["reach-v3"], eval=EvalConfig(episodes=1), overwrite=True)).run()
     assert json.loads((out / "results.json").read_text())["skills"] == ["reach"]
-    with pytest.raises(ValueError, match="mutually exclusive"):
+    with pytest.raises(ValueError, match="exclude each other"):
         tiny_config(out, resume=True, overwrite=True)
 
 

@@ -18,7 +18,7 @@ from sr_imitation.stream.methods.registry import register_method
 @register_method
 class SleepingRobots(ContinualMethod):
     """SR: wake with distillation from the memories, sleep after every skill from the second on. With sleep turned
-    off by the run's configuration (``--policy.sleep=false``, ``--sleep_enabled=false``) this is the wake-only
+    off by the run's configuration (``--sleep.enabled=false``) this is the wake-only
     ablation, as :class:`WakeOnly` is by name."""
 
     name = "sr"

@@ -1,0 +1,103 @@
+"""``sr-train``: one command for every substrate.
+
+    sr-train --config_path=configs/needle_cpu.json                    # ACT-SR on the needle stream (substrate act)
+    sr-train --config_path=configs/sac_mt5_cpu.json --seed=1          # SAC on Meta-World MT5 (the file says sac)
+    sr-train --substrate=sac --stream.name=mt5 --sleep.enabled=false  # flags alone; SR wake-only
+    sr-train --config_path=outputs/run1/config.json --resume=true     # any run, wherever it was copied
+    sr-train --substrate=sac --help                                   # the SAC substrate's flags
+
+The substrate comes from ``--substrate=<name>``, else from the config file's ``substrate`` key (a run's stored
+config always has it; an ``sr-main`` preset's under ``train``), else ``act``. Shared concepts have the same flags
+on every substrate (:mod:`sr_imitation.stream.config`); a flag of an earlier version is answered with its new name.
+``sr-rl-train`` is ``sr-train --substrate=sac``.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.stream.config import renamed_flag_hint, renamed_key_hint
+
+SUBSTRATE_COMMANDS: dict[str, tuple[str, str, str]] = {
+    "act": ("sr_imitation.imitation.cli", "parse_train_args", "train_main"),
+    "sac": ("sr_imitation.rl.cli", "parse", "main"),
+}
+"""Substrate name -> (module, function that parses a command line into its config, function that parses and runs
+the stream). Modules are imported on use, so the ACT command never imports Meta-World and the SAC command never
+imports LeRobot's policy registry."""
+
+DEFAULT_SUBSTRATE = "act"
+
+
+def substrate_of(args: list[str]) -> str:
+    """The substrate a command line asks for (see the module docstring); raises ``ValueError`` naming the choices."""
+    name = None
+    for arg in args:
+        if arg.startswith("--substrate="):
+            name = arg.split("=", 1)[1]
+    if name is None:
+        config_path, _ = split_config_path(args)
+        name = _config_substrate(config_path) if config_path else None
+    name = name or DEFAULT_SUBSTRATE
+    if name not in SUBSTRATE_COMMANDS:
+        raise ValueError(f"substrate: unknown substrate {name!r}; choose from {sorted(SUBSTRATE_COMMANDS)}")
+    return name
+
+
+def _read_config(config_path: str) -> object:
+    try:
+        return json.loads(Path(config_path).read_text())
+    except (OSError, json.JSONDecodeError):
+        return None  # the substrate's parser reports the file
+
+
+def _config_substrate(config_path: str) -> str | None:
+    data = _read_config(config_path)
+    if not isinstance(data, dict):
+        return None
+    train = data.get("train") if isinstance(data.get("train"), dict) else {}
+    found = data.get("substrate", train.get("substrate"))
+    return found if isinstance(found, str) else None
+
+
+def _function(args: list[str], which: int) -> Callable[[list[str]], Any]:
+    hint = renamed_flag_hint(args)
+    if hint is not None:
+        raise ValueError(hint)
+    config_path, _ = split_config_path(args)
+    hint = None if config_path is None else renamed_key_hint(_read_config(config_path))
+    if hint is not None:
+        raise ValueError(f"{config_path}: {hint}")
+    entry = SUBSTRATE_COMMANDS[substrate_of(args)]
+    return getattr(importlib.import_module(entry[0]), entry[which])
+
+
+def parse_args(args: list[str]) -> Any:
+    """The run configuration a command line describes (its substrate's config class), without running it."""
+    return _function(args, 1)(args)
+
+
+def train_main(args: list[str] | None = None) -> Any:
+    """Run (or resume) a stream on the substrate the command line names."""
+    args = list(sys.argv[1:] if args is None else args)
+    return _function(args, 2)(args)
+
+
+def train_entry() -> None:
+    """Console script ``sr-train`` (one-line user errors; ``--debug`` for tracebacks)."""
+    run_cli("sr-train", train_main)
+
+
+def rl_train_entry() -> None:
+    """Console script ``sr-rl-train``: ``sr-train --substrate=sac``."""
+    run_cli("sr-rl-train", lambda args: train_main(["--substrate=sac", *args]))
+
+
+if __name__ == "__main__":
+    train_entry()

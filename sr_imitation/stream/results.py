@@ -1,0 +1,280 @@
+"""One results schema, report and plots for every substrate (``results.json``, ``results.md``, ``metrics.png``,
+``success_matrix.png``).
+
+A substrate measures success matrices and trajectories its own way; it hands this module the matrices per
+*evaluation unit* (ACT: each evaluation seed, whose episodes reset identically at every stage; SAC: one unit, the
+fixed evaluation configurations) and the per-unit SPI curve. Everything else is computed here, once:
+
+- ``bwt`` uses S[i][i] after stage i (after its sleep when there is one), ``bwt_wake`` the success on skill i right
+  after its own wake (``sr_imitation.core.metrics``); both per unit, so differences are paired;
+- every metric is reported as the mean over units with its standard error, per stage (``curve``) and at the end
+  (``final``).
+
+Schema (``results_version`` :data:`RESULTS_VERSION`)::
+
+    results_version, substrate, method, sleep_enabled, label, seed, skills, pairs, eval_units,
+    success_matrix            K x K mean over units (null above the diagonal)
+    success_matrix_per_unit   U x K x K
+    success_after_own_wake    K (the bwt_wake reference; null where not measured)
+    success_after_own_wake_per_unit  U x K
+    metrics.<afsr|prs|bwt|bwt_wake|spi>: {final, final_sem, final_per_unit, curve, curve_sem}
+    spi_features, memory_bytes {skill: bytes}, memory_bytes_total, stages (substrate records), config,
+    extra (substrate-specific additions, e.g. ACT's whole success matrix right after each wake)
+
+``label`` names the variant in summaries: the method, or ``wake_only`` for ``sr`` with ``--sleep.enabled=false``.
+:func:`upgrade_results` reads the two older per-substrate schemas (ACT 2, SAC 3) into this one for summaries.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sr_imitation.core.io import atomic_write_bytes, atomic_write_json, read_json
+from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
+
+RESULTS_VERSION = 4
+"""4: one schema for both substrates (before: ACT 2 with ``final_mean`` dictionaries, SAC 3 with bare floats)."""
+
+METRICS = ("afsr", "prs", "bwt", "bwt_wake", "spi")
+LABELS = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT (ref. after stage i)",
+          "bwt_wake": "BWT_wake (ref. after own wake)", "spi": "SPI"}
+
+
+def variant_label(method: str, sleep_enabled: bool) -> str:
+    """The name a run's variant has in tables: ``sr`` without sleep is the paper's "SR Wake-Only"."""
+    return "wake_only" if method == "sr" and not sleep_enabled else method
+
+
+def unit_mean(s: np.ndarray) -> np.ndarray:
+    """Mean over evaluation units (axis 0), NaN where no unit has a value (no warning for all-NaN cells)."""
+    with np.errstate(invalid="ignore"):
+        counts = np.sum(~np.isnan(s), axis=0)
+        total = np.nansum(s, axis=0)
+        return np.where(counts > 0, total / np.maximum(counts, 1), np.nan)
+
+
+def metric_curves(s: np.ndarray, skills: Sequence[str], pairs: Sequence[tuple[str, str]],
+                  wake_diagonal: np.ndarray | None) -> dict[str, np.ndarray]:
+    """AFSR, PRS, BWT and (with ``wake_diagonal``, U x K) BWT_wake curves per unit from S (U x K x K)."""
+    curves = {
+        "afsr": np.stack([afsr_curve(m) for m in s]),
+        "prs": np.stack([prs_curve(m, skills, pairs) if pairs else np.full(len(skills), np.nan) for m in s]),
+        "bwt": np.stack([bwt_curve(m) for m in s]),
+    }
+    if wake_diagonal is not None:
+        curves["bwt_wake"] = np.stack([bwt_curve(m, w) for m, w in zip(s, wake_diagonal, strict=True)])
+    return curves
+
+
+def summarize_curve(curves: np.ndarray) -> dict[str, Any]:
+    """Per-stage mean and SE over units (U x K), and the final value."""
+    stats = [mean_sem([float(x) for x in curves[:, k]]) for k in range(curves.shape[1])]
+    return {"final": stats[-1][0], "final_sem": stats[-1][1], "final_per_unit": curves[:, -1].tolist(),
+            "curve": [m for m, _ in stats], "curve_sem": [e for _, e in stats]}
+
+
+def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int, skills: Sequence[str],
+                  pairs: Sequence[tuple[str, str]], success: np.ndarray, after_wake: np.ndarray,
+                  spi: np.ndarray, spi_features: Sequence[int], memory_bytes: Mapping[str, int],
+                  stages: list[Any], config: Mapping[str, Any], extra: Mapping[str, Any] | None = None
+                  ) -> dict[str, Any]:
+    """The results dictionary (JSON-ready, NaN as null).
+
+    ``success``: S per unit (U x K x K, NaN above the diagonal); ``after_wake``: each skill's success right after
+    its own wake per unit (U x K, NaN where not measured: then ``bwt_wake`` is null); ``spi``: SPI per unit and
+    stage (U x K, NaN at k = 1)."""
+    measured = not np.isnan(after_wake[:, :-1]).any()
+    curves = metric_curves(success, skills, pairs, after_wake if measured else None)
+    curves["spi"] = np.asarray(spi, dtype=np.float64)
+    metrics = {name: summarize_curve(curves[name]) for name in METRICS if name in curves}
+    if "bwt_wake" not in metrics:  # --eval.after_wake=false: the reference was not measured
+        metrics["bwt_wake"] = summarize_curve(np.full_like(curves["bwt"], np.nan))
+    results = {
+        "results_version": RESULTS_VERSION,
+        "substrate": substrate,
+        "method": method,
+        "sleep_enabled": bool(sleep_enabled),
+        "label": variant_label(method, sleep_enabled),
+        "seed": seed,
+        "skills": list(skills),
+        "pairs": [list(p) for p in pairs],
+        "eval_units": int(success.shape[0]),
+        "success_matrix": unit_mean(success).tolist(),
+        "success_matrix_per_unit": success.tolist(),
+        "success_after_own_wake": unit_mean(after_wake).tolist(),
+        "success_after_own_wake_per_unit": after_wake.tolist(),
+        "metrics": metrics,
+        "spi_features": [int(f) for f in spi_features],
+        "memory_bytes": {k: int(v) for k, v in memory_bytes.items()},
+        "memory_bytes_total": int(sum(memory_bytes.values())),
+        "stages": stages,
+        "config": dict(config),
+        "extra": dict(extra or {}),
+    }
+    return json.loads(json.dumps(results, default=float, allow_nan=True).replace("NaN", "null"))
+
+
+def _fmt(mean: float | None, sem: float | None = None) -> str:
+    if mean is None or (isinstance(mean, float) and math.isnan(mean)):
+        return "n/a"
+    if sem is None or (isinstance(sem, float) and math.isnan(sem)):
+        return f"{mean:.3f}"
+    return f"{mean:.3f} +- {sem:.3f}"
+
+
+def _cell(x: float | None) -> str:
+    return "-" if x is None else f"{x:.2f}"
+
+
+def render_markdown(results: Mapping[str, Any]) -> str:
+    """``results.md``: final metrics (mean +- SE over evaluation units), success matrix, success after own wake."""
+    skills = results["skills"]
+    units = results["eval_units"]
+    lines = [f"# Stream results ({results['substrate']}, {results['label']}, seed {results['seed']})", "",
+             f"Mean +- SE over {units} evaluation unit(s) (ACT: evaluation seeds; SAC: one set of fixed evaluation "
+             "configurations).", "",
+             "| metric | final (k = K) | per stage |", "|---|---|---|"]
+    for name in METRICS:
+        m = results["metrics"][name]
+        curve = ", ".join("-" if x is None else f"{x:.3f}" for x in m["curve"])
+        lines.append(f"| {LABELS[name]} | {_fmt(m['final'], m['final_sem'])} | {curve} |")
+    lines += ["", "Success S[k][i] (rows: after stage k; mean over evaluation units):", "",
+              "| after \\ skill | " + " | ".join(skills) + " |", "|---" * (len(skills) + 1) + "|"]
+    for k, row in enumerate(results["success_matrix"]):
+        lines.append(f"| {skills[k]} | " + " | ".join(_cell(x) if i <= k else "" for i, x in enumerate(row)) + " |")
+    lines.append("| right after own wake | " + " | ".join(_cell(x) for x in results["success_after_own_wake"]) + " |")
+    lines += ["", f"Continual-learning memory stored: {results['memory_bytes_total'] / 1e6:.2f} MB", ""]
+    return "\n".join(lines)
+
+
+def _save(fig: Any, path: Path) -> None:
+    import matplotlib.pyplot as plt
+
+    buf = io.BytesIO()
+    fig.tight_layout()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def write_plots(results: Mapping[str, Any], out: Path) -> None:
+    """``metrics.png`` (AFSR, PRS, BWT and BWT_wake, SPI against k, shaded +- SE, like the paper's Figure 2) and
+    ``success_matrix.png`` (heatmap of S[k][i] with the after-own-wake row)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    skills = results["skills"]
+    ks = np.arange(1, len(skills) + 1)
+    fig, axes = plt.subplots(1, 4, figsize=(14, 3.2))
+    for ax, names in zip(axes, (("afsr",), ("prs",), ("bwt", "bwt_wake"), ("spi",)), strict=True):
+        for name in names:
+            m = results["metrics"][name]
+            mean = np.array([np.nan if x is None else x for x in m["curve"]], dtype=float)
+            sem = np.array([0.0 if x is None else x for x in m["curve_sem"]], dtype=float)
+            ax.plot(ks, mean, marker="o", label=LABELS[name])
+            ax.fill_between(ks, mean - sem, mean + sem, alpha=0.25)
+        ax.set_title(" / ".join(name.upper() for name in names))
+        if len(names) > 1:
+            ax.legend(fontsize=7)
+        ax.set_ylim(*((-1.05, 1.05) if names[0] == "bwt" else (-0.02, 1.05)))
+        ax.set_xlabel("skills learned k")
+        ax.set_xticks(ks)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"{results['substrate']} / {results['label']} / seed {results['seed']}", fontsize=9)
+    _save(fig, out / "metrics.png")
+
+    s = np.array([[np.nan if x is None else x for x in row] for row in results["success_matrix"]], dtype=float)
+    wake = np.array([np.nan if x is None else x for x in results["success_after_own_wake"]], dtype=float)
+    grid = np.vstack([s, wake[None, :]])
+    fig, ax = plt.subplots(figsize=(1.2 * len(skills) + 2.5, 1.0 * len(skills) + 2.0))
+    im = ax.imshow(np.ma.masked_invalid(grid), vmin=0, vmax=1, cmap="viridis")
+    for (k, i), v in np.ndenumerate(grid):
+        if not np.isnan(v):
+            ax.text(i, k, f"{v:.2f}", ha="center", va="center", color="w" if v < 0.6 else "k", fontsize=8)
+    ax.axhline(len(skills) - 0.5, color="w", lw=2)
+    ax.set_xticks(range(len(skills)), skills, rotation=30, ha="right")
+    ax.set_yticks(range(len(skills) + 1), [f"after {x}" for x in skills] + ["right after own wake"])
+    ax.set_xlabel("evaluated skill i")
+    ax.set_title("success S[k][i]")
+    fig.colorbar(im, ax=ax, fraction=0.046)
+    _save(fig, out / "success_matrix.png")
+
+
+def write_results(out: Path, results: Mapping[str, Any], plots: bool = True) -> None:
+    """``results.json`` and ``results.md`` (atomic), and the plots unless ``plots`` is false."""
+    atomic_write_json(out / "results.json", results)
+    atomic_write_bytes(out / "results.md", render_markdown(results).encode())
+    if plots:
+        write_plots(results, out)
+
+
+def upgrade_results(results: Mapping[str, Any]) -> dict[str, Any]:
+    """A results dictionary of any version as schema :data:`RESULTS_VERSION` (the fields summaries read).
+
+    ACT runs of schemas 1-2 (``metrics[m]["final_mean"]``, per evaluation seed) and SAC runs of schemas 1-3 (bare
+    floats, one unit) are converted; metrics a run did not measure are null, except that a SAC wake-only run
+    without ``bwt_wake`` has it equal to ``bwt`` (its after-wake and after-stage policies are the same), and an ACT run
+    without it has it computed from its after-wake matrix. Raises ``ValueError`` for unknown versions."""
+    version = results.get("results_version")
+    if version == RESULTS_VERSION:
+        return dict(results)
+    if version in (None, 1, 2) and "success_matrix_per_seed" in results:  # ACT
+        def metric(m: Mapping[str, Any] | None) -> dict[str, Any]:
+            if m is None:
+                return {"final": None, "final_sem": None, "final_per_unit": [], "curve": [], "curve_sem": []}
+            return {"final": m["final_mean"], "final_sem": m["final_sem"], "final_per_unit": m["final_per_seed"],
+                    "curve": m["mean_curve"], "curve_sem": m["sem_curve"]}
+
+        if "memory_bytes_total" not in results:
+            results = {**results, "memory_bytes_total": sum((results.get("memory_bytes") or {}).values())}
+
+        sleep = results.get("policy_sleep", True)
+        method = results.get("method", "sr")
+        metrics = {name: metric(results["metrics"].get(name)) for name in METRICS}
+        wake = results.get("success_after_own_wake")
+        if wake is None and "success_matrix_after_wake" in results:  # schema 1: only the whole after-wake matrix
+            wake = np.diag(np.array(results["success_matrix_after_wake"], dtype=float)).tolist()
+        if metrics["bwt_wake"]["final"] is None and wake is not None:  # linear in S: the mean of the per-unit values
+            s = np.array([[np.nan if x is None else x for x in row] for row in results["success_matrix"]], float)
+            metrics["bwt_wake"]["final"] = float(bwt_curve(s, np.array(wake, dtype=float))[-1])
+        return {**results, "results_version": RESULTS_VERSION, "substrate": "act", "sleep_enabled": bool(sleep),
+                "label": variant_label(method, bool(sleep)), "eval_units": len(results["success_matrix_per_seed"]),
+                "success_after_own_wake": wake or [None] * len(results["skills"]), "metrics": metrics}
+    if version in (None, 2, 3) and "success_matrix" in results:  # SAC (unversioned, 2, 3)
+        m = results["metrics"]
+        label = results["method"]
+        method = results.get("method_name", "sr" if label in ("sleeping_robots", "wake_only") else label)
+
+        def metric(name: str) -> dict[str, Any]:
+            value, curve = m.get(name), m.get(f"{name}_curve", [])
+            if name == "bwt_wake" and value is None and label == "wake_only":
+                value, curve = m.get("bwt"), m.get("bwt_curve", [])
+            return {"final": value, "final_sem": None, "final_per_unit": [value], "curve": curve,
+                    "curve_sem": [None] * len(curve)}
+
+        wake = results.get("success_after_own_wake") or [None] * len(results["skills"])
+        return {**results, "results_version": RESULTS_VERSION, "substrate": "sac", "method": method,
+                "sleep_enabled": label != "wake_only", "label": "sr" if label == "sleeping_robots" else label,
+                "eval_units": 1, "success_after_own_wake": wake, "metrics": {name: metric(name) for name in METRICS},
+                "memory_bytes_total": results.get("memory_nbytes_total", 0)}
+    raise ValueError(f"results_version {version!r} is not a version this code reads (it reads 1-{RESULTS_VERSION})")
+
+
+def load_results(run: Path) -> dict[str, Any]:
+    """``<run>/results.json`` (checked JSON) in the current schema; a missing file is named."""
+    path = Path(run) / "results.json"
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: no results (unfinished run?)")
+    try:
+        return upgrade_results(read_json(path))
+    except ValueError as exc:
+        raise ValueError(f"{path}: {exc}") from None

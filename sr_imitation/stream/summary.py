@@ -1,0 +1,198 @@
+"""One multi-run summary for both substrates: mean +- SE over training seeds and paired differences.
+
+    python -m sr_imitation.stream.summary RUN_DIR [NAME=RUN_DIR ...] [--output=DIR] [--baseline=wake_only]
+
+Runs are grouped by variant (``NAME``, else ``results["label"]``: the method, ``wake_only`` for ``sr`` without
+sleep) and, within a variant, by training seed. For every variant: the final AFSR, PRS, BWT (reference after
+stage i), BWT_wake (reference right after skill i's own wake) and SPI, the final success per skill and the success
+right after each skill's own wake, each as mean +- SE over training seeds (each seed's value is its mean over
+evaluation units), and every metric's paired difference to the baseline variant over the training seeds both have.
+Written as ``summary.json``, ``summary.md`` and ``summary.png`` (bars with the seeds as dots). Used by
+``sr_imitation.experiments.needle_compare`` and ``sr_imitation.rl.report``; reads results of every schema version
+(:func:`sr_imitation.stream.results.upgrade_results`).
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import math
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sr_imitation.core.io import atomic_write_bytes, atomic_write_json
+from sr_imitation.core.metrics import mean_sem
+from sr_imitation.stream.results import METRICS, load_results
+
+SHORT = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
+DEFAULT_BASELINE = "wake_only"
+
+
+def mean_sem_dict(values: Sequence[float | None]) -> dict[str, Any]:
+    """``{"mean", "sem", "per_seed"}`` over the finite values (NaN when none)."""
+    present = [float(x) for x in values if x is not None and math.isfinite(x)]
+    mean, sem = mean_sem(present) if present else (float("nan"), float("nan"))
+    return {"mean": mean, "sem": sem, "per_seed": list(values)}
+
+
+def group_runs(runs: Sequence[str | Path]) -> dict[str, dict[str, dict[str, Any]]]:
+    """``{variant: {seed: results}}`` (seeds as strings). A run is a directory (its variant: ``results["label"]``)
+    or ``NAME=DIR`` (variant NAME, e.g. an ablation: ``no_anchor=outputs/run3``); two runs of one variant and seed
+    are refused."""
+    groups: dict[str, dict[str, dict[str, Any]]] = {}
+    for spec in runs:
+        name, _, path = str(spec).rpartition("=") if "=" in str(spec) else ("", "", str(spec))
+        run = Path(path)
+        results = load_results(run)
+        results["run"] = str(run)
+        seeds = groups.setdefault(name or results["label"], {})
+        seed = str(results["seed"])
+        if seed in seeds:
+            raise ValueError(f"{run}: a second {results['label']} run with seed {seed} (also {seeds[seed]['run']})")
+        seeds[seed] = results
+    return groups
+
+
+def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: str = DEFAULT_BASELINE
+              ) -> dict[str, Any]:
+    """The summary dictionary of ``{variant: {seed: results}}`` (see the module docstring)."""
+    variants: dict[str, Any] = {}
+    skills: list[str] = []
+    finals: dict[str, dict[str, dict[str, float | None]]] = {}
+    for variant, per_seed in groups.items():
+        runs = list(per_seed.values())
+        skills = runs[0]["skills"]
+        if any(r["skills"] != skills for r in runs):
+            raise ValueError(f"{variant}: runs with different skill lists cannot be summarized together")
+        finals[variant] = {m: {seed: r["metrics"][m]["final"] for seed, r in per_seed.items()} for m in METRICS}
+        last = np.array([[np.nan if x is None else x for x in r["success_matrix"][-1]] for r in runs], dtype=float)
+        wake = np.array([[np.nan if x is None else x for x in r["success_after_own_wake"]] for r in runs], dtype=float)
+        variants[variant] = {
+            "seeds": list(per_seed),
+            "runs": {seed: r.get("run") for seed, r in per_seed.items()},
+            "substrate": runs[0]["substrate"],
+            **{m: mean_sem_dict(list(finals[variant][m].values())) for m in METRICS},
+            "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(skills)},
+            "success_after_own_wake": {s: mean_sem_dict(wake[:, i].tolist()) for i, s in enumerate(skills)},
+            "memory_bytes_total": mean_sem_dict([r["memory_bytes_total"] for r in runs]),
+        }
+    paired: dict[str, Any] = {}
+    if baseline in finals:
+        for variant, per_metric in finals.items():
+            seeds = [s for s in variants[variant]["seeds"] if s in variants[baseline]["seeds"]]
+            if variant == baseline or not seeds:
+                continue
+            paired[variant] = {"seeds": seeds}
+            for m in METRICS:
+                base = finals[baseline][m]
+                paired[variant][m] = mean_sem_dict([
+                    None if per_metric[m][s] is None or base[s] is None else per_metric[m][s] - base[s]
+                    for s in seeds])
+    return {"skills": skills, "baseline": baseline, "variants": variants, "paired": paired}
+
+
+def _fmt(d: Mapping[str, Any]) -> str:
+    mean, sem = d["mean"], d["sem"]
+    if mean is None or not math.isfinite(mean):
+        return "-"
+    return f"{mean:.3f}" if sem is None or not math.isfinite(sem) else f"{mean:.3f} +- {sem:.3f}"
+
+
+def render_markdown(summary: Mapping[str, Any]) -> str:
+    skills, variants, paired = summary["skills"], summary["variants"], summary["paired"]
+    header = "| variant | seeds | " + " | ".join(SHORT[m] for m in METRICS) + " | memory (MB) |"
+    rule = "|---" * (len(METRICS) + 3) + "|"
+    lines = ["Final metrics after the full stream, mean +- SE over training seeds. BWT: reference = success on skill "
+             "i after stage i (after its sleep); BWT_wake: reference = success on skill i right after its own wake.",
+             "", header, rule]
+    for v, row in variants.items():
+        mb = row["memory_bytes_total"]["mean"] / 1e6
+        lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS)
+                     + f" | {mb:.2f} |")
+    if paired:
+        lines += ["", f"Paired difference variant - {summary['baseline']} (same training seed), mean +- SE:", "",
+                  header.removesuffix(" memory (MB) |"), rule.removesuffix("|---|") + "|"]
+        for v, row in paired.items():
+            lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS) + " |")
+    lines += ["", "Per run (each value: the run's mean over its evaluation units):", "",
+              "| variant | seed | run | " + " | ".join(SHORT[m] for m in METRICS) + " |",
+              "|---" * (len(METRICS) + 3) + "|"]
+    for v, row in variants.items():
+        for j, seed in enumerate(row["seeds"]):
+            cells = [row[m]["per_seed"][j] for m in METRICS]
+            lines.append(f"| {v} | {seed} | {row['runs'][seed]} | "
+                         + " | ".join("-" if c is None else f"{c:.3f}" for c in cells) + " |")
+    for key, title in (("final_success", "Final success per skill (after the last stage)"),
+                       ("success_after_own_wake", "Success right after each skill's own wake phase")):
+        lines += ["", f"{title}, mean +- SE over training seeds:", "",
+                  "| variant | " + " | ".join(skills) + " |", "|---" * (len(skills) + 1) + "|"]
+        for v, row in variants.items():
+            lines.append(f"| {v} | " + " | ".join(_fmt(row[key][s]) for s in skills) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def plot(summary: Mapping[str, Any], path: Path) -> None:
+    """Bars: mean over training seeds with +- SE; dots: the individual seeds; last panel: final success per skill."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    skills, variants = summary["skills"], summary["variants"]
+    names = list(variants)
+    fig, axes = plt.subplots(1, len(METRICS) + 1, figsize=(4 * (len(METRICS) + 1), 3.6))
+    x = np.arange(len(names))
+    for ax, m in zip(axes, METRICS, strict=False):
+        cells = [variants[v][m] for v in names]
+        ax.bar(x, [c["mean"] for c in cells], yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=4,
+               color="#8fb3d9")
+        for i, c in enumerate(cells):
+            ys = [y for y in c["per_seed"] if y is not None]
+            ax.scatter([i] * len(ys), ys, color="k", s=10, zorder=3)
+        ax.set_xticks(x, names, rotation=20)
+        ax.set_title(SHORT[m])
+        ax.axhline(0.0, color="grey", lw=0.5)
+    ax = axes[-1]
+    width = 0.8 / max(len(names), 1)
+    for j, v in enumerate(names):
+        cells = [variants[v]["final_success"][s] for s in skills]
+        ax.bar(np.arange(len(skills)) + j * width, [c["mean"] for c in cells], width,
+               yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=2, label=v)
+    ax.set_xticks(np.arange(len(skills)) + 0.4 - width / 2, skills, rotation=20)
+    ax.set_ylim(0, 1.05)
+    ax.set_title("final success per skill")
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def write_summary(output: Path, summary: Mapping[str, Any]) -> None:
+    """``summary.json``, ``summary.md``, ``summary.png`` in ``output`` (atomic)."""
+    output.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(output / "summary.json", summary)
+    atomic_write_bytes(output / "summary.md", render_markdown(summary).encode())
+    plot(summary, output / "summary.png")
+
+
+def main(args: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", help="run directories, or NAME=DIR to name a run's variant")
+    parser.add_argument("--output", type=Path, default=None, help="also write summary.json/.md/.png here")
+    parser.add_argument("--baseline", default=DEFAULT_BASELINE, help="variant of the paired differences")
+    ns = parser.parse_args(args)
+    summary = summarize(group_runs(ns.runs), ns.baseline)
+    if ns.output is not None:
+        write_summary(ns.output, summary)
+    print(render_markdown(summary))  # noqa: T201 (command output)
+
+
+if __name__ == "__main__":
+    from sr_imitation.core.cli_errors import run_cli
+
+    run_cli("sr_imitation.stream.summary", main)

@@ -1,0 +1,141 @@
+"""The shared results schema and the multi-run summary (substrate-free; issue 10)."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from sr_imitation.stream.results import (
+    RESULTS_VERSION,
+    build_results,
+    load_results,
+    render_markdown,
+    upgrade_results,
+    write_results,
+)
+from sr_imitation.stream.summary import group_runs, main, summarize, write_summary
+
+DOCS = Path(__file__).resolve().parents[2] / "docs" / "results"
+N = np.nan
+SKILLS = ["a", "b", "c"]
+
+
+def _results(seed: int = 0, method: str = "sr", sleep: bool = True, shift: float = 0.0, **kw) -> dict:
+    s = np.array([[[0.8, N, N], [0.6, 0.9, N], [0.5, 0.7, 1.0]],
+                  [[1.0, N, N], [0.8, 0.7, N], [0.7, 0.5, 0.8]]]) + shift
+    wake = np.array([[0.9, 1.0, 1.0], [0.9, 0.8, 0.8]]) + shift
+    spi = np.array([[N, 0.9, 0.8], [N, 0.7, 0.6]])
+    args = dict(substrate="toy", method=method, sleep_enabled=sleep, seed=seed, skills=SKILLS,
+                pairs=[("a", "b"), ("b", "c")], success=s, after_wake=wake, spi=spi, spi_features=[0, 1],
+                memory_bytes={"a": 10, "b": 20}, stages=[{}, {}, {}], config={"eval": {"episodes": 5}})
+    args.update(kw)
+    return build_results(**args)
+
+
+def test_metrics_are_per_unit_then_mean_and_se():
+    r = _results()
+    m = r["metrics"]
+    # AFSR per unit: (0.5 + 0.7 + 1.0) / 3 and (0.7 + 0.5 + 0.8) / 3; mean and SE over the two units
+    units = [(0.5 + 0.7 + 1.0) / 3, (0.7 + 0.5 + 0.8) / 3]
+    assert m["afsr"]["final_per_unit"] == pytest.approx(units)
+    assert m["afsr"]["final"] == pytest.approx(np.mean(units))
+    assert m["afsr"]["final_sem"] == pytest.approx(np.std(units, ddof=1) / math.sqrt(2))
+    # BWT against S[i][i] after stage i; BWT_wake against the after-own-wake success
+    bwt = [((0.5 - 0.8) + (0.7 - 0.9)) / 2, ((0.7 - 1.0) + (0.5 - 0.7)) / 2]
+    bwt_wake = [((0.5 - 0.9) + (0.7 - 1.0)) / 2, ((0.7 - 0.9) + (0.5 - 0.8)) / 2]
+    assert m["bwt"]["final_per_unit"] == pytest.approx(bwt)
+    assert m["bwt_wake"]["final_per_unit"] == pytest.approx(bwt_wake)
+    assert m["spi"]["final"] == pytest.approx(0.7) and m["spi"]["curve"][0] is None
+    assert m["prs"]["curve"][0] is None  # no pair before stage 2
+    assert r["success_matrix"][2] == pytest.approx([0.6, 0.6, 0.9]) and r["success_matrix"][0][1] is None
+    assert (r["results_version"], r["label"], r["memory_bytes_total"]) == (RESULTS_VERSION, "sr", 30)
+    assert "NaN" not in json.dumps(r)
+
+
+def test_labels_and_an_unmeasured_after_wake_reference():
+    assert _results(method="sr", sleep=False)["label"] == "wake_only"
+    assert _results(method="sequential_bc", sleep=False)["label"] == "sequential_bc"
+    wake = np.array([[0.9, N, 1.0], [0.9, N, 0.8]])  # skill b's after-wake success was not measured
+    r = _results(after_wake=wake)
+    assert r["metrics"]["bwt_wake"]["final"] is None and r["metrics"]["bwt"]["final"] is not None
+
+
+def test_written_files_agree(tmp_path):
+    r = _results()
+    write_results(tmp_path, r)
+    assert json.loads((tmp_path / "results.json").read_text()) == r
+    md = (tmp_path / "results.md").read_text()
+    assert md == render_markdown(r) and f"{r['metrics']['afsr']['final']:.3f}" in md
+    assert (tmp_path / "metrics.png").stat().st_size > 1000 and (tmp_path / "success_matrix.png").stat().st_size > 1000
+
+
+def _write_run(root: Path, name: str, results: dict) -> Path:
+    run = root / name
+    run.mkdir()
+    (run / "results.json").write_text(json.dumps(results))
+    return run
+
+
+def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
+    runs = [_write_run(tmp_path, f"sr{s}", _results(seed=s, shift=-0.05 * s)) for s in (0, 1)]
+    runs += [_write_run(tmp_path, f"wo{s}", _results(seed=s, sleep=False, shift=-0.1)) for s in (0, 1)]
+    groups = group_runs(runs)
+    assert set(groups) == {"sr", "wake_only"}
+    summary = summarize(groups)
+    sr = summary["variants"]["sr"]
+    finals = [groups["sr"][s]["metrics"]["afsr"]["final"] for s in ("0", "1")]
+    assert sr["afsr"]["per_seed"] == pytest.approx(finals) and sr["afsr"]["mean"] == pytest.approx(np.mean(finals))
+    diffs = summary["paired"]["sr"]["afsr"]["per_seed"]
+    assert diffs == pytest.approx([finals[0] - groups["wake_only"]["0"]["metrics"]["afsr"]["final"],
+                                   finals[1] - groups["wake_only"]["1"]["metrics"]["afsr"]["final"]])
+    assert diffs == pytest.approx([0.1, 0.05])  # shifts are additive in AFSR
+    write_summary(tmp_path / "out", summary)
+    assert (tmp_path / "out" / "summary.png").stat().st_size > 1000
+    assert "| sr | 0,1 |" in (tmp_path / "out" / "summary.md").read_text()
+    # NAME=DIR names a variant (ablations share their method's label); a duplicate variant/seed is refused
+    named = group_runs([f"no_anchor={runs[0]}", runs[1]])
+    assert set(named) == {"no_anchor", "sr"}
+    with pytest.raises(ValueError, match="second sr run with seed 0"):
+        group_runs([runs[0], _write_run(tmp_path, "again", _results(seed=0))])
+
+
+def test_unknown_versions_and_missing_files_are_named(tmp_path):
+    run = _write_run(tmp_path, "future", {**_results(), "results_version": 99})
+    with pytest.raises(ValueError, match="future/results.json: results_version 99"):
+        load_results(run)
+    with pytest.raises(FileNotFoundError, match="unfinished run"):
+        load_results(tmp_path / "nowhere")
+
+
+@pytest.mark.parametrize("run, label, substrate", [
+    ("needle_cpu_compare/sr_seed0", "sr", "act"),                 # ACT, unversioned (FW-5 era)
+    ("needle_cpu_compare/wake_only_seed1", "wake_only", "act"),
+    ("needle_cpu_compare_exact/sr_seed0", "sr", "act"),           # ACT schema 2
+    ("sac_mt5_cpu/sleep_s0", "sr", "sac"),                        # SAC, unversioned
+    ("sac_mt5_cpu/wake_s0", "wake_only", "sac"),
+])
+def test_the_committed_raw_results_of_older_schemas_are_read(run, label, substrate):
+    raw = json.loads((DOCS / run / "results.json").read_text())
+    r = load_results(DOCS / run)
+    assert (r["label"], r["substrate"]) == (label, substrate)
+    old = raw["metrics"]["afsr"]
+    assert r["metrics"]["afsr"]["final"] == pytest.approx(old["final_mean"] if isinstance(old, dict) else old)
+    if substrate == "sac" and label == "wake_only":  # bwt_wake = bwt for wake-only (same policy)
+        assert r["metrics"]["bwt_wake"]["final"] == raw["metrics"]["bwt"]
+    assert upgrade_results(r) == r
+
+
+def test_summary_command_over_the_committed_needle_runs(tmp_path, capsys):
+    runs = [str(DOCS / "needle_cpu_compare" / f"{v}_seed{s}") for v in ("sr", "wake_only") for s in (0, 1, 2)]
+    main([*runs, f"--output={tmp_path}"])
+    out = capsys.readouterr().out
+    saved = json.loads((tmp_path / "summary.json").read_text())
+    old = json.loads((DOCS / "needle_cpu_compare" / "summary.json").read_text())["summary"]
+    for variant in ("sr", "wake_only"):  # the same numbers the old per-driver summary wrote
+        for m in ("afsr", "prs", "bwt"):
+            assert saved["variants"][variant][m]["mean"] == pytest.approx(old[variant][m]["mean"]), (variant, m)
+    assert "Paired difference variant - wake_only" in out
