@@ -35,15 +35,18 @@ imports LeRobot's policy registry."""
 DEFAULT_SUBSTRATE = "act"
 
 
-def substrate_of(args: list[str]) -> str:
-    """The substrate a command line asks for (see the module docstring); raises ``ValueError`` naming the choices."""
+def substrate_of(args: list[str], config: object = None) -> str:
+    """The substrate a command line asks for (see the module docstring); ``config`` is the ``--config_path`` file's
+    JSON when the caller has read it already. Raises ``ValueError`` naming the choices."""
     name = None
     for arg in args:
         if arg.startswith("--substrate="):
             name = arg.split("=", 1)[1]
     if name is None:
-        config_path, _ = split_config_path(args)
-        name = _config_substrate(config_path) if config_path else None
+        if config is None:
+            config_path, _ = split_config_path(args)
+            config = _read_config(config_path) if config_path else None
+        name = _config_substrate(config)
     name = name or DEFAULT_SUBSTRATE
     if name not in SUBSTRATE_COMMANDS:
         raise ValueError(f"substrate: unknown substrate {name!r}; choose from {sorted(SUBSTRATE_COMMANDS)}")
@@ -57,8 +60,8 @@ def _read_config(config_path: str) -> object:
         return None  # the substrate's parser reports the file
 
 
-def _config_substrate(config_path: str) -> str | None:
-    data = _read_config(config_path)
+def _config_substrate(data: object) -> str | None:
+    """The ``substrate`` key of a config file's JSON (an ``sr-main`` preset's under ``train``)."""
     if not isinstance(data, dict):
         return None
     train = data.get("train") if isinstance(data.get("train"), dict) else {}
@@ -71,10 +74,11 @@ def _function(args: list[str], which: int) -> Callable[[list[str]], Any]:
     if hint is not None:
         raise ValueError(hint)
     config_path, _ = split_config_path(args)
-    hint = None if config_path is None else renamed_key_hint(_read_config(config_path))
+    config = None if config_path is None else _read_config(config_path)
+    hint = renamed_key_hint(config)
     if hint is not None:
         raise ValueError(f"{config_path}: {hint}")
-    entry = SUBSTRATE_COMMANDS[substrate_of(args)]
+    entry = SUBSTRATE_COMMANDS[substrate_of(args, config)]
     return getattr(importlib.import_module(entry[0]), entry[which])
 
 

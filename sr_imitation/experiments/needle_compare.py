@@ -83,14 +83,14 @@ def run_compare(cfg: CompareConfig) -> dict:
             train.resume = (train.output_dir / "progress.json").exists()
             logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
             train_stream(train)
-            runs[variant][str(seed)] = train.output_dir / "results.json"
+            runs[variant][str(seed)] = train.output_dir
     return summarize(runs, cfg.output_root)
 
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
-    """The shared multi-run summary (:mod:`sr_imitation.stream.summary`) of ``{variant: {seed: results.json}}``,
+    """The shared multi-run summary (:mod:`sr_imitation.stream.summary`) of ``{variant: {seed: run directory}}``,
     paired against ``wake_only``; writes ``summary.json``, ``summary.md`` and ``summary.png``."""
-    groups = {variant: {seed: load_results(Path(path).parent) for seed, path in per_seed.items()}
+    groups = {variant: {seed: load_results(run) for seed, run in per_seed.items()}
               for variant, per_seed in runs.items()}
     summary = summary_of(groups, PAIRED_BASELINE)
     write_summary(output_root, summary)

@@ -57,9 +57,12 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
     other = [a for a in sleep_args if not a.startswith("--sleep.")]
     if other:
         raise ValueError(f"a sleep replay changes sleep settings only (--sleep.*), got {other}")
-    saved = _read_json(src / "train_config.json")
     progress = _read_json(src / "progress.json")
-    skills = saved["stream"]["skills"]
+    if not (src / "train_config.json").is_file():
+        raise FileNotFoundError(f"{src / 'train_config.json'}: not found (is {src} an sr-train output directory?)")
+    # The source run's settings with the sleep flags applied, checked before anything is written.
+    train = parse_config(TrainStreamConfig, src / "train_config.json", list(sleep_args))
+    skills = train.stream.skills
     if not 2 <= k <= len(skills):
         raise ValueError(f"--stage must be in 2..{len(skills)} (stage 1 has no sleep), got {k}")
     needed = [f"{k}.wake", f"{k}.memory"]
@@ -72,9 +75,8 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     shutil.copy2(src / "stream_stats.safetensors", out / "stream_stats.safetensors")
-    source = parse_config(TrainStreamConfig, src / "train_config.json", [])
-    source.output_dir = src
-    original, replayed = ACTSubstrate(source), ACTSubstrate(dataclasses.replace(source, output_dir=out))
+    original = ACTSubstrate(dataclasses.replace(train, output_dir=src))
+    replayed = ACTSubstrate(dataclasses.replace(train, output_dir=out))
     (out / "memories").mkdir()
     for i in range(k):  # the substrate's own file layout
         shutil.copy2(original.memory_path(i), replayed.memory_path(i))
@@ -84,11 +86,8 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
     keep = {key: rec for key, rec in progress["completed"].items()
             if int(key.split(".")[0]) < k or key in (f"{k}.wake", f"{k}.memory", f"{k}.wake.eval")}
     atomic_write_json(out / "progress.json", {**progress, "completed": keep})
-    saved["output_dir"] = str(out)
-    atomic_write_json(out / "train_config.json", saved)
-    train = parse_config(TrainStreamConfig, out / "train_config.json", list(sleep_args))
     atomic_write_json(out / "train_config.json", {**stored_config_dict(train), "output_dir": str(out)})
-    train.resume, train.progress = True, cfg.progress
+    train.output_dir, train.resume, train.progress = out, True, cfg.progress
     return train
 
 

@@ -26,8 +26,7 @@ from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import SURGICAI_PAIRS, all_pairs, policy_motion, spi_at_stage
 from sr_imitation.imitation.evaluate import spi_features
 from sr_imitation.stream.results import build_results, metric_curves, summarize_curve, unit_mean, write_results
-
-PHASES = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
+from sr_imitation.stream.substrate import PHASES
 
 
 def pair_list(name: str, skills: Sequence[str]) -> list[tuple[str, str]]:

@@ -32,6 +32,7 @@ from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SAC
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method
 from sr_imitation.stream import results as shared_results
 from sr_imitation.stream.results import RESULTS_VERSION, build_results
+from sr_imitation.stream.substrate import PHASES
 
 logger = logging.getLogger(__name__)
 
@@ -109,7 +110,7 @@ def _stage_records(sub: SACSubstrate, progress: dict[str, Any]) -> list[dict[str
             row = {name: value for name, value in wake_rows[-1].items() if name != "videos"}
             rec["eval_after_wake"] = {**row, "reused_stage_evaluation": True}
         rec["seconds"] = sum(float(done[key(p)].get("seconds", 0.0)) for p in
-                             ("wake", "memory", "wake.eval", "sleep", "sleep.eval") if key(p) in done)
+                             PHASES if key(p) in done)
         records.append(rec)
     return records
 

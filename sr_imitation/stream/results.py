@@ -118,7 +118,8 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "config": dict(config),
         "extra": dict(extra or {}),
     }
-    return json.loads(json.dumps(results, default=float, allow_nan=True).replace("NaN", "null"))
+    # numpy scalars as floats; NaN (an undefined metric, e.g. PRS at k = 1) and infinities as null
+    return json.loads(json.dumps(results, default=float), parse_constant=lambda _: None)
 
 
 def _fmt(mean: float | None, sem: float | None = None) -> str:

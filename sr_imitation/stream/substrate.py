@@ -21,6 +21,9 @@ from torch import Tensor
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.sleep import SleepConfig
 
+PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
+"""Every phase of a stage, in the engine's order (a stage without sleep has the first three)."""
+
 
 @dataclass
 class SleepProblem:
