@@ -28,7 +28,7 @@ def _one_line_error(prog, main, args, capsys) -> str:
     ("--sleep.lr=inf", "sleep.lr"),
     ("--sac.actor_lr=nan", "actor_lr"),
     ("--eval.episodes=0", "episodes"),
-    ("--method=ewc", "method"),
+    ("--method=lwf", "method"),  # an imitation baseline, not defined on SAC
 ])
 def test_rl_bad_values_are_one_line_naming_the_key_and_nothing_is_written(tmp_path, capsys, flag, key):
     out = tmp_path / "run"

@@ -24,10 +24,6 @@ from sr_imitation.core.memory import (
     register_memory,
 )
 from sr_imitation.core.metrics import (
-    MT5_PAIRS,
-    MT5_SKILLS,
-    SURGICAI_PAIRS,
-    SURGICAI_SKILLS,
     afsr_curve,
     bwt_curve,
     mean_sem,
@@ -47,10 +43,6 @@ from sr_imitation.core.sleep import (
 
 __all__ = [
     "AGGREGATORS",
-    "MT5_PAIRS",
-    "MT5_SKILLS",
-    "SURGICAI_PAIRS",
-    "SURGICAI_SKILLS",
     "Aggregation",
     "Aggregator",
     "CorruptFileError",

@@ -14,6 +14,8 @@ are part of the module's ``state_dict``, so they are saved with the model.
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 
 import torch
@@ -116,6 +118,21 @@ class ExcitableReLU(nn.Module):
     def extra_repr(self) -> str:
         c = self.config
         return f"{self.num_features}, bounds=[{c.e_min}, {c.e_max}], target={c.target}"
+
+
+@contextmanager
+def activity_recording_off(model: nn.Module) -> Iterator[None]:
+    """Forward passes inside do not replace the recorded activity of ``model``'s excitable layers (a continual
+    method's extra forward passes on memory states must not decide the wake's homeostatic update, Eq. 3)."""
+    layers = [m for m in model.modules() if isinstance(m, ExcitableReLU)]
+    before = [m.record_activity for m in layers]
+    for m in layers:
+        m.record_activity = False
+    try:
+        yield
+    finally:
+        for m, flag in zip(layers, before, strict=True):
+            m.record_activity = flag
 
 
 def update_excitability(model: nn.Module, rate: float) -> int:

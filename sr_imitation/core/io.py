@@ -3,6 +3,13 @@
 Every file this project writes that a later run reads back (memories, checkpoints, results) goes through
 :func:`atomic_write_bytes`: write to a temporary file in the same directory, flush and fsync, then
 ``os.replace``. A run killed at any point leaves either the old file or the new one, never a torn file.
+
+And every such file is checksummed over header and data: safetensors files carry a sha256 of their tensors and
+of their header (:func:`save_checked_safetensors`), JSON records a sha256 entry over all their other entries
+(:func:`write_checked_json`), third-party checkpoint directories a sealed ``checksums.json``
+(:func:`write_manifest`). The exceptions are files written for people or other programs to read and never read
+back as state: a run's config copy (``config.json`` / ``train_config.json``, which draccus must be able to parse;
+the checked copy of its settings is ``settings_fingerprint.json``), reports, plots, videos and logs.
 """
 
 from __future__ import annotations
@@ -51,6 +58,45 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
 def atomic_write_json(path: str | os.PathLike[str], obj: Any) -> Path:
     """JSON-serialize ``obj`` (indent 2, sorted keys) and write it atomically."""
     return atomic_write_bytes(path, (json.dumps(obj, indent=2, sort_keys=True) + "\n").encode())
+
+
+JSON_CHECKSUM = "sha256"
+"""The entry of a checked JSON file (:func:`write_checked_json`) that seals every other entry."""
+
+
+def write_checked_json(path: str | os.PathLike[str], obj: Mapping[str, Any]) -> Path:
+    """Write the JSON object ``obj`` atomically with a ``sha256`` entry over every other entry (the canonical JSON
+    of :func:`header_digest`), so :func:`read_checked_json` notices a flipped byte, an edit or a truncation.
+
+    Raises:
+        ValueError: ``obj`` already has a ``sha256`` entry of its own.
+    """
+    if JSON_CHECKSUM in obj:
+        raise ValueError(f"{path}: a checked JSON object cannot have its own {JSON_CHECKSUM!r} entry")
+    body = dict(obj)
+    return atomic_write_json(path, {**body, JSON_CHECKSUM: header_digest(body)})
+
+
+def read_checked_json(path: str | os.PathLike[str], *, unsealed_ok: bool = False) -> dict[str, Any]:
+    """The object written by :func:`write_checked_json` (without its ``sha256`` entry).
+
+    ``CorruptFileError`` naming the file if it is not valid JSON, not an object, or does not match its sha256;
+    also if it has no sha256 at all, unless ``unsealed_ok`` (files of versions that wrote no checksum, read for
+    reports of committed raw outputs; such a file is returned as it is). A missing file raises
+    ``FileNotFoundError``.
+    """
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise CorruptFileError(path, "not a JSON object")
+    if JSON_CHECKSUM not in data:
+        if unsealed_ok:
+            return data
+        raise CorruptFileError(path, f"has no {JSON_CHECKSUM} entry (written by a version before checksums, or "
+                                     "edited by hand)")
+    body = {k: v for k, v in data.items() if k != JSON_CHECKSUM}
+    if header_digest(body) != data[JSON_CHECKSUM]:
+        raise CorruptFileError(path, f"contents do not match its {JSON_CHECKSUM} (corrupted or edited)")
+    return body
 
 
 def read_json(path: str | os.PathLike[str]) -> Any:

@@ -56,47 +56,12 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 
-MT5_SKILLS: tuple[str, ...] = ("reach", "door-open", "drawer-open", "window-close", "button-press-topdown")
-"""Meta-World MT5 stream order (Appendix A.1, "Skill stream")."""
-
-MT5_PAIRS: tuple[tuple[str, str], ...] = (
-    ("reach", "door-open"),
-    ("door-open", "drawer-open"),
-    ("reach", "drawer-open"),
-    ("door-open", "window-close"),
-    ("drawer-open", "button-press-topdown"),
-    ("window-close", "button-press-topdown"),
-)
-"""The six pre-registered MT5 PRS pairs (Appendix A.1, "Evaluation protocol")."""
-
-SURGICAI_SKILLS: tuple[str, ...] = ("approach", "place", "insert", "regrasp", "pullout")
-"""SurgicAI stream order (Appendix A.2, "Skill stream")."""
-
-SURGICAI_PAIRS: tuple[tuple[str, str], ...] = (
-    ("approach", "place"),
-    ("place", "insert"),
-    ("insert", "regrasp"),
-    ("regrasp", "pullout"),
-    ("approach", "insert"),
-    ("place", "regrasp"),
-    ("insert", "pullout"),
-)
-"""The seven pre-registered workflow-ordered SurgicAI PRS pairs (Appendix A.2, "Evaluation protocol")."""
-
 SPI_COMPONENTS = 3
 """Principal directions compared by SPI (the paper's "top-three PCA directions")."""
 
 SPI_VARIANCE_FLOOR = 1e-3
 """A principal direction counts in SPI only if its variance is >= this fraction of the reference's top variance
 (our choice; the paper is silent). Makes SPI of a non-moving policy 0 instead of noise-determined."""
-
-
-def canonical_skill(name: str) -> str:
-    """Strip a Meta-World version suffix ("door-open-v3" -> "door-open") so pairs match by skill identity."""
-    for suffix in ("-v1", "-v2", "-v3"):
-        if name.endswith(suffix):
-            return name[: -len(suffix)]
-    return name
 
 
 def all_pairs(skills: Sequence[str]) -> tuple[tuple[str, str], ...]:
@@ -139,14 +104,14 @@ def prs_curve(
         ValueError: a pair names a skill that is not in ``skills``, or ``skills`` has the wrong length.
     """
     s = as_success_matrix(matrix)
-    names = [canonical_skill(x) for x in skills]
+    names = list(skills)
     if len(names) != s.shape[0]:
         raise ValueError(f"{len(names)} skill names for a {s.shape[0]} x {s.shape[0]} success matrix")
     index = {name: i for i, name in enumerate(names)}
-    unknown = sorted({canonical_skill(x) for p in pairs for x in p} - set(index))
+    unknown = sorted({x for p in pairs for x in p} - set(index))
     if unknown:
         raise ValueError(f"PRS pairs name skills not in the stream: {unknown}")
-    pair_idx = [(index[canonical_skill(a)], index[canonical_skill(b)]) for a, b in pairs]
+    pair_idx = [(index[a], index[b]) for a, b in pairs]
     out = np.full(s.shape[0], np.nan)
     for k in range(1, s.shape[0]):
         learned = [(i, j) for i, j in pair_idx if i <= k and j <= k]

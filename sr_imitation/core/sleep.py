@@ -247,6 +247,7 @@ def sleep_consolidate(
     aggregator: Aggregator | None = None,
     progress: bool = True,
     on_iteration: Callable[[int, dict[str, Any]], None] | None = None,
+    regularizer: Callable[[Sequence[Tensor]], Tensor] | None = None,
 ) -> SleepResult:
     """Run one sleep phase in place on ``params`` (Algorithm 1, lines 7-15).
 
@@ -265,6 +266,9 @@ def sleep_consolidate(
         on_iteration: called after each applied update with the iteration index and that iteration's record
             (``objective``, ``memory_losses``, ``alpha``, ``grad_norms``, ``anchor_lambda``, ``solver_status``,
             ``solver_iterations``), e.g. to write the run log (``sr_imitation.core.runlog``).
+        regularizer: an extra differentiable term R(theta) of the objective whose gradient is added to the
+            aggregated direction, like the anchor's (not bargained); e.g. Progress & Compress's EWC penalty during
+            its compression. ``None`` (SR): nothing is added.
     """
     params = [p for p in params if p.requires_grad]
     if not params:
@@ -332,6 +336,12 @@ def sleep_consolidate(
         direction = torch.as_tensor(agg.weights, dtype=jac.dtype, device=device) @ jac
         grads = list(torch.split(direction, sizes))
         grads = [g.view_as(p) for g, p in zip(grads, params, strict=True)]
+        reg_value = 0.0
+        if regularizer is not None:
+            reg = regularizer(params)
+            reg_value = float(reg.detach())
+            reg_grads = torch.autograd.grad(reg, params, allow_unused=True)
+            grads = [g if r is None else g + r for g, r in zip(grads, reg_grads, strict=True)]
         anchor_term = 0.0
         if lam > 0.0:
             with torch.no_grad():
@@ -346,7 +356,7 @@ def sleep_consolidate(
             step_callback(it)
 
         alpha = agg.alpha
-        objective = float(np.dot(alpha, losses)) + 0.5 * lam * anchor_term
+        objective = float(np.dot(alpha, losses)) + 0.5 * lam * anchor_term + reg_value
         result.alpha.append([float(a) for a in alpha])
         result.grad_norms.append([float(x) for x in np.sqrt(np.clip(np.diag(gram), 0, None))])
         result.memory_losses.append(losses)

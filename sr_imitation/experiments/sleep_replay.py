@@ -25,7 +25,7 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.io import atomic_write_json, read_json
+from sr_imitation.core.io import atomic_write_json, read_checked_json, write_checked_json
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stored_config_dict
 from sr_imitation.imitation.substrate import ACTSubstrate
@@ -45,7 +45,7 @@ class SleepReplayConfig:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        return read_json(path)
+        return read_checked_json(path, unsealed_ok=True)  # source runs of versions before JSON checksums too
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{path}: not found (is {path.parent} an sr-train output directory?)") from exc
 
@@ -85,7 +85,7 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
             shutil.copytree(original.checkpoint_dir(i, phase), replayed.checkpoint_dir(i, phase))
     keep = {key: rec for key, rec in progress["completed"].items()
             if int(key.split(".")[0]) < k or key in (f"{k}.wake", f"{k}.memory", f"{k}.wake.eval")}
-    atomic_write_json(out / "progress.json", {**progress, "completed": keep})
+    write_checked_json(out / "progress.json", {**progress, "completed": keep})
     atomic_write_json(out / "train_config.json", {**stored_config_dict(train), "output_dir": str(out)})
     train.output_dir, train.resume, train.progress = out, True, cfg.progress
     return train
@@ -109,7 +109,7 @@ def replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> dict[str, Any]
 
     result = {"run": str(cfg.run), "stage": cfg.stage, "overrides": list(sleep_args),
               "original": view(original), "replay": view(progress["completed"])}
-    atomic_write_json(Path(cfg.output_dir) / "replay.json", result)
+    write_checked_json(Path(cfg.output_dir) / "replay.json", result)
     return result
 
 

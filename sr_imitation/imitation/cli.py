@@ -25,8 +25,8 @@ from lerobot.configs.policies import PreTrainedConfig
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
 from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.core.fingerprint import output_dir_for
-from sr_imitation.core.io import atomic_write_json
-from sr_imitation.core.metrics import SURGICAI_SKILLS
+from sr_imitation.core.io import write_checked_json
+from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
@@ -149,7 +149,7 @@ def eval_main(args: list[str] | None = None) -> None:
                               cfg.progress)
     record = {s: {"success": r.success, "success_per_seed": r.success_per_seed, "videos": r.videos}
               for s, r in results.items()}
-    atomic_write_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})
+    write_checked_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})
     print(json.dumps({s: r["success"] for s, r in record.items()}, indent=2))
     print(f"written: {cfg.output_dir / 'eval.json'}, videos in {cfg.output_dir / 'videos'}")
 

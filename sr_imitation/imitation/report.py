@@ -15,17 +15,25 @@ Files (written by :func:`sr_imitation.stream.results.write_results`): ``results.
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from sr_imitation.core.io import read_checked_json
 from sr_imitation.core.memory import Memory
-from sr_imitation.core.metrics import SURGICAI_PAIRS, all_pairs, policy_motion, spi_at_stage
+from sr_imitation.core.metrics import all_pairs, policy_motion, spi_at_stage
+from sr_imitation.envs.needle.skills import PRS_PAIRS as SURGICAI_PAIRS
 from sr_imitation.imitation.evaluate import spi_features
-from sr_imitation.stream.results import build_results, metric_curves, summarize_curve, unit_mean, write_results
+from sr_imitation.stream.results import (
+    build_results,
+    memory_budget,
+    metric_curves,
+    summarize_curve,
+    unit_mean,
+    write_results,
+)
 from sr_imitation.stream.substrate import PHASES
 
 
@@ -42,7 +50,7 @@ def pair_list(name: str, skills: Sequence[str]) -> list[tuple[str, str]]:
 
 
 def _load_eval(phase_dir: Path) -> dict[str, Any]:
-    return json.loads((phase_dir / "eval.json").read_text())
+    return read_checked_json(phase_dir / "eval.json")
 
 
 def _load_trajectories(phase_dir: Path) -> dict[str, list[np.ndarray]]:
@@ -117,7 +125,8 @@ def write_report(
     results = build_results(
         substrate="act", method=config["method"], sleep_enabled=config["sleep"]["enabled"], seed=config["seed"],
         skills=skills, pairs=pairs, success=s_final, after_wake=np.stack([np.diag(m) for m in s_wake]), spi=spi,
-        spi_features=features, memory_bytes={m.skill: m.nbytes() for m in memories}, stages=stages, config=config,
+        spi_features=features, memory_bytes=memory_budget(memories)[0],
+        memory_kinds=memory_budget(memories)[1], stages=stages, config=config,
         extra=extra)
     write_results(out, results)
     return results

@@ -32,9 +32,9 @@ from sr_imitation.core.fingerprint import (
     settings_from_config,
     to_jsonable,
 )
-from sr_imitation.core.metrics import SURGICAI_SKILLS
 from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.core.sleep import SurgicAISleepConfig
+from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.data import check_stream_datasets
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name

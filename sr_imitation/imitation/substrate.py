@@ -32,7 +32,13 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
-from sr_imitation.core.io import CorruptFileError, atomic_write_json, verify_manifest, write_manifest
+from sr_imitation.core.io import (
+    CorruptFileError,
+    atomic_write_json,
+    verify_manifest,
+    write_checked_json,
+    write_manifest,
+)
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.data import (
@@ -71,6 +77,7 @@ class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = "act"
+    wake_hooks: ClassVar[bool] = False  # LeRobot's update_policy: no per-update method hooks yet
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.extend_from")
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
@@ -123,8 +130,9 @@ class ACTSubstrate:
     def checkpoint_dir(self, index: int, phase: str) -> Path:
         return self.out / stage_name(index, self.skills[index]) / phase
 
-    def memory_path(self, index: int) -> Path:
-        return self.out / "memories" / f"{stage_name(index, self.skills[index])}.safetensors"
+    def memory_path(self, index: int, name: str = "memory") -> Path:
+        suffix = "" if name == "memory" else f".{name}"
+        return self.out / "memories" / f"{stage_name(index, self.skills[index])}{suffix}.safetensors"
 
     def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
         """Write ``pretrained_model/`` (LeRobot layout) and ``files`` (JSON) to a staging dir, then rename."""
@@ -183,8 +191,8 @@ class ACTSubstrate:
                                          self.phase_seed(index, "wake"), self.cfg.stream.video_backend)
         return self._data
 
-    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
-                                                                                        dict[str, Any]]:
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
         self._data = None
         data = self._skill_data(k)
         self.policy.set_wake_memories(list(memories), distill_weight, seed=self.phase_seed(k, "wake"))
@@ -213,8 +221,11 @@ class ACTSubstrate:
         memory.save(self.memory_path(k))
         return memory
 
-    def load_memory(self, k: int) -> Memory:
-        return load_memory(self.memory_path(k), skill=self.skills[k])
+    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
+        memory.save(self.memory_path(k, name))
+
+    def load_memory(self, k: int, name: str = "memory") -> Memory:
+        return load_memory(self.memory_path(k, name), skill=self.skills[k])
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         return list(range(k + 1))  # every learned skill: the after-wake success matrix is reported too
@@ -238,7 +249,7 @@ class ACTSubstrate:
         tmp = phase_dir / ".trajectories.tmp.npz"
         np.savez_compressed(tmp, **{key.replace("/", "__"): v for key, v in trajectories.items()})
         os.replace(tmp, phase_dir / "trajectories.npz")
-        atomic_write_json(phase_dir / "eval.json", record)
+        write_checked_json(phase_dir / "eval.json", record)
         logger.info("stage %d %s: %s", k + 1, phase, {s: round(r["success"], 3) for s, r in record.items()})
         return {"seconds": time.perf_counter() - t0, "success": {s: r["success"] for s, r in record.items()}}
 

@@ -252,7 +252,8 @@ class RLTrainConfig:
     max_episode_steps: int = 500
     """Meta-World's time limit (max_path_length)."""
     method: str = "sr"
-    """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only`` or ``sequential_bc``."""
+    """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only``, ``sequential_bc``, ``ewc``,
+    ``der``, ``agem``, ``nash_mtl`` or ``pcgrad``."""
     sac: SACConfig = field(default_factory=SACConfig)
     """SAC (Table "SAC hyperparameters")."""
     wake: WakeConfig = field(default_factory=WakeConfig)

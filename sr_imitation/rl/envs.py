@@ -35,6 +35,25 @@ STREAMS: dict[str, tuple[str, ...]] = {
     "mt5-reverse": tuple(reversed(MT5_STREAM)),
     "mt8": (*MT5_STREAM, "window-open-v3", "drawer-close-v3", "handle-press-v3"),
 }
+MT5_PAIRS: tuple[tuple[str, str], ...] = (
+    ("reach", "door-open"),
+    ("door-open", "drawer-open"),
+    ("reach", "drawer-open"),
+    ("door-open", "window-close"),
+    ("drawer-open", "button-press-topdown"),
+    ("window-close", "button-press-topdown"),
+)
+"""The six pre-registered MT5 PRS pairs (Appendix A.1, "Evaluation protocol"), by skill identity (no version)."""
+
+
+def canonical_skill(name: str) -> str:
+    """Strip a Meta-World version suffix ("door-open-v3" -> "door-open") so pairs match by skill identity."""
+    for suffix in ("-v1", "-v2", "-v3"):
+        if name.endswith(suffix):
+            return name[: -len(suffix)]
+    return name
+
+
 OBS_DIM = 39
 """Meta-World observation size (Appendix A.1: 39-d)."""
 ACT_DIM = 4

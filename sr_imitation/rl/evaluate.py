@@ -32,8 +32,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sr_imitation.core.metrics import canonical_skill
-from sr_imitation.rl.envs import ACT_DIM, NUM_CONFIGURATIONS, SkillEnv
+from sr_imitation.rl.envs import ACT_DIM, NUM_CONFIGURATIONS, SkillEnv, canonical_skill
 from sr_imitation.rl.video import SkillRenderer, VideoSpec, VideoWriter
 
 logger = logging.getLogger(__name__)

@@ -17,6 +17,7 @@ from __future__ import annotations
 import copy
 import math
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 import torch
@@ -203,6 +204,19 @@ class UpdateInfo:
     entropy: float
 
 
+class ActorHooks(Protocol):
+    """A continual method's say in the update (see :meth:`SACAgent.update`)."""
+
+    def batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        """The batch critic and actor train on instead of ``batch`` (the current skill's replay sample)."""
+
+    def loss(self, actor_loss: Tensor, batch: dict[str, Tensor]) -> Tensor:
+        """The objective to differentiate instead of ``actor_loss`` (SAC's own actor loss on ``batch``)."""
+
+    def adjust(self) -> None:
+        """Change the actor's ``.grad`` after the backward pass."""
+
+
 class SACAgent(nn.Module):
     """Actor, twin critic with target, log alpha, observation normalizer, and their optimizers."""
 
@@ -244,9 +258,16 @@ class SACAgent(nn.Module):
         """pi_theta(s) on raw states with the actor's shared normalizer (what critic memories evaluate)."""
         return self.actor.mean_action(self.normalizer(states.to(self.device, torch.float32)).float())
 
-    def update(self, batch: dict[str, Tensor], excitability_rate: float = 0.0) -> UpdateInfo:
-        """One SAC gradient step on critic, actor and alpha, then the actor's homeostatic update (Eq. 3)."""
+    def update(self, batch: dict[str, Tensor], excitability_rate: float = 0.0,
+               actor_hooks: ActorHooks | None = None) -> UpdateInfo:
+        """One SAC gradient step on critic, actor and alpha, then the actor's homeostatic update (Eq. 3).
+
+        ``actor_hooks`` (a continual method's wake hooks, :class:`sr_imitation.rl.wake.MethodHooks`) may replace the
+        batch (critic and actor) and the actor loss before its backward pass, and change the actor's gradients
+        before its optimizer step; their forward passes do not count as the actor's recorded activity."""
         cfg = self.cfg
+        if actor_hooks is not None:
+            batch = actor_hooks.batch(batch)
         obs = self.normalizer(batch["obs"]).float()
         next_obs = self.normalizer(batch["next_obs"]).float()
         actions, rewards = batch["actions"], batch["rewards"] * cfg.reward_scale
@@ -267,8 +288,11 @@ class SACAgent(nn.Module):
         new_actions, log_prob, _ = self.actor.sample(obs)
         q_pi = self.critic.min_q(obs, new_actions)
         actor_loss = (alpha * log_prob - q_pi).mean()
+        objective = actor_loss if actor_hooks is None else actor_hooks.loss(actor_loss, batch)
         self.actor_optimizer.zero_grad(set_to_none=True)
-        actor_loss.backward()
+        objective.backward()
+        if actor_hooks is not None:
+            actor_hooks.adjust()
         self.actor_optimizer.step()
         self.critic_optimizer.zero_grad(set_to_none=True)  # the actor loss left gradients on the critic
 

@@ -29,13 +29,18 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 
-from sr_imitation.core.excitability import update_excitability
-from sr_imitation.core.io import CorruptFileError, atomic_write_json, load_checked_safetensors, save_checked_safetensors
-from sr_imitation.core.memory import Memory
-from sr_imitation.core.metrics import canonical_skill, policy_motion
+from sr_imitation.core.excitability import activity_recording_off, update_excitability
+from sr_imitation.core.io import (
+    CorruptFileError,
+    load_checked_safetensors,
+    save_checked_safetensors,
+    write_checked_json,
+)
+from sr_imitation.core.memory import Memory, load_memory
+from sr_imitation.core.metrics import policy_motion
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.envs import STREAMS, SkillEnv
+from sr_imitation.rl.envs import STREAMS, SkillEnv, canonical_skill
 from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.video import rendering_unavailable
@@ -60,6 +65,7 @@ class SACSubstrate:
     """SAC with an excitability-gated actor on a Meta-World stream."""
 
     name: ClassVar[str] = "sac"
+    wake_hooks: ClassVar[bool] = True
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.name", "stream.skills", "stream.extend_from")
 
     def __init__(self, cfg: RLTrainConfig) -> None:
@@ -109,7 +115,7 @@ class SACSubstrate:
         tensors = {name: t.reshape(-1) if t.ndim == 0 else t for name, t in self.agent.state_dict().items()}
         save_checked_safetensors(self._checkpoint(k, phase), tensors, self._header(k, phase))
         for name, obj in files.items():
-            atomic_write_json(self.stage_dir(k) / phase / name, obj)
+            write_checked_json(self.stage_dir(k) / phase / name, obj)
 
     def _load_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
         path = self._checkpoint(k, phase)
@@ -135,16 +141,26 @@ class SACSubstrate:
         return [state[by_id[id(p)]] for p in self.agent.actor_parameters()]
 
     # -- phases -----------------------------------------------------------------------------------------------
-    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
-                                                                                         dict[str, Any]]:
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
         if memories:
-            raise ValueError("the SAC wake has no distillation term (the paper's wake is plain SAC)")
+            raise ValueError("the SAC wake has no distillation term (the paper's wake is plain SAC); methods shape "
+                             "it through their wake hooks")
         cfg = self.cfg
         seed = stage_seed(cfg.seed, k)
         with SkillEnv(self.skills[k], seed=seed % (2**31), max_episode_steps=cfg.max_episode_steps) as env:
             wake, memory = train_skill(self.agent, env, k, cfg.sac, cfg.wake, cfg.excitability, cfg.memory,
-                                       seed=seed, progress=cfg.progress)
-        memory.save(self.stage_dir(k) / "memory.safetensors")  # M_k comes from the wake's replay buffer
+                                       seed=seed, progress=cfg.progress, method=method)
+        # what the memory phase may need once the replay buffer is gone (kept for a resume; not a memory itself)
+        memory.save(self.stage_dir(k) / "memory.safetensors")  # SR's M_k comes from the wake's replay buffer
+        if wake.state_sample is not None:
+            save_checked_safetensors(self.stage_dir(k) / "state_sample.safetensors",
+                                     {"state": torch.as_tensor(wake.state_sample)},
+                                     {**self._header(k, "wake"), "format": "sr_imitation.rl.state_sample"})
+        if wake.transition_sample is not None:
+            save_checked_safetensors(self.stage_dir(k) / "transition_sample.safetensors",
+                                     {key: torch.as_tensor(v) for key, v in wake.transition_sample.items()},
+                                     {**self._header(k, "wake"), "format": "sr_imitation.rl.transition_sample"})
         self._memories[k] = memory
         return {"wake": wake.summary()}, {}
 
@@ -152,8 +168,72 @@ class SACSubstrate:
         memory = self._memories.pop(k, None)
         return memory if memory is not None else self.load_memory(k)
 
-    def load_memory(self, k: int) -> Memory:
-        return CriticMemory.load(self.stage_dir(k) / "memory.safetensors", skill=canonical_skill(self.skills[k]))
+    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
+        memory.save(self.stage_dir(k) / f"{name}.safetensors")
+
+    def load_memory(self, k: int, name: str = "memory") -> Memory:
+        return load_memory(self.stage_dir(k) / f"{name}.safetensors", skill=canonical_skill(self.skills[k]))
+
+    # -- what continual methods ask of the policy ---------------------------------------------------------------
+    def memory_states(self, k: int) -> torch.Tensor:
+        """The raw late-wake states of SR's memory M_k (``memory.buffer_size`` of them; DER stores these too)."""
+        memory = self._memories.get(k)
+        if memory is None:
+            memory = CriticMemory.load(self.stage_dir(k) / "memory.safetensors", skill=self.memory_skill(k))
+        return memory.tensors["state"]
+
+    def state_sample(self, k: int) -> torch.Tensor:
+        """Raw states drawn uniformly from wake k's replay (``method.wake_state_sample`` of them)."""
+        tensors, _ = load_checked_safetensors(self.stage_dir(k) / "state_sample.safetensors")
+        return tensors["state"]
+
+    def reset_networks(self, k: int) -> None:
+        """Freshly initialized actor, critic, target critic and temperature (Reset & Distill's network for skill k),
+        seeded from (run seed, k); the observation normalizer is kept. The global random state is left as it was."""
+        saved = torch.random.get_rng_state()
+        torch.manual_seed(stage_seed(self.cfg.seed, k, 20) % (2**63))
+        fresh = SACAgent(self.cfg.sac, self.cfg.excitability, device=self.cfg.device)
+        torch.random.set_rng_state(saved)
+        fresh.normalizer.load_state_dict(self.agent.normalizer.state_dict())
+        self.agent.load_state_dict(fresh.state_dict())
+        self.agent.reset_optimizers(reset_alpha=True)
+
+    def load_actor(self, k: int, phase: str) -> None:
+        """Only the actor of the checkpoint after ``phase`` of stage k (Reset & Distill's shared actor)."""
+        state = self._load_state(k, phase)
+        self.agent.actor.load_state_dict({n.removeprefix("actor."): t for n, t in state.items()
+                                          if n.startswith("actor.")})
+
+    def memory_skill(self, k: int) -> str:
+        """The skill name memories of stage k carry (without the Meta-World version)."""
+        return canonical_skill(self.skills[k])
+
+    def transition_sample(self, k: int) -> dict[str, torch.Tensor]:
+        """Transitions (obs, actions, rewards, next_obs, terminated) drawn uniformly from wake k's replay
+        (``method.wake_transition_sample`` of them)."""
+        tensors, _ = load_checked_safetensors(self.stage_dir(k) / "transition_sample.safetensors")
+        return tensors
+
+    def gaussian_policy(self, states: torch.Tensor) -> torch.Tensor:
+        """The actor's pre-tanh Gaussian on raw states as one tensor [mean, log std] (B x 8; DER's target). Its
+        forward passes are not the actor's recorded activity (Eq. 3 follows the SAC updates only)."""
+        with activity_recording_off(self.agent.actor):
+            x = self.agent.normalizer(states.to(self.agent.device, torch.float32)).float()
+            mean, log_std = self.agent.actor(x)
+        return torch.cat([mean, log_std], dim=-1)
+
+    def policy_parameters(self) -> list[torch.Tensor]:
+        """theta: the actor's trainable parameters (what the sleep and the methods' penalties act on)."""
+        return list(self.agent.actor_parameters())
+
+    def log_likelihood(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        """log pi_theta(u | s) of one pre-tanh action u ~ pi_theta(.|s) drawn per state (B,), differentiable in
+        theta: its squared gradient, averaged over states, is the policy's Fisher information (EWC)."""
+        gaussian = self.gaussian_policy(states)
+        mean, log_std = gaussian.chunk(2, dim=-1)
+        with torch.no_grad():
+            u = mean + log_std.exp() * torch.randn(mean.shape, generator=generator)
+        return torch.distributions.Normal(mean, log_std.exp()).log_prob(u).sum(-1)
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         if not sleeps:

@@ -16,7 +16,6 @@ continues from the last completed phase and, on CPU, reproduces the uninterrupte
 
 from __future__ import annotations
 
-import json
 import logging
 from collections.abc import Callable
 from pathlib import Path
@@ -24,9 +23,10 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import load_checked_safetensors
-from sr_imitation.core.metrics import MT5_PAIRS, all_pairs, canonical_skill, spi_at_stage
+from sr_imitation.core.io import load_checked_safetensors, read_checked_json
+from sr_imitation.core.metrics import all_pairs, spi_at_stage
 from sr_imitation.rl.config import RLTrainConfig
+from sr_imitation.rl.envs import MT5_PAIRS, canonical_skill
 from sr_imitation.rl.evaluate import SPI_FEATURES
 from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SACSubstrate, stage_seed
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method
@@ -97,12 +97,13 @@ def _stage_records(sub: SACSubstrate, progress: dict[str, Any]) -> list[dict[str
             if wake_rows:
                 rec["eval_after_wake"] = {**wake_rows[-1], "reused_stage_evaluation": False}
             sleep = dict(done[key("sleep")])
-            diagnostics = json.loads((sub.stage_dir(k) / "sleep" / "sleep_diagnostics.json").read_text())
-            before, after = sleep["frozen_critic_value_before"], sleep["frozen_critic_value_after"]
+            diagnostics = read_checked_json(sub.stage_dir(k) / "sleep" / "sleep_diagnostics.json")
             objective = diagnostics.get("sleep_objective") or []
-            sleep.update(frozen_critic_value_change=[a - b for a, b in zip(after, before, strict=True)],
-                         anchor_distances=diagnostics.get("anchor_distances"),
+            sleep.update(anchor_distances=diagnostics.get("anchor_distances"),
                          sleep_objective_first_last=[objective[0], objective[-1]] if objective else None)
+            if "frozen_critic_value_before" in sleep:  # SR's sleep (a method's distillation has no critics)
+                before, after = sleep["frozen_critic_value_before"], sleep["frozen_critic_value_after"]
+                sleep["frozen_critic_value_change"] = [a - b for a, b in zip(after, before, strict=True)]
             rec["sleep"] = sleep
             rec["eval"] = done[key("sleep.eval")]["rows"]
         else:  # no sleep: the after-wake policy is the stage policy (same configurations: the same numbers)
@@ -134,10 +135,11 @@ def write_results(sub: SACSubstrate, progress: dict[str, Any], memories: Any) ->
     reference = {names[i]: trajectories[i][names[i]] for i in range(n)}
     spi = [spi_at_stage(reference, trajectories[k], names[:k]) for k in range(n)]
     after_wake = [rec["eval_after_wake"]["success_rate"] if "eval_after_wake" in rec else np.nan for rec in records]
+    per_skill, per_kind = shared_results.memory_budget(memories)
     results = build_results(
         substrate=SACSubstrate.name, method=cfg.method, sleep_enabled=cfg.sleep.enabled, seed=cfg.seed,
         skills=names, pairs=prs_pairs(sub.skills), success=matrix[None], after_wake=np.array([after_wake]),
-        spi=np.array([spi]), spi_features=SPI_FEATURES, memory_bytes={m.skill: m.nbytes() for m in memories},
+        spi=np.array([spi]), spi_features=SPI_FEATURES, memory_bytes=per_skill, memory_kinds=per_kind,
         stages=records, config=cfg.stored_config())
     shared_results.write_results(sub.out, results, plots=cfg.plots)
     return results

@@ -11,9 +11,11 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
+from torch import Tensor
 from tqdm.auto import tqdm
 
-from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.core.excitability import ExcitabilityConfig, activity_recording_off
 from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
 from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
 from sr_imitation.rl.envs import SkillEnv
@@ -55,6 +57,9 @@ class WakeResult:
     critic_validation: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
     last_update: dict[str, float] = field(default_factory=dict)
+    method: dict[str, float] = field(default_factory=dict)
+    state_sample: np.ndarray | None = None
+    transition_sample: dict[str, np.ndarray] | None = None
 
     def summary(self) -> dict[str, Any]:
         k = max(1, len(self.episode_rewards) // 10)
@@ -64,7 +69,47 @@ class WakeResult:
             "final_train_reward": float(np.mean(self.episode_rewards[-k:])) if self.episode_rewards else None,
             "final_train_success": float(np.mean(self.episode_successes[-k:])) if self.episode_successes else None,
             "critic_validation": self.critic_validation, "last_update": self.last_update,
+            **({"method": self.method} if self.method else {}),
         }
+
+
+class MethodHooks:
+    """Hands a continual method's wake hooks (``sr_imitation.stream.methods.ContinualMethod.wake_loss`` /
+    ``adjust_gradients``) a :class:`~sr_imitation.stream.methods.WakeStep` at every actor update; their forward
+    passes leave the actor's recorded activity alone (:func:`activity_recording_off`). Numbers the method returns
+    are averaged into the wake summary. Memory batches come from ``generator``, seeded per stage, so the hooks do
+    not change the global random streams SAC itself draws from."""
+
+    def __init__(self, method: Any, agent: SACAgent, stage: int, seed: int) -> None:
+        from sr_imitation.stream.methods.base import WakeStep
+
+        self.method, self.agent, self.stage = method, agent, stage
+        self.generator = torch.Generator().manual_seed(int(seed) % (2**31) + 17)
+        self.updates = 0
+        self.sums: dict[str, float] = {}
+        self._step_type = WakeStep
+        self._step: Any = None
+
+    def batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
+        self._step = self._step_type(self.stage, self.updates, self.agent.actor_parameters(), self.agent.policy_fn,
+                                     batch, self.generator)
+        with activity_recording_off(self.agent.actor):
+            self._step.batch = dict(self.method.wake_batch(self._step))
+        return self._step.batch
+
+    def loss(self, actor_loss: Tensor, batch: dict[str, Tensor]) -> Tensor:
+        with activity_recording_off(self.agent.actor):
+            return self.method.wake_loss(actor_loss, self._step)
+
+    def adjust(self) -> None:
+        with activity_recording_off(self.agent.actor):
+            values = self.method.adjust_gradients(self._step)
+        for key, value in values.items():
+            self.sums[key] = self.sums.get(key, 0.0) + float(value)
+        self.updates += 1
+
+    def summary(self) -> dict[str, float]:
+        return {key: value / max(1, self.updates) for key, value in sorted(self.sums.items())}
 
 
 def train_skill(
@@ -77,13 +122,15 @@ def train_skill(
     memory_cfg: CriticMemoryConfig,
     seed: int,
     progress: bool = True,
+    method: Any = None,
 ) -> tuple[WakeResult, CriticMemory]:
     """Train ``agent`` on one skill and freeze its critic memory.
 
     Fresh replay buffer and optimizer states per skill (no earlier transitions are available); ``warmup_steps``
     uniform random actions first; then ``utd_ratio`` SAC updates per environment step, each followed by the
     actor's homeostatic update at the wake rate (the novelty rate during the first, scaled, 500 episodes of the
-    first skill). Stops at the scaled ``max_episodes`` or by :func:`should_stop_early`.
+    first skill). Stops at the scaled ``max_episodes`` or by :func:`should_stop_early`. A ``method`` with wake
+    hooks shapes every actor update (:class:`MethodHooks`); its averaged numbers are ``result.method``.
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -98,6 +145,7 @@ def train_skill(
     result = WakeResult(env.skill, 0, 0, 0, "max_episodes")
     episode_starts: list[int] = []
     update_credit = 0.0
+    hooks = MethodHooks(method, agent, skill_index, seed) if method is not None and method.has_wake_hooks else None
     bar = tqdm(range(budget.max_episodes), desc=f"wake {env.skill}", disable=not progress, leave=False)
     for episode in bar:
         episode_starts.append(replay.total)
@@ -122,7 +170,8 @@ def train_skill(
             if result.env_steps >= sac_cfg.warmup_steps and len(replay) >= sac_cfg.batch_size:
                 update_credit += sac_cfg.utd_ratio
                 while update_credit >= 1.0:
-                    info = agent.update(replay.batch(replay.indices(sac_cfg.batch_size, rng), agent.device), rate)
+                    info = agent.update(replay.batch(replay.indices(sac_cfg.batch_size, rng), agent.device), rate,
+                                        hooks)
                     result.updates += 1
                     update_credit -= 1.0
             if step.terminated or step.truncated:
@@ -142,11 +191,24 @@ def train_skill(
     logger.info("wake %s: %d episodes, %d steps, %d updates, stop: %s", env.skill, result.episodes,
                 result.env_steps, result.updates, result.stop_reason)
 
+    if hooks is not None:
+        result.method = hooks.summary()
     result.critic_validation = validate_critic(agent, holdout, replay, memory_cfg, rng)
     # episode starts were recorded as replay positions (held-out transitions never enter the replay)
     starts = [min(s, replay.total - 1) for s in episode_starts]
     states = sample_late_states(replay, starts, memory_cfg, rng)
     memory = CriticMemory.from_agent(env.skill.removesuffix("-v3"), agent, states)
+    # what a method needs from the replay at skill end, uniform over it, from its own generator (the rest of the
+    # run is unchanged): states (EWC's Fisher) or whole transitions (CLEAR)
+    n_states = int(getattr(method, "wake_state_sample", 0) or 0)
+    if n_states > 0:
+        own = np.random.default_rng([seed % (2**63), 7])
+        result.state_sample = replay.batch(own.integers(0, len(replay), size=n_states))["obs"].numpy()
+    n_transitions = int(getattr(method, "wake_transition_sample", 0) or 0)
+    if n_transitions > 0:
+        own = np.random.default_rng([seed % (2**63), 8])
+        sample = replay.batch(own.integers(0, len(replay), size=n_transitions))
+        result.transition_sample = {key: value.numpy() for key, value in sample.items()}
     result.seconds = time.perf_counter() - t0
     return result, memory
 

@@ -1,8 +1,9 @@
 """Algorithm 1 of the paper, written once for every substrate and every continual method.
 
     for each skill k = 1..K:
-        wake:        train the policy on skill k (+ the method's wake terms, e.g. distillation from M_1..M_{k-1})
-        memory:      store the frozen memory M_k (if the method keeps memories)
+        wake:        train the policy on skill k (+ the method's wake terms: distillation from M_1..M_{k-1},
+                     an auxiliary loss, a gradient adjustment)
+        memory:      store the frozen memory M_k (if the method keeps memories; which one is the method's choice)
         wake.eval:   evaluate right after the wake (the reference of BWT_wake)
         if the method sleeps after k:
             sleep:       theta <- sleep_consolidate(theta; M_1..M_k, anchor theta_{k-1}, gates from theta_i^wake)
@@ -31,7 +32,7 @@ from sr_imitation.core.fingerprint import (
     read_fingerprint,
     settings_digest,
 )
-from sr_imitation.core.io import read_json
+from sr_imitation.core.io import read_checked_json
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.runlog import RunLog, WandbConfig
 from sr_imitation.core.sleep import sleep_consolidate
@@ -62,6 +63,9 @@ class StreamEngine:
                  log_config: dict[str, Any] | None = None, extend_from: Path | None = None) -> None:
         if substrate.name not in method.substrates:
             raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
+        if method.has_wake_hooks and not getattr(substrate, "wake_hooks", False):
+            raise ValueError(f"method {method.name!r} changes the wake's loss or gradients; the {substrate.name} "
+                             "substrate's wake does not call those hooks")
         self.substrate = substrate
         self.method = method
         self.run_dir = run
@@ -120,7 +124,7 @@ class StreamEngine:
                     if phase in POLICY_PHASES:
                         pending_load = (k, phase)
                     elif phase == "memory":
-                        self.memories.append(self.substrate.load_memory(k))
+                        self.memories.append(self.method.load_memory(k, self.substrate))
                     continue
                 if pending_load is not None:
                     logger.info("resuming from stage %d %s", pending_load[0] + 1, pending_load[1])
@@ -139,7 +143,8 @@ class StreamEngine:
             self.method.on_skill_end(k, self.substrate)
         if last < len(self.skills):
             return dict(self.run_dir.progress)
-        return self.substrate.report(self.run_dir.progress, self.memories,
+        kept = self.memories + self.method.extra_memories(self.substrate, len(self.skills))
+        return self.substrate.report(self.run_dir.progress, kept,
                                      [self.final_phase(k) for k in range(len(self.skills))])
 
     # -- extending a finished stream -------------------------------------------------------------------------
@@ -162,8 +167,7 @@ class StreamEngine:
         n = len(skills)
         if not 1 <= n < len(self.skills) or self.skills[:n] != skills:
             raise ValueError(f"{source}: its skills {skills} are not the first skills of this stream {self.skills}")
-        progress = read_json(source / PROGRESS_FILE)
-        done = progress.get("completed", {}) if isinstance(progress, dict) else {}
+        done = read_checked_json(source / PROGRESS_FILE).get("completed", {})
         keys = [RunDirectory.key(k, p) for k in range(n) for p in self.phases(k)]
         missing = [key for key in keys if key not in done]
         if missing:
@@ -181,11 +185,12 @@ class StreamEngine:
     def _run_phase(self, k: int, phase: str) -> dict[str, Any]:
         if phase == "wake":
             memories, weight = self.method.wake_memories(k + 1, self.memories)
-            record, files = self.substrate.wake(k, memories, weight)
+            self.method.begin_wake(k, self.memories, self.substrate)
+            record, files = self.substrate.wake(k, memories, weight, self.method)
             self.substrate.save_policy(k, "wake", files)
             return record
         if phase == "memory":
-            memory = self.substrate.make_memory(k)
+            memory = self.method.make_memory(k, self.substrate)
             self.memories.append(memory)
             return {"bytes": memory.nbytes(), "size": memory.size}
         if phase == "wake.eval":
@@ -198,10 +203,11 @@ class StreamEngine:
 
     def _sleep(self, k: int) -> dict[str, Any]:
         """Algorithm 1, lines 7-15: the one place a stream calls the core's sleep."""
-        anchor = self.substrate.parameters_at(k - 1, self.final_phase(k - 1))  # theta_{k-1}^sleep
+        # theta_{k-1}^sleep (none before the first skill: only methods that consolidate after skill 1 get here)
+        anchor = self.substrate.parameters_at(k - 1, self.final_phase(k - 1)) if k > 0 else None
         wake_snapshots = [self.substrate.parameters_at(i, "wake") for i in range(k)]  # theta_i^wake, i < k
-        memories = self.memories[: k + 1]
-        problem = self.substrate.sleep_problem(k, memories)
+        memories = self.method.sleep_memories(k, self.memories)
+        problem = self.method.prepare_sleep(k, self.substrate.sleep_problem(k, memories), self.substrate)
         before = problem.diagnostics() if problem.diagnostics is not None else {}
         t0 = time.perf_counter()
         log = self.log
@@ -214,6 +220,7 @@ class StreamEngine:
             problem.parameters, problem.policy, memories, problem.config, anchor_params=anchor,
             wake_snapshots=wake_snapshots, is_final_skill=k == len(self.skills) - 1,
             step_callback=problem.step_callback, progress=self.progress, on_iteration=on_iteration,
+            regularizer=problem.regularizer,
         )
         logger.info("stage %d sleep: %d iterations (%s), solver %s", k + 1, result.stop_iteration,
                     result.stop_reason, dict(result.solver_status))

@@ -36,7 +36,7 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, atomic_write_json, read_json
+from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
 
 RESULTS_VERSION = 4
@@ -80,11 +80,22 @@ def summarize_curve(curves: np.ndarray) -> dict[str, Any]:
             "curve": [m for m, _ in stats], "curve_sem": [e for _, e in stats]}
 
 
+def memory_budget(memories: Sequence[Any]) -> tuple[dict[str, int], dict[str, int]]:
+    """Bytes of the stored tensors of ``memories`` (a continual method's memory budget) per skill and per memory
+    kind (``sac_critic``, ``ewc_fisher``, ``output_distillation``, ``transitions``, ...)."""
+    per_skill: dict[str, int] = {}
+    per_kind: dict[str, int] = {}
+    for m in memories:
+        per_skill[m.skill] = per_skill.get(m.skill, 0) + int(m.nbytes())
+        per_kind[m.kind] = per_kind.get(m.kind, 0) + int(m.nbytes())
+    return per_skill, per_kind
+
+
 def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int, skills: Sequence[str],
                   pairs: Sequence[tuple[str, str]], success: np.ndarray, after_wake: np.ndarray,
                   spi: np.ndarray, spi_features: Sequence[int], memory_bytes: Mapping[str, int],
-                  stages: list[Any], config: Mapping[str, Any], extra: Mapping[str, Any] | None = None
-                  ) -> dict[str, Any]:
+                  stages: list[Any], config: Mapping[str, Any], extra: Mapping[str, Any] | None = None,
+                  memory_kinds: Mapping[str, int] | None = None) -> dict[str, Any]:
     """The results dictionary (JSON-ready, NaN as null).
 
     ``success``: S per unit (U x K x K, NaN above the diagonal); ``after_wake``: each skill's success right after
@@ -114,6 +125,7 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "spi_features": [int(f) for f in spi_features],
         "memory_bytes": {k: int(v) for k, v in memory_bytes.items()},
         "memory_bytes_total": int(sum(memory_bytes.values())),
+        "memory_kinds": {k: int(v) for k, v in (memory_kinds or {}).items()},
         "stages": stages,
         "config": dict(config),
         "extra": dict(extra or {}),
@@ -212,7 +224,7 @@ def write_plots(results: Mapping[str, Any], out: Path) -> None:
 
 def write_results(out: Path, results: Mapping[str, Any], plots: bool = True) -> None:
     """``results.json`` and ``results.md`` (atomic), and the plots unless ``plots`` is false."""
-    atomic_write_json(out / "results.json", results)
+    write_checked_json(out / "results.json", results)
     atomic_write_bytes(out / "results.md", render_markdown(results).encode())
     if plots:
         write_plots(results, out)
@@ -276,6 +288,6 @@ def load_results(run: Path) -> dict[str, Any]:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no results (unfinished run?)")
     try:
-        return upgrade_results(read_json(path))
+        return upgrade_results(read_checked_json(path, unsealed_ok=True))  # committed raw files of older versions
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None

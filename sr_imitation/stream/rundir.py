@@ -11,7 +11,6 @@ after the phase's files, so a phase is either recorded with all its outputs or r
 
 from __future__ import annotations
 
-import json
 import logging
 import shutil
 from collections.abc import Callable, Mapping
@@ -25,7 +24,7 @@ from sr_imitation.core.fingerprint import (
     read_fingerprint,
     write_fingerprint,
 )
-from sr_imitation.core.io import CorruptFileError, atomic_write_json, read_json
+from sr_imitation.core.io import CorruptFileError, atomic_write_json, read_checked_json, read_json, write_checked_json
 
 logger = logging.getLogger(__name__)
 
@@ -81,11 +80,8 @@ class RunDirectory:
             legacy = self._check_settings()
             progress_path = self.path / PROGRESS_FILE
             if progress_path.exists():
-                try:
-                    self.progress = json.loads(progress_path.read_text())
-                except json.JSONDecodeError as exc:
-                    raise CorruptFileError(progress_path, f"cannot resume: {exc}") from exc
-                if not isinstance(self.progress, dict) or not isinstance(self.progress.get("completed"), dict):
+                self.progress = read_checked_json(progress_path)
+                if not isinstance(self.progress.get("completed"), dict):
                     raise CorruptFileError(progress_path, "cannot resume: no 'completed' phases recorded")
             self._remove_leftovers()
             if legacy:  # a run from before fingerprints: store the checked settings once
@@ -139,4 +135,4 @@ class RunDirectory:
     def mark_all(self, records: dict[str, dict[str, Any]]) -> None:
         """Record several completed phases (keyed as :meth:`key`) in one write of ``progress.json``."""
         self.progress["completed"].update(records)
-        atomic_write_json(self.path / PROGRESS_FILE, self.progress)
+        write_checked_json(self.path / PROGRESS_FILE, self.progress)

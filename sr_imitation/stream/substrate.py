@@ -37,6 +37,8 @@ class SleepProblem:
         step_callback: called after every sleep update (e.g. the SAC actor's sleep-rate excitability, Eq. 3).
         diagnostics: called before and after the sleep; its values are recorded as ``<key>_before`` /
             ``<key>_after`` in the sleep record (e.g. each frozen critic's value of the actor).
+        regularizer: an extra term R(theta) added to the sleep objective outside the bargaining (a method's,
+            e.g. Progress & Compress's EWC penalty; none for SR).
     """
 
     parameters: Sequence[Tensor]
@@ -44,6 +46,7 @@ class SleepProblem:
     config: SleepConfig
     step_callback: Callable[[int], None] | None = None
     diagnostics: Callable[[], dict[str, Any]] | None = None
+    regularizer: Callable[[Sequence[Tensor]], Tensor] | None = None
 
 
 @dataclass
@@ -82,16 +85,24 @@ class Substrate(Protocol):
         """Seed every random generator for ``phase`` of stage ``k`` (from the run seed, independent of whether
         earlier phases ran in this process: a resumed run continues with the same numbers)."""
 
-    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
-                                                                                         dict[str, Any]]:
+    wake_hooks: ClassVar[bool]
+    """Whether :meth:`wake` calls the method's ``wake_loss`` and ``adjust_gradients`` at every policy update
+    (with a ``sr_imitation.stream.methods.WakeStep``); methods that need them are refused otherwise."""
+
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
         """Train the policy on skill ``k`` (with distillation from ``memories`` at ``distill_weight`` where the
-        substrate supports it). Returns the progress record and extra JSON files for the wake checkpoint."""
+        substrate supports it, and ``method``'s wake hooks where :attr:`wake_hooks`). Returns the progress record
+        and extra JSON files for the wake checkpoint."""
 
     def make_memory(self, k: int) -> Memory:
         """M_k from the policy right after its wake, saved to the run directory."""
 
+    def save_memory(self, k: int, memory: Memory) -> None:
+        """Save a method's own memory M_k (e.g. EWC's snapshot and Fisher) where :meth:`load_memory` finds it."""
+
     def load_memory(self, k: int) -> Memory:
-        """M_k as :meth:`make_memory` saved it (checked)."""
+        """M_k as it was saved (any registered memory kind; checked)."""
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         """Which learned skills the evaluation right after wake k covers (all learned skills when no sleep follows,

@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, atomic_write_json
+from sr_imitation.core.io import atomic_write_bytes, write_checked_json
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.stream.results import METRICS, load_results
 
@@ -175,7 +175,7 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
 def write_summary(output: Path, summary: Mapping[str, Any]) -> None:
     """``summary.json``, ``summary.md``, ``summary.png`` in ``output`` (atomic)."""
     output.mkdir(parents=True, exist_ok=True)
-    atomic_write_json(output / "summary.json", summary)
+    write_checked_json(output / "summary.json", summary)
     atomic_write_bytes(output / "summary.md", render_markdown(summary).encode())
     plot(summary, output / "summary.png")
 

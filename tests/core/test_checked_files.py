@@ -12,8 +12,10 @@ import torch
 from sr_imitation.core.io import (
     CorruptFileError,
     load_checked_safetensors,
+    read_checked_json,
     save_checked_safetensors,
     verify_manifest,
+    write_checked_json,
     write_manifest,
 )
 from sr_imitation.core.memory import OutputDistillationMemory, load_memory
@@ -96,3 +98,45 @@ def test_checkpoint_manifest_names_the_changed_file(tmp_path):
     manifest.unlink()
     with pytest.raises(CorruptFileError, match="checksums.json"):
         verify_manifest(ckpt)
+
+
+def test_no_byte_flip_or_truncation_of_a_checked_json_file_changes_what_is_read(tmp_path):
+    """progress.json, eval.json, results.json, ...: a flip is refused naming the file, or (a flip that leaves the
+    same JSON values, e.g. 1e-05 -> 1E-05) reads back exactly the original."""
+    obj = {"completed": {"1.wake": {"loss": 0.25, "lr": 1e-05, "ok": True, "skill": "reach", "none": None}},
+           "version": 2}
+    path = write_checked_json(tmp_path / "progress.json", obj)
+    assert read_checked_json(path) == obj
+    data = path.read_bytes()
+    refused = 0
+    for position in range(len(data)):
+        for bit in (0x01, 0x20):
+            flipped = bytearray(data)
+            flipped[position] ^= bit
+            path.write_bytes(bytes(flipped))
+            try:
+                assert read_checked_json(path) == obj, position
+            except CorruptFileError as exc:
+                assert str(path) in str(exc)
+                refused += 1
+    assert refused >= 2 * len(data) - 4  # only the exponent letters' case flips read back unchanged
+    for cut in (1, len(data) // 2, len(data) - 2):
+        path.write_bytes(data[:cut])
+        with pytest.raises(CorruptFileError, match="progress.json"):
+            read_checked_json(path)
+
+
+def test_a_checked_json_file_needs_its_checksum_unless_told(tmp_path):
+    path = tmp_path / "results.json"
+    path.write_text(json.dumps({"a": 1}))
+    with pytest.raises(CorruptFileError, match=r"results.json: has no sha256"):
+        read_checked_json(path)
+    assert read_checked_json(path, unsealed_ok=True) == {"a": 1}  # committed files of older versions
+    path.write_text(json.dumps({"a": 1, "sha256": "0" * 64}))
+    with pytest.raises(CorruptFileError, match="do not match"):
+        read_checked_json(path, unsealed_ok=True)  # a file with a checksum is always checked
+    path.write_text("[1, 2]")
+    with pytest.raises(CorruptFileError, match="not a JSON object"):
+        read_checked_json(path)
+    with pytest.raises(ValueError, match="own 'sha256'"):
+        write_checked_json(path, {"sha256": "x"})

@@ -8,10 +8,6 @@ import numpy as np
 import pytest
 
 from sr_imitation.core.metrics import (
-    MT5_PAIRS,
-    MT5_SKILLS,
-    SURGICAI_PAIRS,
-    SURGICAI_SKILLS,
     afsr_curve,
     all_pairs,
     bwt_curve,
@@ -72,15 +68,12 @@ def test_prs_uses_only_pairs_of_learned_skills():
     assert math.isnan(prs_curve(S, skills, [("b", "c")])[1])
 
 
-def test_paper_pair_lists_match_their_streams():
-    assert len(MT5_PAIRS) == 6 and len(SURGICAI_PAIRS) == 7
-    k = 5
-    full = np.tril(np.full((k, k), 0.5))
-    prs_curve(full, [f"{s}-v3" for s in MT5_SKILLS], MT5_PAIRS)  # version suffixes match by identity
-    prs_curve(full, SURGICAI_SKILLS, SURGICAI_PAIRS)
+def test_pairs_match_names_exactly_and_unknown_names_are_refused():
+    full = np.tril(np.full((3, 3), 0.5))
+    assert prs_curve(full, ["a", "b", "c"], [("a", "c")])[2] == 0.5
     assert len(all_pairs(list("abcdefgh"))) == 28
     with pytest.raises(ValueError, match="not in the stream"):
-        prs_curve(full, SURGICAI_SKILLS, MT5_PAIRS)
+        prs_curve(full, ["a-v3", "b", "c"], [("a", "b")])  # the core knows no naming scheme
 
 
 def test_bad_success_matrices_are_rejected():

@@ -12,6 +12,7 @@ import av
 import numpy as np
 import pytest
 
+from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.imitation.cli import train_main
 from sr_imitation.main_job import main as main_job
 
@@ -136,10 +137,10 @@ def test_the_report_is_rebuilt_from_the_evaluation_files(main_job_run, tmp_path)
     }
     for phase, values in doctored.items():
         path = run / phase / "eval.json"
-        record = json.loads(path.read_text())
+        record = read_checked_json(path)
         for skill, value in values.items():
             record[skill]["success"], record[skill]["success_per_seed"] = value, [value]
-        path.write_text(json.dumps(record))
+        write_checked_json(path, record)  # re-sealed: an edit without it is refused (test_checked_files)
     train_main([f"--config_path={tmp / 'run' / 'train_config.json'}", f"--output_dir={run}", "--resume=true"])
     results = _check_results_against_files(run, ["approach", "place"])
     assert results["success_matrix"] == [[0.5, None], [0.25, 1.0]]

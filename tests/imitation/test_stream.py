@@ -11,7 +11,7 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.core.fingerprint import SettingsMismatchError
-from sr_imitation.core.io import CorruptFileError
+from sr_imitation.core.io import CorruptFileError, write_checked_json
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import DatasetMismatchError
 from sr_imitation.imitation.stream import train_stream
@@ -150,7 +150,8 @@ def test_resume_refuses_changed_settings_and_missing_files(finished_run, tmp_pat
     cfg.seed = 7
     progress = json.loads((out / "progress.json").read_text())
     del progress["completed"]["3.sleep.eval"]
-    (out / "progress.json").write_text(json.dumps(progress))
+    del progress["sha256"]
+    write_checked_json(out / "progress.json", progress)
     (out / "memories" / "skill_2_place.safetensors").unlink()
     with pytest.raises(FileNotFoundError, match="skill_2_place.safetensors"):
         train_stream(cfg, fake_env_factory)

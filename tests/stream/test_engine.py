@@ -11,6 +11,7 @@ import pytest
 import torch
 
 from sr_imitation.core.fingerprint import SettingsMismatchError, settings_fingerprint
+from sr_imitation.core.io import CorruptFileError
 from sr_imitation.stream import (
     METHODS,
     ContinualMethod,
@@ -160,6 +161,13 @@ def test_run_directory_refuses_before_writing(tmp_path):
     with pytest.raises(FileNotFoundError, match="holds no run"):
         make_engine(tmp_path / "empty", resume=True).run()
     assert {p: p.read_bytes() for p in out.rglob("*") if p.is_file()} == before
+    # a progress file edited by hand (or a flipped byte) is refused naming it, and is left as it was
+    progress = out / "progress.json"
+    good = progress.read_bytes()
+    progress.write_bytes(good.replace(b'"1.wake"', b'"2.wake"'))
+    with pytest.raises(CorruptFileError, match=r"progress.json: contents do not match its sha256"):
+        make_engine(out, resume=True).run()
+    progress.write_bytes(good)
     # leftovers of an interrupted atomic write are removed on resume, never read
     (out / "stage1" / ".wake.safetensors.abc.tmp").write_bytes(b"torn")
     (out / ".sleep.x1").mkdir()
@@ -173,9 +181,14 @@ def _raise() -> None:
 
 def test_registry_names_choices_and_refuses_other_substrates():
     assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
-    assert methods_for("act") == methods_for("sac") == ["sequential_bc", "sr", "wake_only"]
-    with pytest.raises(ValueError, match=r"unknown method 'ewc'; choose from \['sequential_bc', 'sr', 'wake_only'\]"):
+    assert methods_for("act") == ["sequential_bc", "sr", "wake_only"]
+    assert methods_for("sac") == ["agem", "clear", "der", "ewc", "nash_mtl", "pcgrad", "progress_compress",
+                                  "reset_distill", "sequential_bc", "sr", "wake_only"]
+    with pytest.raises(ValueError, match=r"unknown method 'ewc' on the act substrate; choose from "
+                                         r"\['sequential_bc', 'sr', 'wake_only'\]"):
         make_method("ewc", "act", ToySubstrate(Path("."), SKILLS).method_settings())
+    with pytest.raises(ValueError, match=r"unknown method 'lwf'; choose from"):
+        make_method("lwf", "sac", ToySubstrate(Path("."), SKILLS).method_settings())
     with pytest.raises(ValueError, match="on the mujoco substrate"):
         make_method("sr", "mujoco", ToySubstrate(Path("."), SKILLS).method_settings())
     with pytest.raises(TypeError, match="name and substrates"):

@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from sr_imitation.core.io import read_checked_json
 from sr_imitation.stream.results import (
     RESULTS_VERSION,
     build_results,
@@ -67,7 +68,7 @@ def test_labels_and_an_unmeasured_after_wake_reference():
 def test_written_files_agree(tmp_path):
     r = _results()
     write_results(tmp_path, r)
-    assert json.loads((tmp_path / "results.json").read_text()) == r
+    assert read_checked_json(tmp_path / "results.json") == r
     md = (tmp_path / "results.md").read_text()
     assert md == render_markdown(r) and f"{r['metrics']['afsr']['final']:.3f}" in md
     assert (tmp_path / "metrics.png").stat().st_size > 1000 and (tmp_path / "success_matrix.png").stat().st_size > 1000

@@ -15,12 +15,14 @@ from sr_imitation.core.io import atomic_write_json, load_checked_safetensors, sa
 from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.stream import MethodSettings, SleepProblem
+from sr_imitation.stream.methods.base import WakeStep
 
 PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
 
 
 class ToySubstrate:
     name: ClassVar[str] = "toy"
+    wake_hooks: ClassVar[bool] = True
 
     extension_keys: ClassVar[tuple[str, ...]] = ("skills", "extend_from")
 
@@ -47,17 +49,27 @@ class ToySubstrate:
     def begin_phase(self, k: int, phase: str) -> None:
         torch.manual_seed(self.seed * 1000 + 10 * (k + 1) + PHASE_IDS[phase])
 
-    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float) -> tuple[dict[str, Any],
-                                                                                         dict[str, Any]]:
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
+             ) -> tuple[dict[str, Any], dict[str, Any]]:
         self.calls.append(("wake", k))
         opt = torch.optim.SGD(self.policy.parameters(), lr=0.05)
-        for _ in range(self.wake_steps):
+        hooks = method is not None and method.has_wake_hooks
+        generator = torch.Generator().manual_seed(100 + k)
+        for update in range(self.wake_steps):
             x = torch.randn(32, 4)
-            loss = (self.policy(x) - x @ self.maps[k]).pow(2).sum(1).mean()
+            step = WakeStep(k, update, self.policy_parameters(), self.policy_fn, {"obs": x, "y": x @ self.maps[k]},
+                            generator)
+            if hooks:
+                step.batch = method.wake_batch(step)
+            loss = (self.policy(step.batch["obs"]) - step.batch["y"]).pow(2).sum(1).mean()
             for m in memories:
                 loss = loss + distill_weight * m.objective(self.policy_fn, 16)
+            if hooks:
+                loss = method.wake_loss(loss, step)
             opt.zero_grad()
             loss.backward()
+            if hooks:
+                method.adjust_gradients(step)
             opt.step()
         return {"loss": loss.item()}, {"wake_history.json": {"final_loss": loss.item()}}
 
@@ -67,8 +79,48 @@ class ToySubstrate:
         memory.save(self.out / "memories" / f"{k}.safetensors")
         return memory
 
-    def load_memory(self, k: int) -> Memory:
-        return load_memory(self.out / "memories" / f"{k}.safetensors", skill=self.skills[k])
+    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
+        memory.save(self.out / "memories" / f"{k}.{name}.safetensors")
+
+    def load_memory(self, k: int, name: str = "memory") -> Memory:
+        path = self.out / "memories" / (f"{k}.safetensors" if name == "memory" else f"{k}.{name}.safetensors")
+        return load_memory(path, skill=self.skills[k])
+
+    # what continual methods ask of the policy (the SAC substrate's names)
+    def policy_parameters(self) -> list[torch.Tensor]:
+        return list(self.policy.parameters())
+
+    def state_sample(self, k: int) -> torch.Tensor:
+        return torch.randn(64, 4, generator=torch.Generator().manual_seed(200 + k))
+
+    def reset_networks(self, k: int) -> None:
+        saved = torch.random.get_rng_state()
+        torch.manual_seed(500 + k)
+        fresh = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Tanh(), torch.nn.Linear(16, 2))
+        torch.random.set_rng_state(saved)
+        self.policy.load_state_dict(fresh.state_dict())
+
+    def load_actor(self, k: int, phase: str) -> None:
+        self.load_policy(k, phase)
+
+    def memory_skill(self, k: int) -> str:
+        return self.skills[k]
+
+    def gaussian_policy(self, states: torch.Tensor) -> torch.Tensor:
+        return self.policy(states)
+
+    def log_likelihood(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
+        mean = self.policy(states)
+        with torch.no_grad():
+            u = mean + 0.1 * torch.randn(mean.shape, generator=generator)
+        return torch.distributions.Normal(mean, 0.1).log_prob(u).sum(-1)
+
+    def transition_sample(self, k: int) -> dict[str, torch.Tensor]:
+        x = torch.randn(64, 4, generator=torch.Generator().manual_seed(400 + k))
+        return {"obs": x, "y": x @ self.maps[k]}
+
+    def memory_states(self, k: int) -> torch.Tensor:
+        return torch.randn(64, 4, generator=torch.Generator().manual_seed(300 + k))
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         return [k] if sleeps else list(range(k + 1))

@@ -50,6 +50,18 @@ class Skill(StrEnum):
 
 SKILLS: tuple[Skill, ...] = tuple(Skill)
 SKILL_NAMES: tuple[str, ...] = tuple(s.value for s in Skill)
+"""Stream order (Appendix A.2, "Skill stream")."""
+
+PRS_PAIRS: tuple[tuple[str, str], ...] = (
+    ("approach", "place"),
+    ("place", "insert"),
+    ("insert", "regrasp"),
+    ("regrasp", "pullout"),
+    ("approach", "insert"),
+    ("place", "regrasp"),
+    ("insert", "pullout"),
+)
+"""The seven pre-registered workflow-ordered SurgicAI PRS pairs (Appendix A.2, "Evaluation protocol")."""
 
 
 @dataclass(frozen=True)

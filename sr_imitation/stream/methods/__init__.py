@@ -4,8 +4,19 @@ Adding a baseline: write ``sr_imitation/stream/methods/<name>.py`` with a :class
 decorated by :func:`register_method`, and import it below.
 """
 
-from sr_imitation.stream.methods import sequential_bc, sleeping_robots  # noqa: F401  (register the methods)
-from sr_imitation.stream.methods.base import ContinualMethod
+from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
+    agem,
+    clear,
+    der,
+    ewc,
+    nash_mtl,
+    pcgrad,
+    progress_compress,
+    reset_distill,
+    sequential_bc,
+    sleeping_robots,
+)
+from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import METHODS, make_method, methods_for, register_method
 
-__all__ = ["METHODS", "ContinualMethod", "make_method", "methods_for", "register_method"]
+__all__ = ["METHODS", "ContinualMethod", "WakeStep", "make_method", "methods_for", "register_method"]

@@ -1,19 +1,55 @@
 """The continual-method plugin interface (in the spirit of Continual World's and Avalanche's hooks).
 
-The engine asks a method, per skill, which memories its wake distils from and with what weight, whether it stores
-a memory, and whether it sleeps; ``on_skill_start`` / ``on_skill_end`` let a method compute what it keeps (e.g. a
-Fisher estimate). Everything else (data, wake loop, checkpoints, evaluation, metrics, resume) belongs to the engine
-and the substrate, so a baseline is one file: subclass :class:`ContinualMethod`, decorate it with
-:func:`register_method`.
+A method answers, per skill:
+
+* what its wake adds: :meth:`ContinualMethod.wake_memories` (distillation from memories at gamma_k, the substrate's
+  own wake term, ACT), :meth:`~ContinualMethod.wake_loss` (an auxiliary loss on every policy update: EWC's penalty,
+  DER's distillation) and :meth:`~ContinualMethod.adjust_gradients` (a change of the policy gradient after the
+  backward pass: A-GEM's projection, PCGrad, Nash-MTL), both on the :class:`WakeStep` the substrate's wake loop hands
+  it at each policy update;
+* what it keeps after the wake: :meth:`~ContinualMethod.make_memory` (default: the substrate's memory, what SR's
+  sleep needs; EWC keeps a parameter snapshot and Fisher instead);
+* whether it sleeps: :meth:`~ContinualMethod.sleeps_after`;
+* ``on_skill_start`` / ``on_skill_end`` for anything else.
+
+Everything else (data, wake loop, checkpoints, evaluation, metrics, resume) belongs to the engine and the substrate,
+so a baseline is one file: subclass :class:`ContinualMethod`, decorate it with :func:`register_method`. A method's
+state must come from files the run directory holds (its memories, the checkpoints), never from what happened
+earlier in the process: a resumed run must compute the same numbers.
 """
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
 from typing import Any, ClassVar
 
+from torch import Tensor
+
 from sr_imitation.core.memory import Memory
-from sr_imitation.stream.substrate import MethodSettings, Substrate
+from sr_imitation.stream.substrate import MethodSettings, SleepProblem, Substrate
+
+
+@dataclass
+class WakeStep:
+    """What a substrate's wake loop hands a method at every policy update.
+
+    Attributes:
+        stage: k, the 0-based index of the skill being learned.
+        update: the number of policy updates already made in this wake (0 at the first).
+        parameters: theta, the deployed policy's trainable parameters (those the sleep updates), whose ``.grad``
+            :meth:`ContinualMethod.adjust_gradients` may change.
+        policy: the current policy as the memories evaluate it (:meth:`Memory.loss`'s ``policy`` argument).
+        batch: the update's batch of the current skill, in the substrate's layout (SAC: raw ``obs`` etc.).
+        generator: the wake's generator for anything the method samples (memory batches), seeded per stage.
+    """
+
+    stage: int
+    update: int
+    parameters: Sequence[Tensor]
+    policy: Any
+    batch: Mapping[str, Tensor]
+    generator: Any = None
 
 
 class ContinualMethod:
@@ -31,6 +67,55 @@ class ContinualMethod:
 
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
+        self.memories: list[Memory] = []
+
+    # -- wake ---------------------------------------------------------------------------------------------
+    def begin_wake(self, k: int, memories: Sequence[Memory], substrate: Substrate) -> None:
+        """Called before the wake of stage ``k`` (also a resumed one) with the memories M_1..M_k-1 kept so far."""
+        self.memories = list(memories)
+
+    def wake_batch(self, step: WakeStep) -> Mapping[str, Tensor]:
+        """The batch the update trains on, given the current skill's ``step.batch`` (CLEAR mixes in replayed
+        transitions; on SAC it feeds critic and actor). Default: ``step.batch`` unchanged."""
+        return step.batch
+
+    def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
+        """The loss the wake differentiates for this update, given the substrate's own policy loss ``loss``
+        (SAC: the actor loss). Default: ``loss`` unchanged."""
+        return loss
+
+    def adjust_gradients(self, step: WakeStep) -> dict[str, float]:
+        """Change ``p.grad`` of ``step.parameters`` after the backward pass, before the optimizer step; returns
+        numbers to log. Default: nothing."""
+        return {}
+
+    @property
+    def has_wake_hooks(self) -> bool:
+        """Whether :meth:`wake_batch`, :meth:`wake_loss` or :meth:`adjust_gradients` are overridden (substrates
+        without hook support refuse such methods)."""
+        cls = type(self)
+        return any(getattr(cls, hook) is not getattr(ContinualMethod, hook)
+                   for hook in ("wake_batch", "wake_loss", "adjust_gradients"))
+
+    # -- memory -------------------------------------------------------------------------------------------
+    def make_memory(self, k: int, substrate: Substrate) -> Memory:
+        """M_k, made right after wake k while the policy is theta_k^wake (only if :attr:`stores_memories`).
+        Default: the substrate's memory (what SR's sleep consolidates). Must be saved with
+        ``substrate.save_memory(k, memory)`` unless the substrate's :meth:`make_memory` saved it."""
+        return substrate.make_memory(k)
+
+    def load_memory(self, k: int, substrate: Substrate) -> Memory:
+        """M_k as :meth:`make_memory` saved it (a resumed run). Default: ``substrate.load_memory(k)``."""
+        return substrate.load_memory(k)
+
+    def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
+        """Memories the method keeps besides M_1..M_K (counted in the memory budget; Progress & Compress's
+        knowledge-base Fishers). Default: none."""
+        return []
+
+    def memory_contents(self) -> str:
+        """What the memories hold, in words, for the memory-budget table."""
+        return "the substrate's skill memory" if self.stores_memories else "nothing"
 
     def wake_memories(self, skill_number: int, memories: Sequence[Memory]) -> tuple[list[Memory], float]:
         """Memories and weight gamma_k of the wake's distillation term for the ``skill_number``-th skill
@@ -40,6 +125,16 @@ class ContinualMethod:
     def sleeps_after(self, skill_number: int) -> bool:
         """Whether a sleep follows the wake of the ``skill_number``-th skill (1-based)."""
         return False
+
+    def sleep_memories(self, k: int, memories: Sequence[Memory]) -> list[Memory]:
+        """The memories the sleep after wake k consolidates (default: M_1..M_k)."""
+        return list(memories[: k + 1])
+
+    def prepare_sleep(self, k: int, problem: SleepProblem, substrate: Substrate) -> SleepProblem:
+        """The sleep problem of stage k as the method wants it (default: the substrate's, i.e. SR's). A method that
+        uses the sleep phase for its own offline consolidation (Reset & Distill's distillation) changes the policy
+        function, the configuration or the parameters' starting point here."""
+        return problem
 
     def on_skill_start(self, k: int, substrate: Substrate) -> None:
         """Called before the wake of stage ``k`` (0-based), also when that wake is resumed."""

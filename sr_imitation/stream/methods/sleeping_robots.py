@@ -23,16 +23,21 @@ class SleepingRobots(ContinualMethod):
 
     name = "sr"
     substrates = frozenset({"act", "sac"})
-    stores_memories = True
+
+    @property
+    def stores_memories(self) -> bool:  # type: ignore[override]
+        """Memories serve the sleep and, where the wake distils (ACT), the wake; a SAC run without sleep (the
+        wake-only ablation) uses none and keeps none (its memory budget is 0)."""
+        return self.settings.sleep or self.settings.distill_weight is not None
+
+    def sleeps_after(self, skill_number: int) -> bool:
+        return self.settings.sleep and skill_number >= 2
 
     def wake_memories(self, skill_number: int, memories: Sequence[Memory]) -> tuple[list[Memory], float]:
         weight = self.settings.distill_weight
         if weight is None:  # the substrate's wake has no distillation term (SAC: the paper's wake is plain SAC)
             return [], 0.0
         return list(memories), weight(skill_number)
-
-    def sleeps_after(self, skill_number: int) -> bool:
-        return self.settings.sleep and skill_number >= 2
 
     def describe(self) -> dict[str, Any]:
         variant = "sleeping_robots" if self.settings.sleep else "sr_wake_only"
@@ -44,6 +49,10 @@ class WakeOnly(SleepingRobots):
     """The paper's "SR Wake-Only" ablation: the same wake (and memories), never a sleep."""
 
     name = "wake_only"
+
+    @property
+    def stores_memories(self) -> bool:  # type: ignore[override]
+        return self.settings.distill_weight is not None  # only a distilling wake (ACT) uses them
 
     def sleeps_after(self, skill_number: int) -> bool:
         return False

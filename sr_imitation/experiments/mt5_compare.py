@@ -1,0 +1,156 @@
+"""Every continual method on the Meta-World stream, several training seeds, one table (issue: RL baselines on MT5).
+
+    python -m sr_imitation.experiments.mt5_compare --preset=configs/sac_mt5_cpu.json \\
+        --seeds=[0,1] --variants=[sr,wake_only,ewc] --output_root=outputs/mt5_compare
+
+Each (variant, seed) is an ordinary ``sr-train --substrate=sac`` run of the preset plus the variant's flags, in
+``<output_root>/<variant>_seed<seed>``. The runner skips finished runs (``results.json`` present), resumes killed ones
+(``progress.json`` present) and starts the others, one after another, then writes the shared multi-run summary
+(``summary.json`` / ``.md`` / ``.png``: AFSR, PRS, BWT against both references, SPI, mean +- SE over seeds, paired
+differences to ``sr``) and ``memory.md`` (bytes each method's continual-learning mechanism stores at the end of the
+stream, by memory kind, next to the paper's memory-budget table).
+
+Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (the SR ablation: same wake, no sleep, no memory);
+``sequential`` (plain SAC fine-tuning); the paper's baselines ``ewc``, ``agem``, ``der``, ``clear``,
+``reset_distill``, ``progress_compress``, ``nash_mtl``, ``pcgrad``; the SR ablations ``sr_mean_grad`` (raw-gradient
+mean), ``sr_no_anchor``, ``sr_no_exc``, ``sr_no_wake_exc``, ``sr_no_sleep_exc``; the streams ``sr_reverse``
+(reverse MT5) and ``sr_mt8`` (MT8 continued from the same seed's finished ``sr`` run, which must be listed
+before it). Baselines use the plain ReLU actor of the paper's SAC substrate (excitability is part of Sleeping
+Robots: appendix A.1, "For Sleeping Robots, each hidden neuron additionally carries the homeostatic excitability
+variable"); ``--excitability.enabled=false`` keeps every gain at 1, which is that actor.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+
+from sr_imitation.core.io import atomic_write_bytes
+from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.summary import summarize as summary_of
+from sr_imitation.stream.summary import write_summary
+
+logger = logging.getLogger(__name__)
+
+PLAIN_ACTOR = ["--excitability.enabled=false"]
+VARIANTS: dict[str, list[str]] = {
+    "sr": [],
+    "wake_only": ["--sleep.enabled=false"],
+    "sequential": ["--method=sequential_bc", *PLAIN_ACTOR],
+    "ewc": ["--method=ewc", *PLAIN_ACTOR],
+    "agem": ["--method=agem", *PLAIN_ACTOR],
+    "der": ["--method=der", *PLAIN_ACTOR],
+    "clear": ["--method=clear", *PLAIN_ACTOR],
+    "reset_distill": ["--method=reset_distill", *PLAIN_ACTOR],
+    "progress_compress": ["--method=progress_compress", *PLAIN_ACTOR],
+    "nash_mtl": ["--method=nash_mtl", *PLAIN_ACTOR],
+    "pcgrad": ["--method=pcgrad", *PLAIN_ACTOR],
+    "sr_mean_grad": ["--sleep.aggregator=mean_grad"],
+    "sr_no_anchor": ["--sleep.anchor_strength=0"],
+    "sr_no_exc": ["--excitability.enabled=false"],
+    "sr_no_wake_exc": ["--excitability.wake_enabled=false"],
+    "sr_no_sleep_exc": ["--excitability.sleep_enabled=false"],
+    "sr_reverse": ["--stream.name=mt5-reverse"],
+    "sr_mt8": ["--stream.name=mt8"],  # + --stream.extend_from=<the seed's sr run>
+}
+"""variant -> the flags it adds to the preset (``sr-train --substrate=sac``)."""
+
+PAPER_MEMORY_MB = {"ewc": 3.0, "agem": 0.7, "der": 1.6, "clear": 2.5, "reset_distill": 2.2,
+                   "progress_compress": 3.0, "nash_mtl": 3.7, "pcgrad": 3.7, "componet": 4.0, "sr": 3.7}
+"""The paper's memory-budget table (MB at K = 5)."""
+
+PAIRED_BASELINE = "sr"
+
+
+@dataclass
+class MT5CompareConfig:
+    preset: Path = Path("configs/sac_mt5_cpu.json")
+    """The SAC configuration every run starts from."""
+    seeds: list[int] = field(default_factory=lambda: [0, 1])
+    """Training seeds."""
+    variants: list[str] = field(default_factory=lambda: ["sr", "wake_only"])
+    """Variants to run (:data:`VARIANTS`), in this order."""
+    output_root: Path = Path("outputs/mt5_compare")
+    """Where the runs, the summary and the memory table go."""
+    extra: list[str] = field(default_factory=list)
+    """Flags added to every run (e.g. ``--eval.episodes=10``)."""
+
+    def __post_init__(self) -> None:
+        unknown = [v for v in self.variants if v not in VARIANTS]
+        if unknown:
+            raise ValueError(f"variants: unknown {unknown}; choose from {sorted(VARIANTS)}")
+        if "sr_mt8" in self.variants and ("sr" not in self.variants
+                                          or self.variants.index("sr") > self.variants.index("sr_mt8")):
+            raise ValueError("variants: sr_mt8 continues the seed's sr run; list sr before it")
+
+
+def run_args(cfg: MT5CompareConfig, variant: str, seed: int) -> list[str]:
+    """The ``sr-train --substrate=sac`` arguments of one run."""
+    out = cfg.output_root / f"{variant}_seed{seed}"
+    args = [f"--config_path={cfg.preset}", f"--seed={seed}", f"--output_dir={out}", *VARIANTS[variant], *cfg.extra]
+    if variant == "sr_mt8":
+        args.append(f"--stream.extend_from={cfg.output_root / f'sr_seed{seed}'}")
+    if (out / "progress.json").exists():
+        args.append("--resume=true")
+    return args
+
+
+def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
+    from sr_imitation.rl.cli import parse, train
+
+    runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
+    for variant in cfg.variants:
+        for seed in cfg.seeds:
+            out = cfg.output_root / f"{variant}_seed{seed}"
+            if (out / "results.json").exists():
+                logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
+            else:
+                logger.info("=== %s seed %d -> %s", variant, seed, out)
+                train(parse(run_args(cfg, variant, seed)))
+            runs[variant][str(seed)] = out
+    return summarize(runs, cfg.output_root)
+
+
+def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
+    """The shared summary of ``{variant: {seed: run}}`` paired against ``sr``, and the memory table."""
+    groups = {variant: {seed: load_results(run) for seed, run in per_seed.items()}
+              for variant, per_seed in runs.items()}
+    summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))
+    write_summary(output_root, summary)
+    atomic_write_bytes(output_root / "memory.md", memory_table(groups).encode())
+    return summary
+
+
+def memory_table(groups: dict[str, dict[str, dict[str, Any]]]) -> str:
+    """Markdown: per variant the bytes its mechanism stores at the end of the stream (first seed's run), by memory
+    kind, next to the paper's number."""
+    lines = ["| variant | ours (MB) | by kind (MB) | paper (MB) |", "|---|---|---|---|"]
+    for variant, per_seed in groups.items():
+        results = next(iter(per_seed.values()))
+        kinds = results.get("memory_kinds") or {}
+        by_kind = ", ".join(f"{k} {v / 1e6:.2f}" for k, v in sorted(kinds.items())) or "-"
+        paper = PAPER_MEMORY_MB.get(variant)
+        lines.append(f"| {variant} | {results['memory_bytes_total'] / 1e6:.2f} | {by_kind} | "
+                     f"{'-' if paper is None else f'{paper:.1f}'} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: list[str] | None = None) -> None:
+    setup_offscreen_rendering()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    cfg = draccus.parse(MT5CompareConfig, args=list(sys.argv[1:] if args is None else args))
+    summary = run_compare(cfg)
+    print(json.dumps({v: {m: row[m]["mean"] for m in METRICS} for v, row in summary["variants"].items()},  # noqa: T201
+                     indent=2))
+    print(f"written {cfg.output_root / 'summary.md'} and {cfg.output_root / 'memory.md'}")  # noqa: T201
+
+
+if __name__ == "__main__":
+    main()

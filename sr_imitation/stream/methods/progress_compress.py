@@ -1,0 +1,106 @@
+"""Progress & Compress (Schwarz et al., 2018) as the paper's MT5 baseline (appendix B.1), without lateral
+connections (our simplification; the paper's appendix names only the column reset, MSE distillation and EWC).
+
+Progress: an active column (a freshly initialized actor and critic per skill, as in Reset & Distill) learns the
+skill; it is frozen as the skill's expert (its Gaussian mean and log-std on ``states`` states of the skill).
+Compress: the knowledge base, the shared and deployed actor, continues from the previous compression and is
+trained on the *current* expert only, with EWC protecting what it held before:
+
+    min_theta  E_{s ~ B_k} || [mu_theta(s), log sigma_theta(s)] - [mu_k(s), log sigma_k(s)] ||^2
+               + (lambda / 2) sum_{i < k} sum_j F_{i,j} (theta_j - theta*_{i,j})^2
+
+where theta*_i is the knowledge base after compression i and F_i its diagonal Fisher on skill i's states
+(``fisher_states`` of them, normalized to unit Frobenius norm, as the paper says; estimated as in
+:mod:`~sr_imitation.stream.methods.ewc`). The compression runs in the engine's sleep phase (as Reset & Distill's
+distillation, with the EWC term as the sleep's regularizer); F_{k-1} is estimated when compression k starts, from
+the knowledge base it starts from (= theta*_{k-1}), and saved. After the first skill the knowledge base starts as
+the first active column (our choice). Compression: ``iterations`` Adam steps of ``batch_size`` states, ``lr``
+(ours: Reset & Distill's values); lambda = 1 (ours: EWC's).
+
+Memory: per skill the knowledge base's snapshot and Fisher (2 x the actor's parameters) and the expert's states and
+outputs (kept for a resume; only the current one is used).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, ClassVar
+
+import torch
+
+from sr_imitation.core.memory import Memory
+from sr_imitation.stream.methods.ewc import FisherMemory
+from sr_imitation.stream.methods.registry import register_method
+from sr_imitation.stream.methods.reset_distill import ResetDistill
+from sr_imitation.stream.substrate import SleepProblem, Substrate
+
+
+@dataclass(frozen=True)
+class ProgressCompressConfig:
+    iterations: int = 2000
+    """Compression steps after each skill (our choice: Reset & Distill's 2000)."""
+    batch_size: int = 256
+    """States of the current expert per step (our choice: Reset & Distill's 256)."""
+    lr: float = 3e-4
+    """Adam learning rate of the compression (our choice: SAC's actor learning rate)."""
+    lam: float = 1.0
+    """lambda of the EWC term (our choice: EWC's 1)."""
+    fisher_states: int = 2000
+    """States per skill for the knowledge base's Fisher (our choice: EWC's 2000)."""
+
+
+@register_method
+class ProgressCompress(ResetDistill):
+    """An active column per skill, compressed into one knowledge base by distillation under EWC."""
+
+    name = "progress_compress"
+    config: ClassVar[ProgressCompressConfig] = ProgressCompressConfig()  # type: ignore[assignment]
+
+    @property
+    def wake_state_sample(self) -> int:
+        return self.config.fisher_states
+
+    def sleep_memories(self, k: int, memories: Any) -> list[Memory]:
+        return [memories[k]]  # only the current active column is compressed
+
+    def _fisher(self, i: int, substrate: Any) -> FisherMemory:
+        """F_i and theta*_i of the knowledge base after compression i (estimated now if not saved yet: the caller
+        has the knowledge base at theta*_i)."""
+        try:
+            return substrate.load_memory(i, name="kb_fisher")
+        except FileNotFoundError:
+            memory = FisherMemory.estimate(substrate.memory_skill(i), substrate.policy_parameters(),
+                                           substrate.log_likelihood, substrate.state_sample(i),
+                                           torch.Generator().manual_seed(41 + i))
+            substrate.save_memory(i, memory, name="kb_fisher")
+            return memory
+
+    def prepare_sleep(self, k: int, problem: SleepProblem, substrate: Substrate) -> SleepProblem:
+        s: Any = substrate
+        fishers: list[FisherMemory] = []
+        if k > 0:
+            s.load_actor(k - 1, "sleep")  # the knowledge base after compression k - 1
+            fishers = [self._fisher(i, s) for i in range(k)]
+        c = self.config
+        config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
+                                     batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
+        lam = c.lam
+
+        def ewc(params: Any) -> torch.Tensor:
+            return 0.5 * lam * sum(f.penalty(params) for f in fishers)
+
+        return SleepProblem(s.policy_parameters(), lambda obs: s.gaussian_policy(obs["state"]), config,
+                            regularizer=ewc if fishers else None)
+
+    def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
+        s: Any = substrate
+        out = []
+        for i in range(stages):
+            with contextlib.suppress(FileNotFoundError):  # the last skill's Fisher: only if another skill follows
+                out.append(s.load_memory(i, name="kb_fisher"))
+        return out
+
+    def memory_contents(self) -> str:
+        return "knowledge-base snapshot + Fisher per skill, expert states + outputs"

@@ -1,0 +1,57 @@
+"""Every continual baseline end to end on a tiny two-skill SAC stream (issue: RL baselines on MT5): it runs through
+the one engine, shapes the second wake (its numbers are in the wake record), never sleeps, and reports the bytes of
+exactly the tensors it stores (wake-only: nothing)."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import pytest
+
+from sr_imitation.rl.config import EvalConfig
+from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.stream import METHODS
+from sr_imitation.stream.methods.ewc import EWC
+from tests.rl.test_trainer import tiny_config
+
+WAKE_NUMBERS = {"agem": "agem_projected", "nash_mtl": "weight_current", "pcgrad": "weight_current",
+                "clear": "replayed"}
+
+
+@pytest.mark.parametrize("method", ["ewc", "der", "agem", "clear", "nash_mtl", "pcgrad", "reset_distill",
+                                    "progress_compress"])
+def test_a_baseline_runs_end_to_end_on_sac(tmp_path, method, monkeypatch):
+    if method == "ewc":
+        monkeypatch.setattr(EWC, "config", type(EWC.config)(fisher_states=40))  # tiny: 40 states, not 2000
+    if method in ("reset_distill", "progress_compress"):  # tiny: 20 distillation steps, not 2000
+        cls = METHODS[method]
+        monkeypatch.setattr(cls, "config", dataclasses.replace(cls.config, iterations=20, batch_size=16))
+    trainer = StreamTrainer(tiny_config(tmp_path / method, method=method,
+                                        eval=EvalConfig(episodes=1, videos_per_skill=0)))
+    results = trainer.run()
+    completed = trainer.run_dir.progress["completed"]
+    sleeps = {key for key in completed if key.endswith(".sleep")}
+    distills = method in ("reset_distill", "progress_compress")
+    assert sleeps == ({"1.sleep", "2.sleep"} if distills else set()) and results["method"] == method
+    assert set(results["memory_bytes"]) == {"reach", "door-open"}
+    kept = trainer.engine.memories + trainer.method.extra_memories(trainer.substrate, 2)
+    assert results["memory_bytes_total"] == sum(m.nbytes() for m in kept) > 0
+    assert sum(results["memory_kinds"].values()) == results["memory_bytes_total"]
+    if method == "progress_compress":  # the knowledge base's Fisher after compression 1 (protecting skill 1)
+        assert {type(m).__name__ for m in kept} == {"OutputDistillationMemory", "FisherMemory"}
+    kinds = {type(m).__name__ for m in trainer.engine.memories}
+    assert kinds == {"ewc": {"FisherMemory"}, "der": {"OutputDistillationMemory"},
+                     "clear": {"TransitionMemory"}, "reset_distill": {"OutputDistillationMemory"},
+                     "progress_compress": {"OutputDistillationMemory"}}.get(method, {"CriticMemory"})
+    if method in WAKE_NUMBERS:
+        assert WAKE_NUMBERS[method] in completed["2.wake"]["wake"]["method"]
+        assert "method" not in completed["1.wake"]["wake"]  # no past skill: the hooks had nothing to do
+
+
+def test_sac_wake_only_stores_no_memory(tmp_path):
+    cfg = tiny_config(tmp_path / "w", eval=EvalConfig(episodes=1, videos_per_skill=0))
+    cfg.sleep.enabled = False
+    trainer = StreamTrainer(cfg)
+    results = trainer.run()
+    assert results["label"] == "wake_only" and results["memory_bytes_total"] == 0
+    assert not any(key.endswith("memory") for key in trainer.run_dir.progress["completed"])

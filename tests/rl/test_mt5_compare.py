@@ -1,0 +1,57 @@
+"""The MT5 comparison runner: every variant's flags parse, finished runs are skipped, killed runs resume, the memory
+table names the bytes each method stores (tiny preset written from the test's tiny configuration)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from sr_imitation.experiments.mt5_compare import VARIANTS, MT5CompareConfig, memory_table, run_args, run_compare
+from sr_imitation.rl.cli import parse
+from tests.rl.test_trainer import tiny_config
+
+
+@pytest.fixture
+def tiny_preset(tmp_path):
+    from sr_imitation.rl.config import EvalConfig
+
+    cfg = tiny_config(tmp_path / "unused", eval=EvalConfig(episodes=1, videos_per_skill=0))
+    stored = cfg.stored_config()
+    stored.pop("output_dir", None)
+    path = tmp_path / "tiny.json"
+    path.write_text(json.dumps(stored))
+    return path
+
+
+def test_every_variant_parses_to_its_method_and_settings(tmp_path, tiny_preset):
+    cfg = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=list(VARIANTS), output_root=tmp_path / "c")
+    for variant in VARIANTS:
+        run = parse(run_args(cfg, variant, 0))
+        assert run.output_dir == tmp_path / "c" / f"{variant}_seed0" and run.seed == 0
+        assert run.method == {"wake_only": "sr", "sequential": "sequential_bc"}.get(
+            variant, variant if variant in ("ewc", "agem", "der", "clear", "reset_distill", "progress_compress",
+                                            "nash_mtl", "pcgrad") else "sr")
+        baseline = run.method not in ("sr",)
+        assert run.excitability.enabled == (not baseline and variant != "sr_no_exc"), variant
+    assert parse(run_args(cfg, "wake_only", 0)).sleep.enabled is False
+    assert parse(run_args(cfg, "sr_mean_grad", 0)).sleep.aggregator == "mean_grad"
+    assert parse(run_args(cfg, "sr_mt8", 0)).stream.extend_from == tmp_path / "c" / "sr_seed0"
+    with pytest.raises(ValueError, match="list sr before it"):
+        MT5CompareConfig(variants=["sr_mt8", "sr"])
+    with pytest.raises(ValueError, match="unknown"):
+        MT5CompareConfig(variants=["sr", "lwf"])
+
+
+def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_preset, monkeypatch):
+    cfg = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["sr", "wake_only", "der"],
+                           output_root=tmp_path / "c")
+    summary = run_compare(cfg)
+    assert set(summary["variants"]) == {"sr", "wake_only", "der"}
+    table = (tmp_path / "c" / "memory.md").read_text()
+    assert "| wake_only | 0.00 | - | - |" in table and "| der | " in table and "output_distillation" in table
+    from sr_imitation.rl import cli
+
+    monkeypatch.setattr(cli, "train", lambda cfg: pytest.fail(f"{cfg.output_dir} was re-run"))
+    run_compare(cfg)  # everything finished: nothing runs again
+    memory_table({"x": {"0": {"memory_bytes_total": 2_000_000, "memory_kinds": {"sac_critic": 2_000_000}}}})
