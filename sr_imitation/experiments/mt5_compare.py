@@ -15,7 +15,8 @@ Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (the SR ablation: same wake, 
 ``reset_distill``, ``progress_compress``, ``nash_mtl``, ``pcgrad``; the SR ablations ``sr_mean_grad`` (raw-gradient
 mean), ``sr_no_anchor``, ``sr_no_exc``, ``sr_no_wake_exc``, ``sr_no_sleep_exc``; the streams ``sr_reverse``
 (reverse MT5) and ``sr_mt8`` (MT8 continued from the same seed's finished ``sr`` run, which must be listed
-before it). Baselines use the plain ReLU actor of the paper's SAC substrate (excitability is part of Sleeping
+before it); the oracle ``mt_joint`` (:mod:`sr_imitation.rl.mt_joint`, reported apart). Baselines use the
+plain ReLU actor of the paper's SAC substrate (excitability is part of Sleeping
 Robots: appendix A.1, "For Sleeping Robots, each hidden neuron additionally carries the homeostatic excitability
 variable"); ``--excitability.enabled=false`` keeps every gain at 1, which is that actor.
 """
@@ -59,6 +60,7 @@ VARIANTS: dict[str, list[str]] = {
     "sr_no_sleep_exc": ["--excitability.sleep_enabled=false"],
     "sr_reverse": ["--stream.name=mt5-reverse"],
     "sr_mt8": ["--stream.name=mt8"],  # + --stream.extend_from=<the seed's sr run>
+    "mt_joint": [],  # the oracle (sr_imitation.rl.mt_joint): all skills at once, plain actor; reported apart
 }
 """variant -> the flags it adds to the preset (``sr-train --substrate=sac``)."""
 
@@ -104,6 +106,7 @@ def run_args(cfg: MT5CompareConfig, variant: str, seed: int) -> list[str]:
 
 def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
     from sr_imitation.rl.cli import parse, train
+    from sr_imitation.rl.mt_joint import run_mt_joint
 
     runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
     for variant in cfg.variants:
@@ -111,6 +114,9 @@ def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
             out = cfg.output_root / f"{variant}_seed{seed}"
             if (out / "results.json").exists():
                 logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
+            elif variant == "mt_joint":
+                logger.info("=== %s seed %d -> %s", variant, seed, out)
+                run_mt_joint(parse(run_args(cfg, variant, seed)))
             else:
                 logger.info("=== %s seed %d -> %s", variant, seed, out)
                 train(parse(run_args(cfg, variant, seed)))
