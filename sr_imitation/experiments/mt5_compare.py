@@ -10,15 +10,15 @@ Each (variant, seed) is an ordinary ``sr-train --substrate=sac`` run of the pres
 differences to ``sr``) and ``memory.md`` (bytes each method's continual-learning mechanism stores at the end of the
 stream, by memory kind, next to the paper's memory-budget table).
 
-Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (the SR ablation: same wake, no sleep, no memory);
-``sequential`` (plain SAC fine-tuning); the paper's baselines ``ewc``, ``agem``, ``der``, ``clear``,
-``reset_distill``, ``progress_compress``, ``nash_mtl``, ``pcgrad``; the SR ablations ``sr_mean_grad`` (raw-gradient
-mean), ``sr_no_anchor``, ``sr_no_exc``, ``sr_no_wake_exc``, ``sr_no_sleep_exc``; the streams ``sr_reverse``
-(reverse MT5) and ``sr_mt8`` (MT8 continued from the same seed's finished ``sr`` run, which must be listed
-before it); the oracle ``mt_joint`` (:mod:`sr_imitation.rl.mt_joint`, reported apart). Baselines use the
-plain ReLU actor of the paper's SAC substrate (excitability is part of Sleeping
-Robots: appendix A.1, "For Sleeping Robots, each hidden neuron additionally carries the homeostatic excitability
-variable"); ``--excitability.enabled=false`` keeps every gain at 1, which is that actor.
+Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (the SR ablation: same wake, no sleep, no memory); ``sequential``
+(plain SAC fine-tuning); the paper's baselines ``ewc``, ``agem``, ``der``, ``clear``, ``reset_distill``,
+``progress_compress``, ``nash_mtl``, ``pcgrad``, ``componet``; the SR ablations ``sr_mean_grad`` (raw-gradient
+mean), ``sr_no_anchor``, ``sr_no_exc``, ``sr_no_wake_exc``, ``sr_no_sleep_exc``; the streams ``sr_reverse`` (reverse
+MT5) and ``sr_mt8`` (MT8 continued from the same seed's finished ``sr`` run, which must be listed before it); the
+oracle ``mt_joint`` (:mod:`sr_imitation.rl.mt_joint`, reported apart). Baselines use the plain ReLU actor of the
+paper's SAC substrate (excitability is part of Sleeping Robots: appendix A.1, "For Sleeping Robots, each hidden
+neuron additionally carries the homeostatic excitability variable"); ``--excitability.enabled=false`` keeps every
+gain at 1, which is that actor.
 """
 
 from __future__ import annotations
@@ -53,6 +53,7 @@ VARIANTS: dict[str, list[str]] = {
     "progress_compress": ["--method=progress_compress", *PLAIN_ACTOR],
     "nash_mtl": ["--method=nash_mtl", *PLAIN_ACTOR],
     "pcgrad": ["--method=pcgrad", *PLAIN_ACTOR],
+    "componet": ["--method=componet"],  # its own plain-ReLU actor (sr_imitation.rl.composed_actor)
     "sr_mean_grad": ["--sleep.aggregator=mean_grad"],
     "sr_no_anchor": ["--sleep.anchor_strength=0"],
     "sr_no_exc": ["--excitability.enabled=false"],

@@ -42,7 +42,7 @@ from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import STREAMS, SkillEnv, canonical_skill
 from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
-from sr_imitation.rl.sac import SACAgent
+from sr_imitation.rl.sac import SACAgent, TwinQ
 from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem
@@ -198,6 +198,26 @@ class SACSubstrate:
         self.agent.load_state_dict(fresh.state_dict())
         self.agent.reset_optimizers(reset_alpha=True)
 
+    def replace_actor(self, build: Any) -> None:
+        """Put ``build(sac_config, n_skills)`` in place of the actor (seeded from the run seed; fresh optimizers):
+        a method's architecture (CompoNet). Called before any checkpoint is loaded."""
+        saved = torch.random.get_rng_state()
+        torch.manual_seed(stage_seed(self.cfg.seed, len(self.skills), 21) % (2**63))
+        self.agent.actor = build(self.cfg.sac, len(self.skills)).to(self.agent.device)
+        torch.random.set_rng_state(saved)
+        self.agent.reset_optimizers()
+
+    def reset_critic(self, k: int) -> None:
+        """A freshly initialized twin critic and target for skill k (CompoNet's critic per skill), seeded from
+        (run seed, k); actor, normalizer and temperature are kept. The global random state is left alone."""
+        saved = torch.random.get_rng_state()
+        torch.manual_seed(stage_seed(self.cfg.seed, k, 22) % (2**63))
+        fresh = TwinQ(self.cfg.sac).to(self.agent.device)
+        torch.random.set_rng_state(saved)
+        self.agent.critic.load_state_dict(fresh.state_dict())
+        self.agent.critic_target.load_state_dict(fresh.state_dict())
+        self.agent.reset_optimizers(reset_alpha=True)
+
     def load_actor(self, k: int, phase: str) -> None:
         """Only the actor of the checkpoint after ``phase`` of stage k (Reset & Distill's shared actor)."""
         state = self._load_state(k, phase)
@@ -262,8 +282,11 @@ class SACSubstrate:
         spec = cfg.eval.video_spec(self.video_dir(k)) if videos and self._videos else None
         if spec is not None:
             shutil.rmtree(spec.directory, ignore_errors=True)  # leftovers of a killed attempt at this stage
+        select = getattr(agent.actor, "select_skill", None)  # an architecture with per-skill modules (CompoNet)
         for i in skills:
             skill = self.skills[i]
+            if select is not None:
+                select(i)
             env = self._eval_envs.get(skill)
             if env is None:
                 env = self._eval_envs[skill] = SkillEnv(skill, seed=0, max_episode_steps=cfg.max_episode_steps)

@@ -114,6 +114,7 @@ class StreamEngine:
 
     def _run(self, last: int) -> dict[str, Any]:
         self.substrate.setup()
+        self.method.setup(self.substrate)
         pending_load: tuple[int, str] | None = None
         for k in range(last):
             phases = self.phases(k)

@@ -7,7 +7,9 @@ from __future__ import annotations
 import dataclasses
 
 import pytest
+import torch
 
+from sr_imitation.core.io import load_checked_safetensors
 from sr_imitation.rl.config import EvalConfig
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream import METHODS
@@ -19,7 +21,7 @@ WAKE_NUMBERS = {"agem": "agem_projected", "nash_mtl": "weight_current", "pcgrad"
 
 
 @pytest.mark.parametrize("method", ["ewc", "der", "agem", "clear", "nash_mtl", "pcgrad", "reset_distill",
-                                    "progress_compress"])
+                                    "progress_compress", "componet"])
 def test_a_baseline_runs_end_to_end_on_sac(tmp_path, method, monkeypatch):
     if method == "ewc":
         monkeypatch.setattr(EWC, "config", type(EWC.config)(fisher_states=40))  # tiny: 40 states, not 2000
@@ -33,12 +35,20 @@ def test_a_baseline_runs_end_to_end_on_sac(tmp_path, method, monkeypatch):
     sleeps = {key for key in completed if key.endswith(".sleep")}
     distills = method in ("reset_distill", "progress_compress")
     assert sleeps == ({"1.sleep", "2.sleep"} if distills else set()) and results["method"] == method
-    assert set(results["memory_bytes"]) == {"reach", "door-open"}
+    assert set(results["memory_bytes"]) == ({"door-open"} if method == "componet" else {"reach", "door-open"})
     kept = trainer.engine.memories + trainer.method.extra_memories(trainer.substrate, 2)
     assert results["memory_bytes_total"] == sum(m.nbytes() for m in kept) > 0
     assert sum(results["memory_kinds"].values()) == results["memory_bytes_total"]
     if method == "progress_compress":  # the knowledge base's Fisher after compression 1 (protecting skill 1)
         assert {type(m).__name__ for m in kept} == {"OutputDistillationMemory", "FisherMemory"}
+    if method == "componet":  # no memory, a module per later skill; module 1 frozen after skill 1's wake
+        assert trainer.engine.memories == [] and set(results["memory_kinds"]) == {"componet_module"}
+        first, _ = load_checked_safetensors(trainer.substrate.stage_dir(0) / "wake" / "agent.safetensors")
+        last, _ = load_checked_safetensors(trainer.substrate.stage_dir(1) / "wake" / "agent.safetensors")
+        for name in ("actor.fc1.weight", "actor.fc2.bias", "actor.heads_mean.0.weight", "actor.attention.0.bias"):
+            assert torch.equal(first[name], last[name]), name
+        assert not torch.equal(first["actor.heads_mean.1.weight"], last["actor.heads_mean.1.weight"])
+        return
     kinds = {type(m).__name__ for m in trainer.engine.memories}
     assert kinds == {"ewc": {"FisherMemory"}, "der": {"OutputDistillationMemory"},
                      "clear": {"TransitionMemory"}, "reset_distill": {"OutputDistillationMemory"},

@@ -31,8 +31,8 @@ def test_every_variant_parses_to_its_method_and_settings(tmp_path, tiny_preset):
         assert run.output_dir == tmp_path / "c" / f"{variant}_seed0" and run.seed == 0
         assert run.method == {"wake_only": "sr", "sequential": "sequential_bc"}.get(
             variant, variant if variant in ("ewc", "agem", "der", "clear", "reset_distill", "progress_compress",
-                                            "nash_mtl", "pcgrad") else "sr")
-        baseline = run.method not in ("sr",)
+                                            "nash_mtl", "pcgrad", "componet") else "sr")
+        baseline = run.method not in ("sr", "componet")  # CompoNet's actor has no excitable layers at all
         assert run.excitability.enabled == (not baseline and variant != "sr_no_exc"), variant
     assert parse(run_args(cfg, "wake_only", 0)).sleep.enabled is False
     assert parse(run_args(cfg, "sr_mean_grad", 0)).sleep.aggregator == "mean_grad"

@@ -223,3 +223,32 @@ def test_a_sleep_regularizer_is_added_to_the_objective_and_its_gradient(tmp_path
     free.load_state_dict(dict(zip(["weight", "bias"], target, strict=True)))
     sleep_consolidate(list(free.parameters()), lambda obs: free(obs["x"]), [memory], config, progress=False)
     assert sum((p - t).pow(2).sum() for p, t in zip(free.parameters(), target, strict=True)).item() > 10 * moved
+
+
+def test_componet_starts_with_the_self_bias_and_keeps_earlier_modules_exactly():
+    from sr_imitation.rl.composed_actor import SELF_BIAS, ComposedActor
+    from sr_imitation.rl.config import SACConfig
+
+    torch.manual_seed(0)
+    actor = ComposedActor(SACConfig(hidden_dim=16), n_skills=3)
+    obs = torch.randn(32, 39)
+    actor.train_skill(2)
+    w = actor.attention_weights(obs)
+    self_weight = torch.exp(torch.tensor(SELF_BIAS)) / (torch.exp(torch.tensor(SELF_BIAS)) + 2)
+    assert torch.allclose(w[:, 2], self_weight.expand(32)) and torch.allclose(w[:, 0], w[:, 1])
+    trainable = {n for n, p in actor.named_parameters() if p.requires_grad}
+    assert trainable == {"heads_mean.2.weight", "heads_mean.2.bias", "heads_log_std.2.weight", "heads_log_std.2.bias",
+                         "attention.2.weight", "attention.2.bias"}  # the trunk is frozen after skill 1
+    actor.select_skill(0)
+    before = [t.detach().clone() for t in actor(obs)]
+    actor.train_skill(2)
+    opt = torch.optim.SGD([p for p in actor.parameters() if p.requires_grad], lr=0.5)
+    for _ in range(5):
+        loss = sum(t.pow(2).sum() for t in actor(obs)) + actor.attention_weights(obs)[:, 0].sum()
+        opt.zero_grad()
+        loss.backward()
+        opt.step()
+    actor.select_skill(0)
+    assert all(torch.equal(a, b) for a, b in zip(before, actor(obs), strict=True))  # skill 1 acts as before
+    actor.train_skill(0)
+    assert {"fc1.weight", "fc2.weight"} <= {n for n, p in actor.named_parameters() if p.requires_grad}

@@ -69,6 +69,10 @@ class ContinualMethod:
         self.settings = settings
         self.memories: list[Memory] = []
 
+    def setup(self, substrate: Substrate) -> None:
+        """Called once per process after ``substrate.setup()``, before any checkpoint is loaded (a method that
+        changes the policy's architecture, CompoNet, does it here)."""
+
     # -- wake ---------------------------------------------------------------------------------------------
     def begin_wake(self, k: int, memories: Sequence[Memory], substrate: Substrate) -> None:
         """Called before the wake of stage ``k`` (also a resumed one) with the memories M_1..M_k-1 kept so far."""

@@ -1,0 +1,68 @@
+"""CompoNet adapted to SAC, the paper's MT5 baseline (appendix B.1), written from the paper's description (Malagon
+et al., ICML 2024) and the appendix's adaptation; no code of its GPL-licensed implementation was read.
+
+Architecture (:class:`sr_imitation.rl.composed_actor.ComposedActor`, replacing the SAC actor): a shared trunk (the
+actor's 2 x 256 ReLU MLP) trained on the first skill and frozen after it; per skill j a new Gaussian head h_j (mean
+and log-std from the trunk's features) and an attention over the heads 1..j, softmax(W_j phi(s) + b_j), whose logits
+start at the self-bias (b_j = 2.0 on its own head, 0 elsewhere, W_j = 0: our choice of a state-dependent attention
+with that initialization). The action distribution for skill j mixes the heads' means and log-stds with those
+weights. In the wake of skill j only h_j and the attention j (and, for j = 1, the trunk) learn; earlier heads and
+attentions stay frozen, so earlier skills keep exactly their policies. A fresh twin critic per skill. Acting on
+skill j uses module j: CompoNet needs the skill's identity at evaluation (the substrate selects it per evaluated
+skill), unlike every other method here.
+
+Memory: the per-skill modules (heads and attention weights) beyond a single actor; no states.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from torch import Tensor
+
+from sr_imitation.core.memory import Memory, register_memory
+from sr_imitation.stream.methods.base import ContinualMethod
+from sr_imitation.stream.methods.registry import register_method
+from sr_imitation.stream.substrate import Substrate
+
+
+@register_memory
+class ModuleWeights(Memory):
+    """A skill's CompoNet module (head and attention weights), kept for the memory budget; no objective."""
+
+    kind = "componet_module"
+
+    def loss(self, policy: Any, batch: Any) -> Tensor:
+        raise NotImplementedError("a CompoNet module is part of the policy, not a consolidation objective")
+
+
+@register_method
+class CompoNet(ContinualMethod):
+    """A growing set of frozen per-skill modules on a frozen trunk, composed by attention."""
+
+    name = "componet"
+    substrates = frozenset({"sac"})
+
+    def setup(self, substrate: Substrate) -> None:
+        from sr_imitation.rl.composed_actor import ComposedActor  # the SAC substrate's; imported when used
+
+        substrate.replace_actor(lambda cfg, n: ComposedActor(cfg, n))  # type: ignore[attr-defined]
+
+    def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
+        super().begin_wake(k, memories, substrate)
+        s: Any = substrate
+        s.agent.actor.train_skill(k)
+        if k > 0:
+            s.reset_critic(k)
+
+    def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
+        actor: Any = substrate.agent.actor  # type: ignore[attr-defined]
+        skills = [substrate.memory_skill(j) for j in range(stages)]  # type: ignore[attr-defined]
+        return [ModuleWeights(skills[j], {f"{name}.{key}": t for name, module in
+                                          (("mean", actor.heads_mean[j]), ("log_std", actor.heads_log_std[j]),
+                                           ("attention", actor.attention[j]))
+                                          for key, t in module.state_dict().items()})
+                for j in range(1, stages)]  # the first module is the plain actor every method has
+
+    def memory_contents(self) -> str:
+        return "per-skill Gaussian heads + attention weights"
