@@ -4,6 +4,8 @@ every method through the engine on the toy substrate, resumed after a kill to id
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
@@ -15,6 +17,14 @@ from sr_imitation.stream.methods.ewc import FisherMemory
 from tests.stream.test_engine import KilledError, make_engine, toy_methods  # noqa: F401 (fixture)
 
 BASELINES = ["ewc", "der", "agem", "clear", "nash_mtl", "pcgrad", "reset_distill", "progress_compress"]
+
+
+@pytest.fixture(autouse=True)
+def short_distillation(monkeypatch):
+    """Tiny: 40 distillation steps of 16 states for Reset & Distill and P&C, not 2000 of 256."""
+    for name in ("reset_distill", "progress_compress"):
+        cls = METHODS[name]
+        monkeypatch.setattr(cls, "config", dataclasses.replace(cls.config, iterations=40, batch_size=16))
 
 
 def _params(seed: int = 0) -> list[torch.Tensor]:
