@@ -77,7 +77,7 @@ class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = "act"
-    wake_hooks: ClassVar[bool] = False  # LeRobot's update_policy: no per-update method hooks yet
+    wake_hooks: ClassVar[bool] = True  # wake_loss / adjust_gradients through imitation.wake.hooked_update
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.extend_from")
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
@@ -174,6 +174,23 @@ class ACTSubstrate:
             raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
                                          f"unexpected {unexpected[:5]})")
 
+    # -- what continual methods ask of the policy -------------------------------------------------------------
+    def chunk_policy(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        """The deployed action chunk on a preprocessed (normalized) training batch (LwF's output)."""
+        return self.policy.action_chunk(batch)
+
+    def frozen_chunk_policy(self) -> Any:
+        """A frozen copy of the current policy's :meth:`chunk_policy` (LwF's previous policy)."""
+        saved = torch.random.get_rng_state()  # building the copy must not move the wake's random stream
+        frozen = type(self.policy)(self.policy.config)
+        torch.random.set_rng_state(saved)
+        frozen.load_state_dict(self.policy.state_dict())
+        frozen.to(next(self.policy.parameters()).device).eval().requires_grad_(False)
+        return frozen.action_chunk
+
+    def policy_parameters(self) -> list[torch.nn.Parameter]:
+        return self.trainable()
+
     def trainable(self) -> list[torch.nn.Parameter]:
         """theta of the sleep: the deployed policy's parameters (ACT's training-only VAE encoder excluded)."""
         return [p for _, p in self.policy.deployed_named_parameters()]
@@ -203,8 +220,9 @@ class ACTSubstrate:
             if log is not None:
                 log.log("wake", stage=k + 1, step=epoch, **values)
 
+        hooks = _ACTHooks(method, self, k) if method is not None and method.has_wake_hooks else None
         result = wake_train(self.policy, self.preprocessor, data, self.cfg.wake, self.phase_seed(k, "wake"),
-                            self.cfg.progress, on_epoch=on_epoch)
+                            self.cfg.progress, on_epoch=on_epoch, hooks=hooks)
         self.policy.set_wake_memories([], 0.0)
         history = dataclasses.asdict(result) | {"distill_weight": distill_weight, "n_memories": len(memories)}
         record = {"seconds": time.perf_counter() - t0, "epochs": result.epochs, "best_epoch": result.best_epoch,
@@ -279,3 +297,26 @@ class ACTSubstrate:
         return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, stored_config_dict(self.cfg),
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
                             [self.checkpoint_dir(i, "wake") for i in range(n)], memories)
+
+
+class _ACTHooks:
+    """Hands a continual method's wake hooks a ``WakeStep`` at every ACT update (``imitation.wake.hooked_update``);
+    memory batches come from a generator seeded per stage."""
+
+    def __init__(self, method: Any, substrate: ACTSubstrate, k: int) -> None:
+        from sr_imitation.stream.methods.base import WakeStep
+
+        self.method, self.substrate, self.k = method, substrate, k
+        self.generator = torch.Generator().manual_seed(substrate.phase_seed(k, "wake") + 17)
+        self.updates = 0
+        self._make_step = WakeStep
+        self._step: Any = None
+
+    def loss(self, loss: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
+        self._step = self._make_step(self.k, self.updates, self.substrate.trainable(), self.substrate.chunk_policy,
+                                     batch, self.generator)
+        return self.method.wake_loss(loss, self._step)
+
+    def adjust(self) -> None:
+        self.method.adjust_gradients(self._step)
+        self.updates += 1

@@ -11,6 +11,7 @@ from __future__ import annotations
 import copy
 import logging
 import math
+import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -100,6 +101,29 @@ def _loader(data: SkillData, indices: list[int], batch_size: int, shuffle: bool,
     )
 
 
+def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
+                  grad_clip_norm: float, hooks: Any) -> tuple[MetricsTracker, dict]:
+    """LeRobot's ``update_policy`` step (forward, backward, gradient clipping, optimizer step) with a continual
+    method's hooks between: ``hooks.loss(loss, batch)`` replaces the loss before the backward pass and
+    ``hooks.adjust()`` may change the gradients before clipping. Used only when the method has hooks (CPU, no mixed
+    precision: LeRobot's accelerator calls reduce to these); other methods keep ``update_policy`` itself."""
+    start = time.perf_counter()
+    policy.train()
+    loss, output = policy.forward(batch)
+    loss = hooks.loss(loss, batch)
+    loss.backward()
+    hooks.adjust()
+    limit = grad_clip_norm if grad_clip_norm > 0 else float("inf")
+    grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), limit, error_if_nonfinite=False)
+    optimizer.step()
+    optimizer.zero_grad()
+    tracker.loss = loss.item()
+    tracker.grad_norm = grad_norm.item()
+    tracker.lr = optimizer.param_groups[0]["lr"]
+    tracker.update_s = time.perf_counter() - start
+    return tracker, output
+
+
 def wake_train(
     policy: Any,
     preprocessor: Any,
@@ -108,6 +132,7 @@ def wake_train(
     seed: int,
     progress: bool = True,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
+    hooks: Any = None,
 ) -> WakeResult:
     """Train ``policy`` in place on one skill; returns the history and the restored best epoch."""
     device = policy.config.device
@@ -133,7 +158,10 @@ def wake_train(
                 break
             batch = preprocessor(raw)
             try:
-                tracker, out = update_policy(tracker, policy, batch, optimizer, cfg.grad_clip_norm, accelerator)
+                if hooks is None:
+                    tracker, out = update_policy(tracker, policy, batch, optimizer, cfg.grad_clip_norm, accelerator)
+                else:
+                    tracker, out = hooked_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm, hooks)
             except FloatingPointError as exc:
                 raise NonFiniteLossError(
                     f"wake on skill {data.skill!r} ({data.root}): epoch {epoch} step {step}: {exc}"

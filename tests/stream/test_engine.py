@@ -181,14 +181,16 @@ def _raise() -> None:
 
 def test_registry_names_choices_and_refuses_other_substrates():
     assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
-    assert methods_for("act") == ["sequential_bc", "sr", "wake_only"]
+    assert methods_for("act") == ["lwf", "sequential_bc", "sr", "wake_only"]
     assert methods_for("sac") == ["agem", "clear", "componet", "der", "ewc", "nash_mtl", "pcgrad",
                                   "progress_compress", "reset_distill", "sequential_bc", "sr", "wake_only"]
     with pytest.raises(ValueError, match=r"unknown method 'ewc' on the act substrate; choose from "
-                                         r"\['sequential_bc', 'sr', 'wake_only'\]"):
+                                         r"\['lwf', 'sequential_bc', 'sr', 'wake_only'\]"):
         make_method("ewc", "act", ToySubstrate(Path("."), SKILLS).method_settings())
-    with pytest.raises(ValueError, match=r"unknown method 'lwf'; choose from"):
+    with pytest.raises(ValueError, match=r"unknown method 'lwf' on the sac substrate; choose from"):
         make_method("lwf", "sac", ToySubstrate(Path("."), SKILLS).method_settings())
+    with pytest.raises(ValueError, match=r"unknown method 'no_such'; choose from"):
+        make_method("no_such", "sac", ToySubstrate(Path("."), SKILLS).method_settings())
     with pytest.raises(ValueError, match="on the mujoco substrate"):
         make_method("sr", "mujoco", ToySubstrate(Path("."), SKILLS).method_settings())
     with pytest.raises(TypeError, match="name and substrates"):

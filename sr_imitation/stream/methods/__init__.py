@@ -10,6 +10,7 @@ from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
     componet,
     der,
     ewc,
+    lwf,
     nash_mtl,
     pcgrad,
     progress_compress,

@@ -1,0 +1,65 @@
+"""Imitation baselines on the ACT substrate (issue: imitation baselines): LwF's target is the previous policy's
+output, not the current one's; a tiny ACT stream per method runs through the engine's wake hooks."""
+
+from __future__ import annotations
+
+import torch
+from safetensors.torch import load_file
+
+from sr_imitation.imitation.stream import train_stream
+from sr_imitation.stream import METHODS
+from sr_imitation.stream.methods.base import WakeStep
+from sr_imitation.stream.substrate import MethodSettings
+from tests.imitation.conftest import SKILLS
+from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+
+
+class _Policy:
+    def __init__(self) -> None:
+        self.net = torch.nn.Linear(3, 2)
+
+    def chunk(self, batch):
+        return self.net(batch["observation.state"])
+
+
+def test_lwf_distils_toward_the_previous_policy_not_the_current_one():
+    live = _Policy()
+
+    class Substrate:
+        def frozen_chunk_policy(self):
+            frozen = _Policy()
+            frozen.net.load_state_dict(live.net.state_dict())
+            frozen.net.requires_grad_(False)
+            return frozen.chunk
+
+    method = METHODS["lwf"](MethodSettings(sleep=False))
+    batch = {"observation.state": torch.randn(8, 3)}
+    zero = torch.zeros(())
+    method.begin_wake(0, [], Substrate())
+    assert method.wake_loss(zero, WakeStep(0, 0, list(live.net.parameters()), live.chunk, batch)) is zero  # skill 1
+    method.begin_wake(1, [], Substrate())
+    step = WakeStep(1, 0, list(live.net.parameters()), live.chunk, batch)
+    assert method.wake_loss(zero, step).item() == 0.0  # at the start of the wake: the previous policy is the current
+    with torch.no_grad():
+        live.net.weight.add_(0.3)
+    expected = (live.chunk(batch) - (live.chunk(batch) - batch["observation.state"] @ torch.full((3, 2), 0.3))).pow(2)
+    loss = method.wake_loss(zero, step)
+    assert loss.item() > 0 and torch.isclose(loss, expected.mean())  # the target did not follow the policy
+    loss.backward()
+    assert live.net.weight.grad is not None and live.net.weight.grad.abs().sum() > 0
+
+
+def test_lwf_runs_a_tiny_act_stream_and_changes_the_later_wakes(state_datasets, tmp_path):
+    runs = {}
+    for method in ("lwf", "sequential_bc"):
+        cfg = tiny_stream_config(state_datasets, tmp_path / method, SKILLS[:2], use_images=False)
+        cfg.method = method
+        runs[method] = train_stream(cfg, fake_env_factory)
+    results = runs["lwf"]
+    assert results["method"] == "lwf" and results["memory_bytes_total"] == 0
+    first = [load_file(tmp_path / m / "skill_1_approach" / "wake" / "pretrained_model" / "model.safetensors")
+             for m in ("lwf", "sequential_bc")]
+    second = [load_file(tmp_path / m / "skill_2_place" / "wake" / "pretrained_model" / "model.safetensors")
+              for m in ("lwf", "sequential_bc")]
+    assert all(torch.equal(first[0][n], first[1][n]) for n in first[0])  # skill 1: nothing to distil from
+    assert any(not torch.equal(second[0][n], second[1][n]) for n in second[0])  # skill 2: the LwF term acted
