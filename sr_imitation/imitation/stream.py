@@ -125,7 +125,7 @@ class TrainStreamConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     """Evaluation after every wake and sleep."""
     method: str = "sr"
-    """Continual method - sr, wake_only, sequential_bc or lwf (sr_imitation/stream/methods)."""
+    """Continual method - sr, wake_only, sequential_bc, lwf or ewc (sr_imitation/stream/methods)."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
     """Mirror the run log (log.jsonl) to Weights & Biases (offline by default)."""
     output_dir: Path = Path("outputs/needle_stream")

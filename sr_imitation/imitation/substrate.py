@@ -191,6 +191,27 @@ class ACTSubstrate:
     def policy_parameters(self) -> list[torch.nn.Parameter]:
         return self.trainable()
 
+    def memory_skill(self, k: int) -> str:
+        return self.skills[k]
+
+    def state_sample(self, k: int, n: int = 2000) -> list[dict[str, torch.Tensor]]:
+        """``n`` preprocessed single-frame batches of skill k's demonstrations, drawn uniformly (seeded per stage;
+        EWC's Fisher samples)."""
+        data = self._skill_data(k)
+        rng = np.random.default_rng(self.phase_seed(k, "memory") + 7)
+        pool = data.train_indices + data.val_indices
+        picks = rng.choice(pool, size=n, replace=len(pool) < n)
+        return [self.preprocessor({key: v.unsqueeze(0) if isinstance(v, torch.Tensor) else [v]
+                                   for key, v in data.dataset[int(i)].items()}) for i in picks]
+
+    def log_likelihood(self, batch: dict[str, torch.Tensor], generator: torch.Generator) -> torch.Tensor:
+        """Minus the L1 behaviour-cloning loss of the deployed action chunk (zero latent, no dropout: what acts at
+        inference) on one preprocessed batch, padded steps masked: its squared gradient is the empirical Fisher (EWC
+        on ACT; the training-only VAE encoder is not a deployed parameter)."""
+        pred = self.policy.action_chunk(batch)
+        mask = ~batch["action_is_pad"].unsqueeze(-1) if "action_is_pad" in batch else torch.ones_like(pred, dtype=bool)
+        return -((pred - batch["action"]).abs() * mask).mean()
+
     def trainable(self) -> list[torch.nn.Parameter]:
         """theta of the sleep: the deployed policy's parameters (ACT's training-only VAE encoder excluded)."""
         return [p for _, p in self.policy.deployed_named_parameters()]

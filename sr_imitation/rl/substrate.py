@@ -182,8 +182,9 @@ class SACSubstrate:
             memory = CriticMemory.load(self.stage_dir(k) / "memory.safetensors", skill=self.memory_skill(k))
         return memory.tensors["state"]
 
-    def state_sample(self, k: int) -> torch.Tensor:
-        """Raw states drawn uniformly from wake k's replay (``method.wake_state_sample`` of them)."""
+    def state_sample(self, k: int, n: int | None = None) -> torch.Tensor:
+        """Raw states drawn uniformly from wake k's replay (``method.wake_state_sample`` of them, drawn during the
+        wake; ``n`` is not used: the replay is gone by now)."""
         tensors, _ = load_checked_safetensors(self.stage_dir(k) / "state_sample.safetensors")
         return tensors["state"]
 

@@ -3,9 +3,11 @@ output, not the current one's; a tiny ACT stream per method runs through the eng
 
 from __future__ import annotations
 
+import pytest
 import torch
 from safetensors.torch import load_file
 
+from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.stream import train_stream
 from sr_imitation.stream import METHODS
 from sr_imitation.stream.methods.base import WakeStep
@@ -63,3 +65,20 @@ def test_lwf_runs_a_tiny_act_stream_and_changes_the_later_wakes(state_datasets, 
               for m in ("lwf", "sequential_bc")]
     assert all(torch.equal(first[0][n], first[1][n]) for n in first[0])  # skill 1: nothing to distil from
     assert any(not torch.equal(second[0][n], second[1][n]) for n in second[0])  # skill 2: the LwF term acted
+
+
+def test_ewc_runs_a_tiny_act_stream_with_the_empirical_fisher(state_datasets, tmp_path, monkeypatch):
+    import dataclasses
+
+    from sr_imitation.stream.methods.ewc import EWC
+
+    monkeypatch.setattr(EWC, "config", dataclasses.replace(EWC.config, fisher_states=4))
+    cfg = tiny_stream_config(state_datasets, tmp_path / "ewc", SKILLS[:2], use_images=False)
+    cfg.method = "ewc"
+    results = train_stream(cfg, fake_env_factory)
+    memory = load_memory(tmp_path / "ewc" / "memories" / "skill_1_approach.ewc.safetensors", skill="approach")
+    assert memory.kind == "ewc_fisher" and memory.config["states"] == 4
+    fisher = [t for n, t in memory.tensors.items() if n.startswith("fisher.")]
+    assert torch.sqrt(sum(f.pow(2).sum() for f in fisher)) == pytest.approx(1.0, abs=1e-5)
+    assert results["memory_bytes_total"] == sum(m.nbytes() for m in [memory]) * 1 + results["memory_bytes"]["place"]
+    assert results["memory_kinds"] == {"ewc_fisher": results["memory_bytes_total"]}

@@ -90,7 +90,7 @@ class ToySubstrate:
     def policy_parameters(self) -> list[torch.Tensor]:
         return list(self.policy.parameters())
 
-    def state_sample(self, k: int) -> torch.Tensor:
+    def state_sample(self, k: int, n: int | None = None) -> torch.Tensor:
         return torch.randn(64, 4, generator=torch.Generator().manual_seed(200 + k))
 
     def reset_networks(self, k: int) -> None:

@@ -10,7 +10,9 @@ to the substrate's policy loss (SAC: the actor loss). The Fisher is the policy's
 each state s one action u ~ pi_theta(.|s) is drawn and F = mean_s (d log pi_theta(u|s) / d theta)^2 (our choice of
 estimator; the paper names only the state count and the normalization). On SAC the log-likelihood is that of the
 pre-tanh Gaussian (``SACSubstrate.log_likelihood``); only the actor is protected (the critic is relearned per skill,
-as for every method here).
+as for every method here). On ACT (deterministic chunks) it is the empirical Fisher: the squared gradient of the
+L1 behaviour-cloning loss of the deployed chunk on single demonstration frames (``ACTSubstrate.log_likelihood``);
+the lambda for ACT is not tuned yet (the paper tunes it on MT5 only).
 
 Memory per skill: theta* and F, one float32 each per actor parameter (the paper's table: 3.0 MB at K = 5).
 """
@@ -57,22 +59,24 @@ class FisherMemory(Memory):
             raise ValueError(f"FisherMemory({self.skill!r}): tensors must be anchor/fisher pairs")
 
     @classmethod
-    def estimate(cls, skill: str, parameters: Sequence[Tensor], log_likelihood: Any, states: Tensor,
+    def estimate(cls, skill: str, parameters: Sequence[Tensor], log_likelihood: Any, states: Any,
                  generator: torch.Generator) -> FisherMemory:
-        """F = mean over ``states`` of the squared gradient of ``log_likelihood(state[None], generator)`` (one
-        backward per state), normalized to unit Frobenius norm over all parameters together."""
+        """F = mean over ``states`` of the squared gradient of ``log_likelihood(sample, generator)`` (one backward
+        per sample), normalized to unit Frobenius norm over all parameters together. ``states``: a tensor (each row
+        is passed as a batch of one) or a sequence of single-sample batches (ACT: preprocessed dataset items)."""
         fisher = [torch.zeros_like(p) for p in parameters]
-        for s in states:
-            grads = torch.autograd.grad(log_likelihood(s[None], generator).sum(), list(parameters), allow_unused=True)
+        samples = [row[None] for row in states] if isinstance(states, Tensor) else list(states)
+        for s in samples:
+            grads = torch.autograd.grad(log_likelihood(s, generator).sum(), list(parameters), allow_unused=True)
             for f, g in zip(fisher, grads, strict=True):
                 if g is not None:
                     f.add_(g.detach().pow(2))
-        norm = torch.sqrt(sum(f.div_(len(states)).pow(2).sum() for f in fisher))
+        norm = torch.sqrt(sum(f.div_(len(samples)).pow(2).sum() for f in fisher))
         if not torch.isfinite(norm) or norm <= 0:
             raise ValueError(f"EWC on skill {skill!r}: the Fisher estimate is {float(norm)} (no gradient signal)")
         tensors = {f"anchor.{i:03d}": p.detach().clone() for i, p in enumerate(parameters)}
         tensors.update({f"fisher.{i:03d}": f / norm for i, f in enumerate(fisher)})
-        return cls(skill, tensors, {"states": len(states)})
+        return cls(skill, tensors, {"states": len(samples)})
 
     def penalty(self, parameters: Sequence[Tensor]) -> Tensor:
         """sum_j F_j (theta_j - theta*_j)^2 (without lambda / 2)."""
@@ -91,7 +95,7 @@ class EWC(ContinualMethod):
     """Elastic weight consolidation: a Fisher-weighted pull toward every earlier skill's parameters in each wake."""
 
     name = "ewc"
-    substrates = frozenset({"sac"})
+    substrates = frozenset({"sac", "act"})
     stores_memories = True
     config: ClassVar[EWCConfig] = EWCConfig()
 
@@ -110,7 +114,7 @@ class EWC(ContinualMethod):
         s: Any = substrate
         generator = torch.Generator().manual_seed(31 + k)
         memory = FisherMemory.estimate(s.memory_skill(k), s.policy_parameters(), s.log_likelihood,
-                                       s.state_sample(k), generator)
+                                       s.state_sample(k, self.config.fisher_states), generator)
         s.save_memory(k, memory, name="ewc")
         return memory
 
