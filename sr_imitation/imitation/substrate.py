@@ -77,7 +77,7 @@ class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = "act"
-    wake_hooks: ClassVar[bool] = True  # wake_loss / adjust_gradients through imitation.wake.hooked_update
+    wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_loss", "adjust_gradients"})  # imitation.wake.hooked_update
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.extend_from")
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:

@@ -65,7 +65,7 @@ class SACSubstrate:
     """SAC with an excitability-gated actor on a Meta-World stream."""
 
     name: ClassVar[str] = "sac"
-    wake_hooks: ClassVar[bool] = True
+    wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.name", "stream.skills", "stream.extend_from")
 
     def __init__(self, cfg: RLTrainConfig) -> None:

@@ -63,9 +63,11 @@ class StreamEngine:
                  log_config: dict[str, Any] | None = None, extend_from: Path | None = None) -> None:
         if substrate.name not in method.substrates:
             raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
-        if method.has_wake_hooks and not getattr(substrate, "wake_hooks", False):
-            raise ValueError(f"method {method.name!r} changes the wake's loss or gradients; the {substrate.name} "
-                             "substrate's wake does not call those hooks")
+        supported = getattr(substrate, "wake_hooks", frozenset())
+        missing = sorted(method.wake_hooks_used() - set(supported))
+        if missing:
+            raise ValueError(f"method {method.name!r} needs the wake hooks {missing}; the {substrate.name} "
+                             "substrate's wake does not call them")
         self.substrate = substrate
         self.method = method
         self.run_dir = run

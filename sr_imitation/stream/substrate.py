@@ -85,9 +85,10 @@ class Substrate(Protocol):
         """Seed every random generator for ``phase`` of stage ``k`` (from the run seed, independent of whether
         earlier phases ran in this process: a resumed run continues with the same numbers)."""
 
-    wake_hooks: ClassVar[bool]
-    """Whether :meth:`wake` calls the method's ``wake_loss`` and ``adjust_gradients`` at every policy update
-    (with a ``sr_imitation.stream.methods.WakeStep``); methods that need them are refused otherwise."""
+    wake_hooks: ClassVar[frozenset[str]]
+    """Which of the method's wake hooks (``wake_batch``, ``wake_loss``, ``adjust_gradients``) :meth:`wake` calls at
+    every policy update (with a ``sr_imitation.stream.methods.WakeStep``); a method overriding another one is
+    refused."""
 
     def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any
              ) -> tuple[dict[str, Any], dict[str, Any]]:

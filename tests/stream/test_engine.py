@@ -220,6 +220,25 @@ def test_a_new_method_is_one_class(tmp_path):
         REGISTRY.pop("sleep_at_the_end")
 
 
+def test_a_method_needing_a_wake_hook_the_substrate_does_not_call_is_refused(tmp_path, monkeypatch):
+    class BatchMixer(ContinualMethod):
+        name = "batch_mixer"
+        substrates = frozenset({"toy"})
+
+        def wake_batch(self, step):
+            return step.batch
+
+    register_method(BatchMixer)
+    try:
+        assert BatchMixer(ToySubstrate(tmp_path, SKILLS).method_settings()).wake_hooks_used() == {"wake_batch"}
+        make_engine(tmp_path / "ok", "batch_mixer")  # the toy substrate calls wake_batch
+        monkeypatch.setattr(ToySubstrate, "wake_hooks", frozenset({"wake_loss", "adjust_gradients"}))  # as ACT
+        with pytest.raises(ValueError, match=r"needs the wake hooks \['wake_batch'\]; the toy substrate's wake"):
+            make_engine(tmp_path / "refused", "batch_mixer")
+    finally:
+        REGISTRY.pop("batch_mixer")
+
+
 def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(tmp_path):
     from sr_imitation.core.runlog import read_log
 

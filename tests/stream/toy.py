@@ -22,7 +22,7 @@ PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4
 
 class ToySubstrate:
     name: ClassVar[str] = "toy"
-    wake_hooks: ClassVar[bool] = True
+    wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
 
     extension_keys: ClassVar[tuple[str, ...]] = ("skills", "extend_from")
 

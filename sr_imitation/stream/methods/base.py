@@ -93,6 +93,13 @@ class ContinualMethod:
         numbers to log. Default: nothing."""
         return {}
 
+    WAKE_HOOKS: ClassVar[tuple[str, ...]] = ("wake_batch", "wake_loss", "adjust_gradients")
+
+    def wake_hooks_used(self) -> set[str]:
+        """The wake hooks this method overrides (a substrate must call every one of them)."""
+        cls = type(self)
+        return {hook for hook in self.WAKE_HOOKS if getattr(cls, hook) is not getattr(ContinualMethod, hook)}
+
     @property
     def has_wake_hooks(self) -> bool:
         """Whether :meth:`wake_batch`, :meth:`wake_loss` or :meth:`adjust_gradients` are overridden (substrates
