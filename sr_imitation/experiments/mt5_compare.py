@@ -23,7 +23,6 @@ gain at 1, which is that actor.
 
 from __future__ import annotations
 
-import json
 import logging
 import sys
 from dataclasses import dataclass, field
@@ -34,9 +33,8 @@ import draccus
 
 from sr_imitation.core.io import atomic_write_bytes
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
-from sr_imitation.stream.summary import write_summary
 
 logger = logging.getLogger(__name__)
 
@@ -127,8 +125,7 @@ def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
     """The shared summary of ``{variant: {seed: run}}`` paired against ``sr``, and the memory table."""
-    groups = {variant: {seed: load_results(run) for seed, run in per_seed.items()}
-              for variant, per_seed in runs.items()}
+    groups = load_groups(runs)
     summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))
     write_summary(output_root, summary)
     atomic_write_bytes(output_root / "memory.md", memory_table(groups).encode())
@@ -153,10 +150,7 @@ def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = draccus.parse(MT5CompareConfig, args=list(sys.argv[1:] if args is None else args))
-    summary = run_compare(cfg)
-    print(json.dumps({v: {m: row[m]["mean"] for m in METRICS} for v, row in summary["variants"].items()},  # noqa: T201
-                     indent=2))
-    print(f"written {cfg.output_root / 'summary.md'} and {cfg.output_root / 'memory.md'}")  # noqa: T201
+    print_final_means(run_compare(cfg), [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
 
 
 if __name__ == "__main__":

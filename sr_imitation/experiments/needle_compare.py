@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 import logging
 import sys
 from dataclasses import dataclass, field
@@ -32,9 +31,8 @@ from sr_imitation.imitation.stream import train_stream
 from sr_imitation.main_job import MainJobConfig
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.record import RecordConfig, record
-from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
-from sr_imitation.stream.summary import write_summary
 
 logger = logging.getLogger(__name__)
 
@@ -90,9 +88,7 @@ def run_compare(cfg: CompareConfig) -> dict:
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
     """The shared multi-run summary (:mod:`sr_imitation.stream.summary`) of ``{variant: {seed: run directory}}``,
     paired against ``wake_only``; writes ``summary.json``, ``summary.md`` and ``summary.png``."""
-    groups = {variant: {seed: load_results(run) for seed, run in per_seed.items()}
-              for variant, per_seed in runs.items()}
-    summary = summary_of(groups, PAIRED_BASELINE)
+    summary = summary_of(load_groups(runs), PAIRED_BASELINE)
     write_summary(output_root, summary)
     return summary
 
@@ -101,10 +97,7 @@ def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = draccus.parse(CompareConfig, args=list(sys.argv[1:] if args is None else args))
-    summary = run_compare(cfg)
-    print(json.dumps({v: {m: row[m]["mean"] for m in METRICS} for v, row in summary["variants"].items()},  # noqa: T201
-                     indent=2))
-    print(f"written {cfg.output_root / 'summary.md'}")  # noqa: T201
+    print_final_means(run_compare(cfg), [cfg.output_root / "summary.md"])
 
 
 if __name__ == "__main__":

@@ -122,11 +122,12 @@ def write_report(
         "metrics_after_wake": {name: summarize_curve(c) for name, c in wake_curves.items()},
         "episodes_per_skill_per_unit": config["eval"]["episodes"],
     }
+    per_skill, per_kind = memory_budget(memories)
     results = build_results(
         substrate="act", method=config["method"], sleep_enabled=config["sleep"]["enabled"], seed=config["seed"],
         skills=skills, pairs=pairs, success=s_final, after_wake=np.stack([np.diag(m) for m in s_wake]), spi=spi,
-        spi_features=features, memory_bytes=memory_budget(memories)[0],
-        memory_kinds=memory_budget(memories)[1], stages=stages, config=config,
+        spi_features=features, memory_bytes=per_skill,
+        memory_kinds=per_kind, stages=stages, config=config,
         extra=extra)
     write_results(out, results)
     return results

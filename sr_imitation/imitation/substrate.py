@@ -329,12 +329,13 @@ class _ACTHooks:
 
         self.method, self.substrate, self.k = method, substrate, k
         self.generator = torch.Generator().manual_seed(substrate.phase_seed(k, "wake") + 17)
+        self.parameters = substrate.trainable()
         self.updates = 0
         self._make_step = WakeStep
         self._step: Any = None
 
     def loss(self, loss: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        self._step = self._make_step(self.k, self.updates, self.substrate.trainable(), self.substrate.chunk_policy,
+        self._step = self._make_step(self.k, self.updates, self.parameters, self.substrate.chunk_policy,
                                      batch, self.generator)
         return self.method.wake_loss(loss, self._step)
 

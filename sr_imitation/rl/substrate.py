@@ -155,11 +155,11 @@ class SACSubstrate:
         memory.save(self.stage_dir(k) / "memory.safetensors")  # SR's M_k comes from the wake's replay buffer
         if wake.state_sample is not None:
             save_checked_safetensors(self.stage_dir(k) / "state_sample.safetensors",
-                                     {"state": torch.as_tensor(wake.state_sample)},
+                                     {"state": wake.state_sample},
                                      {**self._header(k, "wake"), "format": "sr_imitation.rl.state_sample"})
         if wake.transition_sample is not None:
             save_checked_safetensors(self.stage_dir(k) / "transition_sample.safetensors",
-                                     {key: torch.as_tensor(v) for key, v in wake.transition_sample.items()},
+                                     wake.transition_sample,
                                      {**self._header(k, "wake"), "format": "sr_imitation.rl.transition_sample"})
         self._memories[k] = memory
         return {"wake": wake.summary()}, {}

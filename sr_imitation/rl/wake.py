@@ -58,8 +58,8 @@ class WakeResult:
     seconds: float = 0.0
     last_update: dict[str, float] = field(default_factory=dict)
     method: dict[str, float] = field(default_factory=dict)
-    state_sample: np.ndarray | None = None
-    transition_sample: dict[str, np.ndarray] | None = None
+    state_sample: Tensor | None = None
+    transition_sample: dict[str, Tensor] | None = None
 
     def summary(self) -> dict[str, Any]:
         k = max(1, len(self.episode_rewards) // 10)
@@ -85,13 +85,14 @@ class MethodHooks:
 
         self.method, self.agent, self.stage = method, agent, stage
         self.generator = torch.Generator().manual_seed(int(seed) % (2**31) + 17)
+        self.parameters = agent.actor_parameters()  # theta for this wake (CompoNet sets what trains before it)
         self.updates = 0
         self.sums: dict[str, float] = {}
         self._step_type = WakeStep
         self._step: Any = None
 
     def batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        self._step = self._step_type(self.stage, self.updates, self.agent.actor_parameters(), self.agent.policy_fn,
+        self._step = self._step_type(self.stage, self.updates, self.parameters, self.agent.policy_fn,
                                      batch, self.generator)
         with activity_recording_off(self.agent.actor):
             self._step.batch = dict(self.method.wake_batch(self._step))
@@ -203,12 +204,11 @@ def train_skill(
     n_states = int(getattr(method, "wake_state_sample", 0) or 0)
     if n_states > 0:
         own = np.random.default_rng([seed % (2**63), 7])
-        result.state_sample = replay.batch(own.integers(0, len(replay), size=n_states))["obs"].numpy()
+        result.state_sample = replay.batch(own.integers(0, len(replay), size=n_states))["obs"]
     n_transitions = int(getattr(method, "wake_transition_sample", 0) or 0)
     if n_transitions > 0:
         own = np.random.default_rng([seed % (2**63), 8])
-        sample = replay.batch(own.integers(0, len(replay), size=n_transitions))
-        result.transition_sample = {key: value.numpy() for key, value in sample.items()}
+        result.transition_sample = replay.batch(own.integers(0, len(replay), size=n_transitions))
     result.seconds = time.perf_counter() - t0
     return result, memory
 

@@ -99,11 +99,11 @@ class Substrate(Protocol):
     def make_memory(self, k: int) -> Memory:
         """M_k from the policy right after its wake, saved to the run directory."""
 
-    def save_memory(self, k: int, memory: Memory) -> None:
+    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
         """Save a method's own memory M_k (e.g. EWC's snapshot and Fisher) where :meth:`load_memory` finds it."""
 
-    def load_memory(self, k: int) -> Memory:
-        """M_k as it was saved (any registered memory kind; checked)."""
+    def load_memory(self, k: int, name: str = "memory") -> Memory:
+        """M_k as it was saved under ``name`` (any registered memory kind; checked)."""
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         """Which learned skills the evaluation right after wake k covers (all learned skills when no sleep follows,

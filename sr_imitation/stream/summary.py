@@ -180,6 +180,20 @@ def write_summary(output: Path, summary: Mapping[str, Any]) -> None:
     plot(summary, output / "summary.png")
 
 
+def load_groups(runs: Mapping[str, Mapping[str, Path]]) -> dict[str, dict[str, dict[str, Any]]]:
+    """``{variant: {seed: results}}`` of an experiment driver's ``{variant: {seed: run directory}}``."""
+    return {variant: {seed: load_results(run) for seed, run in per_seed.items()} for variant, per_seed in runs.items()}
+
+
+def print_final_means(summary: Mapping[str, Any], written: Sequence[Path]) -> None:
+    """An experiment driver's console output: every variant's final means, then the files written."""
+    import json
+
+    print(json.dumps({v: {m: row[m]["mean"] for m in METRICS} for v, row in summary["variants"].items()},  # noqa: T201
+                     indent=2))
+    print("written " + " and ".join(str(p) for p in written))  # noqa: T201
+
+
 def main(args: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", help="run directories, or NAME=DIR to name a run's variant")

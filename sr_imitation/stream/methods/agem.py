@@ -18,6 +18,7 @@ from typing import Any, ClassVar
 
 import torch
 
+from sr_imitation.core.memory import summed_objective
 from sr_imitation.stream.methods._gradients import current_grad, flat_grad, set_grad
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
@@ -59,7 +60,7 @@ class AGEM(ContinualMethod):
         if not self.memories:
             return {}
         if self._reference is None or step.update % self.config.reference_every == 0:
-            loss = sum(m.objective(step.policy, self.config.batch_size, step.generator) for m in self.memories)
+            loss = summed_objective(self.memories, step.policy, self.config.batch_size, step.generator)
             self._reference = flat_grad(loss, step.parameters)
         g = current_grad(step.parameters)
         projected, conflicted = agem_project(g, self._reference)

@@ -64,6 +64,8 @@ class ContinualMethod:
     name: ClassVar[str] = ""
     substrates: ClassVar[frozenset[str]] = frozenset()
     stores_memories: ClassVar[bool] = False
+    memory_name: ClassVar[str] = "memory"
+    """The file name a method's own memory kind is saved under (``memory``: the substrate's, SR's M_k)."""
 
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
@@ -104,9 +106,7 @@ class ContinualMethod:
     def has_wake_hooks(self) -> bool:
         """Whether :meth:`wake_batch`, :meth:`wake_loss` or :meth:`adjust_gradients` are overridden (substrates
         without hook support refuse such methods)."""
-        cls = type(self)
-        return any(getattr(cls, hook) is not getattr(ContinualMethod, hook)
-                   for hook in ("wake_batch", "wake_loss", "adjust_gradients"))
+        return bool(self.wake_hooks_used())
 
     # -- memory -------------------------------------------------------------------------------------------
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
@@ -116,8 +116,13 @@ class ContinualMethod:
         return substrate.make_memory(k)
 
     def load_memory(self, k: int, substrate: Substrate) -> Memory:
-        """M_k as :meth:`make_memory` saved it (a resumed run). Default: ``substrate.load_memory(k)``."""
-        return substrate.load_memory(k)
+        """M_k as :meth:`make_memory` saved it (a resumed run): ``substrate.load_memory(k, name=memory_name)``."""
+        return substrate.load_memory(k, name=self.memory_name)
+
+    def save_memory(self, k: int, substrate: Substrate, memory: Memory) -> Memory:
+        """Save a method's own M_k under :attr:`memory_name` (where :meth:`load_memory` finds it); returns it."""
+        substrate.save_memory(k, memory, name=self.memory_name)
+        return memory
 
     def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
         """Memories the method keeps besides M_1..M_K (counted in the memory budget; Progress & Compress's

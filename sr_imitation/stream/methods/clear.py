@@ -68,6 +68,7 @@ class CLEAR(ContinualMethod):
     name = "clear"
     substrates = frozenset({"sac"})
     stores_memories = True
+    memory_name = "clear"
     config: ClassVar[CLEARConfig] = CLEARConfig()
 
     @property
@@ -108,11 +109,7 @@ class CLEAR(ContinualMethod):
         with torch.no_grad():
             target = s.gaussian_policy(sample["obs"])
         memory = TransitionMemory(s.memory_skill(k), {**sample, "target": target})
-        s.save_memory(k, memory, name="clear")
-        return memory
-
-    def load_memory(self, k: int, substrate: Substrate) -> Memory:
-        return substrate.load_memory(k, name="clear")  # type: ignore[call-arg]
+        return self.save_memory(k, substrate, memory)
 
     def memory_contents(self) -> str:
         return "transitions (s, a, r, s', done) + the actor's Gaussian on s, per skill"

@@ -18,10 +18,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-import torch
 from torch import Tensor
 
-from sr_imitation.core.memory import Memory, OutputDistillationMemory
+from sr_imitation.core.memory import Memory, OutputDistillationMemory, summed_objective
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -35,6 +34,17 @@ class DERConfig:
     """States drawn from each memory per update (our choice: the sleep's batch size)."""
 
 
+def state_gaussian(substrate: Any) -> Any:
+    """The substrate's actor Gaussian ([mean, log std]) as a memory policy on ``{"state": states}`` batches."""
+    return lambda obs: substrate.gaussian_policy(obs["state"])
+
+
+def gaussian_memory(substrate: Any, k: int) -> OutputDistillationMemory:
+    """The actor's Gaussian on the late-wake states of skill k, frozen now (DER's memory, R&D's expert)."""
+    return OutputDistillationMemory.from_snapshot(substrate.memory_skill(k), state_gaussian(substrate),
+                                                  {"state": substrate.memory_states(k)}, reduction="sum")
+
+
 @register_method
 class DER(ContinualMethod):
     """Dark experience replay: keep the actor's Gaussian outputs on stored states close to what they were."""
@@ -42,30 +52,22 @@ class DER(ContinualMethod):
     name = "der"
     substrates = frozenset({"sac"})
     stores_memories = True
+    memory_name = "der"
     config: ClassVar[DERConfig] = DERConfig()
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        gaussian = substrate.gaussian_policy  # type: ignore[attr-defined]
-        self._policy = lambda obs: gaussian(obs["state"])
+        self._policy = state_gaussian(substrate)
 
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
         if not self.memories:
             return loss
-        replay = torch.stack([m.objective(self._policy, self.config.batch_size, step.generator)
-                              for m in self.memories]).mean()
+        replay = summed_objective(self.memories, self._policy, self.config.batch_size, step.generator) / len(
+            self.memories)  # one actor forward for all memories
         return loss + self.config.alpha * replay
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
-        s: Any = substrate
-        states = s.memory_states(k)
-        memory = OutputDistillationMemory.from_snapshot(s.memory_skill(k), lambda obs: s.gaussian_policy(obs["state"]),
-                                                        {"state": states}, reduction="sum")
-        s.save_memory(k, memory, name="der")
-        return memory
-
-    def load_memory(self, k: int, substrate: Substrate) -> Memory:
-        return substrate.load_memory(k, name="der")  # type: ignore[call-arg]
+        return self.save_memory(k, substrate, gaussian_memory(substrate, k))
 
     def memory_contents(self) -> str:
         return "states + the actor's Gaussian mean and log-std on them, per skill"

@@ -97,6 +97,7 @@ class EWC(ContinualMethod):
     name = "ewc"
     substrates = frozenset({"sac", "act"})
     stores_memories = True
+    memory_name = "ewc"
     config: ClassVar[EWCConfig] = EWCConfig()
 
     @property
@@ -115,11 +116,7 @@ class EWC(ContinualMethod):
         generator = torch.Generator().manual_seed(31 + k)
         memory = FisherMemory.estimate(s.memory_skill(k), s.policy_parameters(), s.log_likelihood,
                                        s.state_sample(k, self.config.fisher_states), generator)
-        s.save_memory(k, memory, name="ewc")
-        return memory
-
-    def load_memory(self, k: int, substrate: Substrate) -> Memory:
-        return substrate.load_memory(k, name="ewc")  # type: ignore[call-arg]
+        return self.save_memory(k, substrate, memory)
 
     def memory_contents(self) -> str:
         return "parameter snapshot + diagonal Fisher per skill"

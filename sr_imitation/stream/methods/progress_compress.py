@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 import torch
 
 from sr_imitation.core.memory import Memory
+from sr_imitation.stream.methods.der import state_gaussian
 from sr_imitation.stream.methods.ewc import FisherMemory
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.methods.reset_distill import ResetDistill
@@ -91,7 +92,7 @@ class ProgressCompress(ResetDistill):
         def ewc(params: Any) -> torch.Tensor:
             return 0.5 * lam * sum(f.penalty(params) for f in fishers)
 
-        return SleepProblem(s.policy_parameters(), lambda obs: s.gaussian_policy(obs["state"]), config,
+        return SleepProblem(s.policy_parameters(), state_gaussian(s), config,
                             regularizer=ewc if fishers else None)
 
     def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:

@@ -23,8 +23,9 @@ import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
-from sr_imitation.core.memory import Memory, OutputDistillationMemory
+from sr_imitation.core.memory import Memory
 from sr_imitation.stream.methods.base import ContinualMethod
+from sr_imitation.stream.methods.der import gaussian_memory, state_gaussian
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import SleepProblem, Substrate
 
@@ -46,6 +47,7 @@ class ResetDistill(ContinualMethod):
     name = "reset_distill"
     substrates = frozenset({"sac"})
     stores_memories = True
+    memory_name = "expert"
     config: ClassVar[ResetDistillConfig] = ResetDistillConfig()
 
     def sleeps_after(self, skill_number: int) -> bool:
@@ -56,14 +58,7 @@ class ResetDistill(ContinualMethod):
         substrate.reset_networks(k)  # type: ignore[attr-defined]
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
-        s: Any = substrate
-        memory = OutputDistillationMemory.from_snapshot(s.memory_skill(k), lambda obs: s.gaussian_policy(obs["state"]),
-                                                        {"state": s.memory_states(k)}, reduction="sum")
-        s.save_memory(k, memory, name="expert")
-        return memory
-
-    def load_memory(self, k: int, substrate: Substrate) -> Memory:
-        return substrate.load_memory(k, name="expert")  # type: ignore[call-arg]
+        return self.save_memory(k, substrate, gaussian_memory(substrate, k))
 
     def prepare_sleep(self, k: int, problem: SleepProblem, substrate: Substrate) -> SleepProblem:
         s: Any = substrate
@@ -72,7 +67,7 @@ class ResetDistill(ContinualMethod):
         c = self.config
         config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
                                      batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
-        return SleepProblem(s.policy_parameters(), lambda obs: s.gaussian_policy(obs["state"]), config)
+        return SleepProblem(s.policy_parameters(), state_gaussian(s), config)
 
     def memory_contents(self) -> str:
         return "states + each expert's Gaussian mean and log-std on them, per skill"
