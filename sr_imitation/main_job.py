@@ -21,7 +21,7 @@ from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import RecordConfig, record
+from sr_imitation.record import RecordConfig, check_recorded, record
 
 logger = logging.getLogger(__name__)
 
@@ -40,7 +40,9 @@ class MainJobConfig:
 
 
 def run_main_job(cfg: MainJobConfig) -> dict:
-    missing = [s for s in cfg.record.skills if not cfg.record.target(s).exists()]
+    if not cfg.record.overwrite:
+        check_recorded(cfg.record, cfg.record.skills)  # datasets of other record settings: refused, not reused
+    missing = [s for s in cfg.record.skills if cfg.record.overwrite or not cfg.record.target(s).exists()]
     if missing:
         logger.info("recording demonstrations for %s into %s", missing, cfg.record.root)
         record(RecordConfig(**{**vars(cfg.record), "skills": missing}))

@@ -57,6 +57,12 @@ def register_memory(cls: type[Memory]) -> type[Memory]:
     return cls
 
 
+def memory_contents(kind: str) -> str:
+    """What a registered memory kind holds, in words (the kind's name when no class of it is imported)."""
+    cls = _MEMORY_KINDS.get(kind)
+    return cls.contents if cls is not None and cls.contents else kind
+
+
 class Memory(ABC):
     """A frozen skill memory that defines a differentiable skill objective L_i(theta).
 
@@ -71,6 +77,8 @@ class Memory(ABC):
 
     kind: ClassVar[str]
     buffer_keys: ClassVar[tuple[str, ...]] = ()
+    contents: ClassVar[str] = ""
+    """What the memory holds, in words (the memory-budget tables)."""
 
     def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):
         if not skill:
@@ -235,6 +243,21 @@ def _check_reduction(reduction: str) -> None:
         raise ValueError(f"reduction must be 'sum' or 'mean', got {reduction!r}")
 
 
+class WeightsMemory(Memory):
+    """Weights a method keeps that are not a consolidation objective (counted in the memory budget only)."""
+
+    def loss(self, policy: Any, batch: Any) -> Tensor:
+        raise NotImplementedError(f"a {self.kind} memory is counted in the memory budget; it has no objective")
+
+
+@register_memory
+class PolicySnapshot(WeightsMemory):
+    """The previous policy's weights, the one rolling teacher of LwF and M2Distill."""
+
+    kind = "policy_snapshot"
+    contents = "the policy before this skill's wake (one rolling copy of its weights)"
+
+
 @register_memory
 class OutputDistillationMemory(Memory):
     """Frozen-snapshot distillation memory: L_i = E_{o ~ B_i} ||pi_theta(o) - pi_{theta_i}(o)||^2.
@@ -249,6 +272,7 @@ class OutputDistillationMemory(Memory):
     """
 
     kind = "output_distillation"
+    contents = "inputs (states or observations) + the policy's outputs on them"
 
     def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):
         config = {"reduction": "sum", **dict(config or {})}

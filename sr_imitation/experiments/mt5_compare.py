@@ -31,7 +31,6 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.io import atomic_write_bytes
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
@@ -127,23 +126,8 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
     """The shared summary of ``{variant: {seed: run}}`` paired against ``sr``, and the memory table."""
     groups = load_groups(runs)
     summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))
-    write_summary(output_root, summary)
-    atomic_write_bytes(output_root / "memory.md", memory_table(groups).encode())
+    write_summary(output_root, summary, PAPER_MEMORY_MB)
     return summary
-
-
-def memory_table(groups: dict[str, dict[str, dict[str, Any]]]) -> str:
-    """Markdown: per variant the bytes its mechanism stores at the end of the stream (first seed's run), by memory
-    kind, next to the paper's number."""
-    lines = ["| variant | ours (MB) | by kind (MB) | paper (MB) |", "|---|---|---|---|"]
-    for variant, per_seed in groups.items():
-        results = next(iter(per_seed.values()))
-        kinds = results.get("memory_kinds") or {}
-        by_kind = ", ".join(f"{k} {v / 1e6:.2f}" for k, v in sorted(kinds.items())) or "-"
-        paper = PAPER_MEMORY_MB.get(variant)
-        lines.append(f"| {variant} | {results['memory_bytes_total'] / 1e6:.2f} | {by_kind} | "
-                     f"{'-' if paper is None else f'{paper:.1f}'} |")
-    return "\n".join(lines) + "\n"
 
 
 def main(args: list[str] | None = None) -> None:

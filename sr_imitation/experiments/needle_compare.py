@@ -1,17 +1,24 @@
-"""Sleep vs wake-only vs sequential BC on the needle stream, several training seeds, one table.
+"""Every continual method on the needle stream, several training seeds, one table (the paper's Table 2).
 
     python -m sr_imitation.experiments.needle_compare --preset=configs/needle_cpu.json \\
-        --seeds=[0,1,2] --variants=[sr,wake_only,sequential_bc] --output_root=outputs/needle_compare
+        --seeds=[0,1,2,3,4] --variants=[sr,wake_only,sequential_bc,ewc,lwf,m2distill,mt_joint] \\
+        --output_root=outputs/needle_compare
 
-Variants: ``sr``, ``wake_only``, ``sequential_bc`` (the default three) and the sleep ablations ``sr_no_anchor``
-(anchor strength 0) and ``sr_mean_grad`` (mean of normalized gradients instead of Nash). Every (variant, seed) is an
-ordinary ``sr-train`` run in ``<output_root>/<variant>_seed<seed>`` on the same
-recorded datasets (recorded once, as by ``sr-main``); an interrupted comparison resumes each run where it stopped.
-The summary (``summary.json``, ``summary.md``, ``summary.png``) reports the final AFSR, PRS, BWT (reference: after
-stage i), BWT_wake (reference: right after skill i's own wake) and SPI, the final success per skill and the success
-right after each skill's own wake as mean +- standard error over training seeds (each seed's value is itself the
-mean over its evaluation seeds), and every metric's paired difference to ``wake_only`` over the training seeds
-both have.
+Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper's baselines ``sequential_bc``,
+``ewc``, ``lwf``, ``m2distill``; the SR ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the
+paper's Mean-grad: raw-gradient mean), ``sr_mean_normalized`` (mean of normalized gradients) and ``sr_nash_fw``
+(the paper's warm-started Frank-Wolfe, 5 iterations); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`,
+one ACT on the union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run
+of the preset (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets
+(recorded once, as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones
+and starts the others, one after another, each evaluated on the preset's evaluation seeds.
+
+Written to ``output_root`` (:func:`sr_imitation.stream.summary.write_summary`): ``summary.md`` / ``.json`` /
+``.png`` (the final AFSR, PRS, BWT against both references and SPI, mean +- SE over training seeds, each seed's
+value its mean over evaluation seeds; every metric's paired difference to ``sr`` over the seeds both have; the
+final success per skill and the success right after each skill's own wake), ``dynamics.png`` (the metrics after
+every stage, every method) and ``memory.md`` (the bytes and kinds each method's continual-learning mechanism
+stores).
 """
 
 from __future__ import annotations
@@ -27,10 +34,11 @@ from typing import Any
 import draccus
 
 from sr_imitation.imitation.cli import parse_config
-from sr_imitation.imitation.stream import train_stream
+from sr_imitation.imitation.mt_joint import run_mt_joint
+from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.main_job import MainJobConfig
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import RecordConfig, record
+from sr_imitation.record import RecordConfig, check_recorded, record
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
@@ -41,54 +49,75 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "sr": ("sr", {"enabled": True}),
     "wake_only": ("sr", {"enabled": False}),
     "sequential_bc": ("sequential_bc", {"enabled": False}),
+    "ewc": ("ewc", {"enabled": False}),
+    "lwf": ("lwf", {"enabled": False}),
+    "m2distill": ("m2distill", {"enabled": False}),
+    "mt_joint": ("sequential_bc", {"enabled": False}),  # the oracle: run by imitation.mt_joint, not the stream
     "sr_no_anchor": ("sr", {"enabled": True, "anchor_strength": 0.0}),
     "sr_mean_grad": ("sr", {"enabled": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw gradients)
     "sr_mean_normalized": ("sr", {"enabled": True, "aggregator": "mean_normalized"}),
     "sr_nash_fw": ("sr", {"enabled": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
 }
-PAIRED_BASELINE = "wake_only"
+PAIRED_BASELINE = "sr"
+TABLE_2 = ["sr", "wake_only", "sequential_bc", "ewc", "lwf", "m2distill", "mt_joint"]
 
 
 @dataclass
 class CompareConfig:
-    """``preset``: the sr-main config every run starts from (its record section gives the datasets)."""
-
     preset: Path = Path("configs/needle_cpu.json")
-    seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
-    variants: list[str] = field(default_factory=lambda: ["sr", "wake_only", "sequential_bc"])
+    """The sr-main config every run starts from (its record section gives the datasets)."""
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
+    """Training seeds."""
+    variants: list[str] = field(default_factory=lambda: list(TABLE_2))
+    """Variants to run (:data:`VARIANTS`), in this order."""
     output_root: Path = Path("outputs/needle_compare")
+    """Where the runs and the tables go."""
+    extra: list[str] = field(default_factory=list)
+    """sr-train flags added to every run (e.g. ``--eval.episodes=20``)."""
 
     def __post_init__(self) -> None:
         unknown = [v for v in self.variants if v not in VARIANTS]
         if unknown:
-            raise ValueError(f"unknown variants {unknown}; choose from {sorted(VARIANTS)}")
+            raise ValueError(f"variants: unknown {unknown}; choose from {sorted(VARIANTS)}")
+
+
+def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int) -> TrainStreamConfig:
+    """The ``sr-train`` config of one run: the preset's (with ``extra``) plus the variant's method and sleep."""
+    train = copy.deepcopy(base.train)
+    train.method, sleep_settings = VARIANTS[variant]
+    train.sleep = dataclasses.replace(train.sleep, **sleep_settings)
+    train.seed = seed
+    train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
+    train.resume = (train.output_dir / "progress.json").exists()
+    return train
 
 
 def run_compare(cfg: CompareConfig) -> dict:
-    base = parse_config(MainJobConfig, cfg.preset, [])
+    base = parse_config(MainJobConfig, cfg.preset, [f"--train.{a[2:]}" if a.startswith("--") else a
+                                                    for a in cfg.extra])
     rec = base.record
+    check_recorded(rec, rec.skills)
     missing = [s for s in rec.skills if not rec.target(s).exists()]
     if missing:
         record(RecordConfig(**{**vars(rec), "skills": missing}))
     runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
     for variant in cfg.variants:
         for seed in cfg.seeds:
-            train = copy.deepcopy(base.train)
-            train.method, sleep_settings = VARIANTS[variant]
-            train.sleep = dataclasses.replace(train.sleep, **sleep_settings)
-            train.seed = seed
-            train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
-            train.resume = (train.output_dir / "progress.json").exists()
-            logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
-            train_stream(train)
+            train = run_config(cfg, base, variant, seed)
+            if (train.output_dir / "results.json").exists():
+                logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, train.output_dir)
+            else:
+                logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
+                (run_mt_joint if variant == "mt_joint" else train_stream)(train)
             runs[variant][str(seed)] = train.output_dir
     return summarize(runs, cfg.output_root)
 
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
     """The shared multi-run summary (:mod:`sr_imitation.stream.summary`) of ``{variant: {seed: run directory}}``,
-    paired against ``wake_only``; writes ``summary.json``, ``summary.md`` and ``summary.png``."""
-    summary = summary_of(load_groups(runs), PAIRED_BASELINE)
+    paired against ``sr`` (against the first variant without it); writes the tables and plots."""
+    groups = load_groups(runs)
+    summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))
     write_summary(output_root, summary)
     return summary
 
@@ -97,7 +126,7 @@ def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     cfg = draccus.parse(CompareConfig, args=list(sys.argv[1:] if args is None else args))
-    print_final_means(run_compare(cfg), [cfg.output_root / "summary.md"])
+    print_final_means(run_compare(cfg), [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
 
 
 if __name__ == "__main__":

@@ -39,6 +39,7 @@ class ActorMemory(OutputDistillationMemory):
     """Frozen ACT actor snapshot + unordered observation buffer (squared error, mean or sum over the chunk)."""
 
     kind = "act_actor"
+    contents = "observations (state; wrist images as uint8) + the actor's action chunks on them"
 
     @classmethod
     def from_observations(

@@ -4,10 +4,16 @@ A stream is a list of LeRobot datasets, one per skill (``<dataset_root>/<skill>`
 writes them), so users can run it on their own recordings.
 
 Statistics policy. LeRobot re-fits normalization statistics per dataset; a snapshot's outputs and the current
-policy's would then live in different action spaces. The stream fixes one set for its whole length: the
-statistics of the *first* skill's dataset (nothing from later skills is peeked at), with a floor on every
-standard deviation so that a dimension that is constant in the first skill cannot blow up later skills' inputs.
-They are saved once per run (``stream_stats.safetensors``) and written into every stage checkpoint's processors.
+policy's would then live in different action spaces. The stream fixes one set for its whole length
+(``--stream.stats``): ``first``, the statistics of the first skill's dataset (nothing from later skills is
+peeked at), or ``union``, the statistics of all the stream's datasets together (LeRobot's ``aggregate_stats``:
+count-weighted mean, pooled std), computed before the first skill - a fixed input scaling shared by every method;
+no later skill's data is trained on, but its range is known in advance. Either way with a floor on every standard
+deviation so that a dimension that is nearly constant cannot blow up other skills' inputs. They are saved once per
+run (``stream_stats.safetensors``) and written into every stage checkpoint's processors. Why ``union`` for the
+needle presets: under the first skill's (approach) statistics, regrasp's goal coordinates sit 30-55 standard
+deviations from the mean and the base learner reaches 0.33 on regrasp after its own wake instead of 0.93 with
+regrasp's own statistics (docs/RESULTS.md, "Why the base learner failed").
 """
 
 from __future__ import annotations
@@ -136,10 +142,17 @@ def check_features(meta: LeRobotDatasetMetadata, input_features: dict, output_fe
             )
 
 
-def stream_stats(meta: LeRobotDatasetMetadata, input_features: dict, min_std: float = 1e-2) -> dict:
-    """The fixed statistics of the stream: the first dataset's, with ``std >= min_std`` (module docstring)."""
+STATS_SOURCES = ("first", "union")
+
+
+def stream_stats(metas: Sequence[LeRobotDatasetMetadata], input_features: dict, min_std: float = 1e-2) -> dict:
+    """The fixed statistics of the stream: those of ``metas`` together (one dataset: its own), with
+    ``std >= min_std`` (module docstring)."""
+    from lerobot.datasets.compute_stats import aggregate_stats
+
+    pooled = metas[0].stats if len(metas) == 1 else aggregate_stats([m.stats for m in metas])
     stats: dict[str, dict[str, Tensor]] = {}
-    for key, values in meta.stats.items():
+    for key, values in pooled.items():
         if key not in input_features and key != ACTION:
             continue
         entry = {name: torch.as_tensor(np.asarray(values[name]), dtype=torch.float32) for name in STATS_KEYS}

@@ -35,7 +35,7 @@ from sr_imitation.core.fingerprint import (
 from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
-from sr_imitation.imitation.data import check_stream_datasets
+from sr_imitation.imitation.data import STATS_SOURCES, check_stream_datasets
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
 from sr_imitation.imitation.wake import WakeConfig
@@ -68,6 +68,9 @@ class StreamConfig:
     """Decoder for video datasets (pyav - torchcodec does not load here)."""
     pairs: str = "surgicai"
     """PRS pair list - surgicai (the paper's seven), all or adjacent."""
+    stats: str = "first"
+    """Normalization statistics fixed for the whole stream - first (the first skill's dataset) or union (all the
+    stream's datasets, known before the first skill); see sr_imitation.imitation.data."""
     stats_min_std: float = 1e-2
     """Floor on the fixed stream statistics' standard deviations."""
     extend_from: Path | None = None
@@ -79,6 +82,8 @@ class StreamConfig:
             raise ValueError("the stream needs at least one skill")
         if len(set(self.skills)) != len(self.skills):
             raise ValueError(f"skills must be distinct, got {self.skills}")
+        if self.stats not in STATS_SOURCES:
+            raise ValueError(f"stream.stats must be one of {STATS_SOURCES}, got {self.stats!r}")
         if self.dataset_paths is not None and len(self.dataset_paths) != len(self.skills):
             raise ValueError(f"{len(self.dataset_paths)} dataset_paths for {len(self.skills)} skills")
 
@@ -125,7 +130,7 @@ class TrainStreamConfig:
     eval: EvalConfig = field(default_factory=EvalConfig)
     """Evaluation after every wake and sleep."""
     method: str = "sr"
-    """Continual method - sr, wake_only, sequential_bc, lwf or ewc (sr_imitation/stream/methods)."""
+    """Continual method - sr, wake_only, sequential_bc, lwf, m2distill or ewc (sr_imitation/stream/methods)."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
     """Mirror the run log (log.jsonl) to Weights & Biases (offline by default)."""
     output_dir: Path = Path("outputs/needle_stream")

@@ -35,6 +35,7 @@ from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.core.io import (
     CorruptFileError,
     atomic_write_json,
+    read_checked_json,
     verify_manifest,
     write_checked_json,
     write_manifest,
@@ -102,7 +103,10 @@ class ACTSubstrate:
         if stats_path.exists():
             self.stats = load_stats(stats_path)
         else:
-            self.stats = stream_stats(first_meta, inputs, self.cfg.stream.stats_min_std)
+            stream = self.cfg.stream
+            metas = [first_meta] + ([load_metadata(stream.dataset_path(i), stream.repo_id(i))
+                                     for i in range(1, len(self.skills))] if stream.stats == "union" else [])
+            self.stats = stream_stats(metas, inputs, stream.stats_min_std)
             save_stats(stats_path, self.stats)
         seed_everything(self.cfg.seed)
         self.policy: ACTSRPolicy = make_policy(self.policy_cfg, ds_meta=first_meta)  # type: ignore[assignment]
@@ -127,8 +131,12 @@ class ACTSubstrate:
         seed_everything(self.phase_seed(k, phase))
 
     # -- files -------------------------------------------------------------------------------------------
+    def stage_dir_name(self, index: int) -> str:
+        """The folder of stage ``index`` (its checkpoints, evaluations and videos)."""
+        return stage_name(index, self.skills[index])
+
     def checkpoint_dir(self, index: int, phase: str) -> Path:
-        return self.out / stage_name(index, self.skills[index]) / phase
+        return self.out / self.stage_dir_name(index) / phase
 
     def memory_path(self, index: int, name: str = "memory") -> Path:
         suffix = "" if name == "memory" else f".{name}"
@@ -179,14 +187,22 @@ class ACTSubstrate:
         """The deployed action chunk on a preprocessed (normalized) training batch (LwF's output)."""
         return self.policy.action_chunk(batch)
 
-    def frozen_chunk_policy(self) -> Any:
-        """A frozen copy of the current policy's :meth:`chunk_policy` (LwF's previous policy)."""
+    def chunk_and_features(self, batch: dict[str, torch.Tensor]) -> tuple[torch.Tensor, dict[str, torch.Tensor]]:
+        """:meth:`chunk_policy` with the encoder's intermediate features (M2Distill's targets)."""
+        return self.policy.action_chunk_and_features(batch)
+
+    def policy_weights(self) -> dict[str, torch.Tensor]:
+        """Every tensor of the policy's state (what a frozen copy of it holds)."""
+        return dict(self.policy.state_dict())
+
+    def frozen_policy(self) -> Any:
+        """A frozen copy of the current policy (LwF's and M2Distill's previous policy); its ``action_chunk`` and
+        ``action_chunk_and_features`` are :meth:`chunk_policy` and :meth:`chunk_and_features` as they are now."""
         saved = torch.random.get_rng_state()  # building the copy must not move the wake's random stream
         frozen = type(self.policy)(self.policy.config)
         torch.random.set_rng_state(saved)
         frozen.load_state_dict(self.policy.state_dict())
-        frozen.to(next(self.policy.parameters()).device).eval().requires_grad_(False)
-        return frozen.action_chunk
+        return frozen.to(next(self.policy.parameters()).device).eval().requires_grad_(False)
 
     def policy_parameters(self) -> list[torch.nn.Parameter]:
         return self.trainable()
@@ -272,7 +288,7 @@ class ACTSubstrate:
     def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
         names = [self.skills[i] for i in skills]
         step = phase.split(".")[0]
-        video_dir = self.out / "videos" / stage_name(k, self.skills[k]) / step
+        video_dir = self.out / "videos" / self.stage_dir_name(k) / step
         t0 = time.perf_counter()
         evals = evaluate_skills(self.policy, self.preprocessor, self.postprocessor, names, list(skills),
                                 self.make_env, self.cfg.eval, video_dir if self.cfg.eval.videos_per_skill else None,
@@ -291,6 +307,10 @@ class ACTSubstrate:
         write_checked_json(phase_dir / "eval.json", record)
         logger.info("stage %d %s: %s", k + 1, phase, {s: round(r["success"], 3) for s, r in record.items()})
         return {"seconds": time.perf_counter() - t0, "success": {s: r["success"] for s, r in record.items()}}
+
+    def read_eval(self, k: int, phase: str) -> dict[str, Any]:
+        """The evaluation record :meth:`evaluate` wrote after stage ``k``'s ``phase`` (checked)."""
+        return read_checked_json(self.checkpoint_dir(k, phase.split(".")[0]) / "eval.json")
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         return SleepProblem(self.trainable(), self.policy.memory_chunk,

@@ -42,6 +42,7 @@ class CriticMemory(Memory):
     """
 
     kind = "sac_critic"
+    contents = "states + the frozen twin critic + the observation normalizer's snapshot"
     buffer_keys = ("state",)
 
     def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):

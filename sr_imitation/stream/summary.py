@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, write_checked_json
+from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.stream.results import METRICS, load_results
 
@@ -36,6 +37,15 @@ def mean_sem_dict(values: Sequence[float | None]) -> dict[str, Any]:
     present = [float(x) for x in values if x is not None and math.isfinite(x)]
     mean, sem = mean_sem(present) if present else (float("nan"), float("nan"))
     return {"mean": mean, "sem": sem, "per_seed": list(values)}
+
+
+def _curve_stats(curves: Sequence[Sequence[float | None] | None]) -> dict[str, list[float]]:
+    """Per stage: mean and SE over training seeds of each seed's curve (its mean over evaluation units)."""
+    rows = np.array([[np.nan if x is None else x for x in c] for c in curves if c is not None], dtype=float)
+    if rows.size == 0:
+        return {"mean": [], "sem": []}
+    stats = [mean_sem_dict(rows[:, k].tolist()) for k in range(rows.shape[1])]
+    return {"mean": [s["mean"] for s in stats], "sem": [s["sem"] for s in stats]}
 
 
 def group_runs(runs: Sequence[str | Path]) -> dict[str, dict[str, dict[str, Any]]]:
@@ -78,6 +88,9 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(skills)},
             "success_after_own_wake": {s: mean_sem_dict(wake[:, i].tolist()) for i, s in enumerate(skills)},
             "memory_bytes_total": mean_sem_dict([r["memory_bytes_total"] for r in runs]),
+            "memory_kinds": dict(runs[0].get("memory_kinds") or {}),
+            "oracle": bool((runs[0].get("extra") or {}).get("oracle")),
+            "curves": {m: _curve_stats([r["metrics"][m].get("curve") for r in runs]) for m in METRICS},
         }
     paired: dict[str, Any] = {}
     if baseline in finals:
@@ -172,12 +185,64 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def write_summary(output: Path, summary: Mapping[str, Any]) -> None:
-    """``summary.json``, ``summary.md``, ``summary.png`` in ``output`` (atomic)."""
+def plot_dynamics(summary: Mapping[str, Any], path: Path) -> None:
+    """The paper's Figure 2: AFSR, PRS, BWT, BWT_wake and SPI after each stage k, one line per variant (mean over
+    training seeds, band +- SE); an oracle (no sequence) is a dashed line at its final value."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    variants = summary["variants"]
+    fig, axes = plt.subplots(1, len(METRICS), figsize=(3.6 * len(METRICS), 3.4))
+    colors = plt.get_cmap("tab20").colors
+    for ax, m in zip(axes, METRICS, strict=True):
+        for j, (name, row) in enumerate(variants.items()):
+            curve = row.get("curves", {}).get(m) or {"mean": [], "sem": []}
+            mean = np.array(curve["mean"], dtype=float)
+            if mean.size == 0 or np.isnan(mean).all():
+                continue
+            color = colors[j % len(colors)]
+            k = np.arange(1, len(mean) + 1)
+            if row.get("oracle"):
+                ax.axhline(mean[-1], color=color, ls="--", lw=1.2, label=f"{name} (oracle)")
+                continue
+            sem = np.nan_to_num(np.array(curve["sem"], dtype=float))
+            ax.plot(k, mean, marker="o", ms=3, color=color, label=name, lw=2.2 if name.startswith("sr") else 1.2)
+            ax.fill_between(k, mean - sem, mean + sem, color=color, alpha=0.15, lw=0)
+        ax.set_title(SHORT[m])
+        ax.set_xlabel("after stage k")
+        ax.axhline(0.0, color="grey", lw=0.5)
+    axes[0].legend(fontsize=6, ncol=2)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def memory_table(summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None) -> str:
+    """Markdown: per variant the bytes its continual-learning mechanism stores at the end of the stream (first
+    seed's run) and what, by memory kind, next to the paper's number where it gives one."""
+    lines = ["| variant | ours (MB) | what it stores (MB) | paper (MB) |", "|---|---|---|---|"]
+    for variant, row in summary["variants"].items():
+        kinds = row.get("memory_kinds") or {}
+        stored = "; ".join(f"{memory_contents(k)} ({v / 1e6:.2f})" for k, v in sorted(kinds.items())) or "nothing"
+        paper = (paper_mb or {}).get(variant)
+        lines.append(f"| {variant} | {row['memory_bytes_total']['mean'] / 1e6:.2f} | {stored} | "
+                     f"{'-' if paper is None else f'{paper:.1f}'} |")
+    return "\n".join(lines) + "\n"
+
+
+def write_summary(output: Path, summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None) -> None:
+    """``summary.json``, ``summary.md``, ``summary.png`` (final metrics), ``dynamics.png`` (per stage) and
+    ``memory.md`` (the memory-budget table) in ``output`` (atomic)."""
     output.mkdir(parents=True, exist_ok=True)
     write_checked_json(output / "summary.json", summary)
     atomic_write_bytes(output / "summary.md", render_markdown(summary).encode())
+    atomic_write_bytes(output / "memory.md", memory_table(summary, paper_mb).encode())
     plot(summary, output / "summary.png")
+    plot_dynamics(summary, output / "dynamics.png")
 
 
 def load_groups(runs: Mapping[str, Mapping[str, Path]]) -> dict[str, dict[str, dict[str, Any]]]:

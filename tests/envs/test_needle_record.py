@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 
 from sr_imitation import record as rec
+from sr_imitation.core.io import read_checked_json
 from sr_imitation.envs.needle import SKILL_NAMES
 
 SIZE = 32
@@ -116,8 +117,44 @@ def test_interrupted_run_leaves_no_dataset(tmp_path, monkeypatch):
         {"image_size": 4},
         {"image_width": 2000},
         {"vcodec": "mp3"},
+        {"demo_threshold_scale": 0.0},
+        {"demo_threshold_scale": 1.5},
+        {"expert_jaw_close_mm": 0.0},
     ],
 )
 def test_invalid_record_config(kwargs):
     with pytest.raises(ValueError):
         rec.RecordConfig(**kwargs)
+
+
+def test_demo_margins_end_demos_inside_the_success_region_and_datasets_remember_them(tmp_path):
+    """--demo_threshold_scale ends place demos well inside the rotation threshold (1: on its boundary) and
+    --expert_jaw_close_mm makes the expert close later; the recorded settings are stored with the dataset and a
+    dataset of other settings is refused by name (one from before the file existed: compared on the old defaults)."""
+    from sr_imitation.envs.needle.env import NeedleEnv
+    from sr_imitation.envs.needle.expert import ExpertSettings
+
+    final = {}
+    for scale in (1.0, 0.5):
+        env = NeedleEnv(skill="place", image_height=SIZE, image_width=SIZE, threshold_scale=scale)
+        final[scale] = [rec.run_demo(env, seed, False)[0][-1] for seed in range(4)]
+        assert all(f["next.success"][0] for f in final[scale])
+    rotation = {s: max(abs(f["observation.state"][17:20]).max() for f in final[s]) for s in final}  # delta rpy
+    assert env.threshold.rotation_deg == 5.0 and rotation[0.5] < rotation[1.0]
+    env = NeedleEnv(skill="regrasp", image_height=SIZE, image_width=SIZE)
+    steps = {mm: len(rec.run_demo(env, 3, False, ExpertSettings(jaw_close_cm=mm / 10))[0]) for mm in (1.5, 0.5)}
+    assert steps[0.5] > steps[1.5]
+
+    cfg = rec.RecordConfig(skills=["approach"], num_episodes=1, root=tmp_path, image_size=SIZE,
+                           demo_threshold_scale=0.5, expert_jaw_close_mm=0.5)
+    rec.record(cfg)
+    stored = tmp_path / "approach" / rec.RECORD_SETTINGS_FILE
+    assert read_checked_json(stored)["demo_threshold_scale"] == 0.5
+    rec.check_recorded(cfg, ["approach", "place"])  # same settings (place not recorded): nothing to refuse
+    other = rec.RecordConfig(skills=["approach"], num_episodes=1, root=tmp_path, image_size=SIZE)
+    with pytest.raises(ValueError, match=r"sr_record.json: recorded with demo_threshold_scale=0.5 \(config: 1.0\)"):
+        rec.check_recorded(other, ["approach"])
+    stored.unlink()  # a dataset recorded before the settings were stored: SurgicAI's demo endings
+    rec.check_recorded(other, ["approach"])
+    with pytest.raises(ValueError, match="recorded before meta/sr_record.json existed"):
+        rec.check_recorded(cfg, ["approach"])

@@ -23,16 +23,18 @@ class _Policy:
     def chunk(self, batch):
         return self.net(batch["observation.state"])
 
+    action_chunk = chunk
+
 
 def test_lwf_distils_toward_the_previous_policy_not_the_current_one():
     live = _Policy()
 
     class Substrate:
-        def frozen_chunk_policy(self):
+        def frozen_policy(self):
             frozen = _Policy()
             frozen.net.load_state_dict(live.net.state_dict())
             frozen.net.requires_grad_(False)
-            return frozen.chunk
+            return frozen
 
     method = METHODS["lwf"](MethodSettings(sleep=False))
     batch = {"observation.state": torch.randn(8, 3)}
@@ -51,20 +53,26 @@ def test_lwf_distils_toward_the_previous_policy_not_the_current_one():
     assert live.net.weight.grad is not None and live.net.weight.grad.abs().sum() > 0
 
 
-def test_lwf_runs_a_tiny_act_stream_and_changes_the_later_wakes(state_datasets, tmp_path):
+def test_lwf_and_m2distill_run_a_tiny_act_stream_and_change_only_the_later_wakes(state_datasets, tmp_path):
     runs = {}
-    for method in ("lwf", "sequential_bc"):
+    for method in ("lwf", "m2distill", "sequential_bc"):
         cfg = tiny_stream_config(state_datasets, tmp_path / method, SKILLS[:2], use_images=False)
         cfg.method = method
         runs[method] = train_stream(cfg, fake_env_factory)
-    results = runs["lwf"]
-    assert results["method"] == "lwf" and results["memory_bytes_total"] == 0
-    first = [load_file(tmp_path / m / "skill_1_approach" / "wake" / "pretrained_model" / "model.safetensors")
-             for m in ("lwf", "sequential_bc")]
-    second = [load_file(tmp_path / m / "skill_2_place" / "wake" / "pretrained_model" / "model.safetensors")
-              for m in ("lwf", "sequential_bc")]
-    assert all(torch.equal(first[0][n], first[1][n]) for n in first[0])  # skill 1: nothing to distil from
-    assert any(not torch.equal(second[0][n], second[1][n]) for n in second[0])  # skill 2: the LwF term acted
+
+    def weights(method, stage):
+        return load_file(tmp_path / method / stage / "wake" / "pretrained_model" / "model.safetensors")
+
+    plain = [weights("sequential_bc", s) for s in ("skill_1_approach", "skill_2_place")]
+    for method in ("lwf", "m2distill"):
+        first, second = (weights(method, s) for s in ("skill_1_approach", "skill_2_place"))
+        snapshot = sum(t.numel() * t.element_size() for t in first.values())  # the teacher: one copy of the policy
+        assert runs[method]["method"] == method and runs[method]["memory_kinds"] == {"policy_snapshot": snapshot}
+        assert runs[method]["memory_bytes"] == {"approach": snapshot}
+        assert all(torch.equal(first[n], plain[0][n]) for n in first)  # skill 1: nothing to distil from
+        assert any(not torch.equal(second[n], plain[1][n]) for n in second)  # skill 2: the term acted
+    lwf, m2 = weights("lwf", "skill_2_place"), weights("m2distill", "skill_2_place")
+    assert any(not torch.equal(lwf[n], m2[n]) for n in lwf)  # the feature terms are not LwF's
 
 
 def test_ewc_runs_a_tiny_act_stream_with_the_empirical_fisher(state_datasets, tmp_path, monkeypatch):
@@ -82,3 +90,42 @@ def test_ewc_runs_a_tiny_act_stream_with_the_empirical_fisher(state_datasets, tm
     assert torch.sqrt(sum(f.pow(2).sum() for f in fisher)) == pytest.approx(1.0, abs=1e-5)
     assert results["memory_bytes_total"] == sum(m.nbytes() for m in [memory]) * 1 + results["memory_bytes"]["place"]
     assert results["memory_kinds"] == {"ewc_fisher": results["memory_bytes_total"]}
+
+
+class _FeaturePolicy(_Policy):
+    def action_chunk_and_features(self, batch):
+        hidden = batch["observation.state"] * self.net.weight.sum()
+        return self.net(batch["observation.state"]), {"state": hidden, "encoder": hidden.tanh()}
+
+
+def test_m2distill_distils_actions_and_features_from_the_previous_policy():
+    live = _FeaturePolicy()
+
+    class Substrate:
+        chunk_and_features = live.action_chunk_and_features
+
+        def frozen_policy(self):
+            frozen = _FeaturePolicy()
+            frozen.net.load_state_dict(live.net.state_dict())
+            frozen.net.requires_grad_(False)
+            return frozen
+
+    method = METHODS["m2distill"](MethodSettings(sleep=False))
+    batch = {"observation.state": torch.randn(8, 3)}
+    zero = torch.zeros(())
+    method.begin_wake(0, [], Substrate())
+    assert method.wake_loss(zero, WakeStep(0, 0, list(live.net.parameters()), live.chunk, batch)) is zero
+    method.begin_wake(1, [], Substrate())
+    step = WakeStep(1, 0, list(live.net.parameters()), live.chunk, batch)
+    assert method.wake_loss(zero, step).item() == 0.0
+    teacher_chunk, teacher = Substrate().frozen_policy().action_chunk_and_features(batch)
+    with torch.no_grad():
+        live.net.weight.add_(0.3)
+    chunk, feats = live.action_chunk_and_features(batch)
+    expected = ((chunk - teacher_chunk).pow(2).mean() + (feats["state"] - teacher["state"]).pow(2).mean()
+                + (feats["encoder"] - teacher["encoder"]).pow(2).mean())
+    loss = method.wake_loss(zero, step)
+    assert loss.item() > 0 and torch.isclose(loss, expected)  # action term + one term per feature
+    live.net.bias.requires_grad_(False)
+    loss.backward()  # the feature terms reach the weights (the bias only moves the action term)
+    assert live.net.weight.grad.abs().sum() > 0

@@ -201,16 +201,25 @@ def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
         eval_main([f"--policy.path={tmp_path}", f"--output_dir={tmp_path}"])
 
 
-def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
+def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, monkeypatch):
+    from sr_imitation.experiments import needle_compare
     from sr_imitation.experiments.needle_compare import CompareConfig, run_compare
 
     tmp, config_path = main_job_run
-    summary = run_compare(CompareConfig(preset=config_path, seeds=[0], variants=["sr_no_anchor", "sequential_bc"],
-                                        output_root=tmp_path))
-    assert set(summary["variants"]) == {"sr_no_anchor", "sequential_bc"}
-    # four tables (metrics, per run, final success, success after own wake), each a header + two rows
-    assert (tmp_path / "summary.md").read_text().count("\n| ") == 12
-    assert (tmp_path / "summary.png").stat().st_size > 0
+    cfg = CompareConfig(preset=config_path, seeds=[0], variants=["sr_no_anchor", "sequential_bc", "mt_joint"],
+                        output_root=tmp_path)
+    summary = run_compare(cfg)
+    assert set(summary["variants"]) == {"sr_no_anchor", "sequential_bc", "mt_joint"}
+    assert summary["baseline"] == "sr_no_anchor" and set(summary["paired"]) == {"sequential_bc", "mt_joint"}
+    # five tables, each a header + a row per variant (metrics, per run, final success, after own wake) or per
+    # variant paired with the baseline
+    assert (tmp_path / "summary.md").read_text().count("\n| ") == 4 + 3 + 4 + 4 + 4
+    assert (tmp_path / "summary.png").stat().st_size > 0 and (tmp_path / "dynamics.png").stat().st_size > 0
+    assert summary["variants"]["mt_joint"]["oracle"] and summary["variants"]["mt_joint"]["bwt"]["mean"] == 0.0
+    assert "| sequential_bc | 0.00 | nothing | - |" in (tmp_path / "memory.md").read_text()
+    monkeypatch.setattr(needle_compare, "train_stream", lambda c: pytest.fail(f"{c.output_dir} was re-run"))
+    monkeypatch.setattr(needle_compare, "run_mt_joint", lambda c: pytest.fail(f"{c.output_dir} was re-run"))
+    assert run_compare(cfg)["variants"].keys() == summary["variants"].keys()  # finished runs are skipped
     saved = json.loads((tmp_path / "summary.json").read_text())
     run = tmp_path / "sr_no_anchor_seed0"
     final = json.loads((run / "results.json").read_text())["metrics"]["afsr"]["final"]
@@ -221,7 +230,7 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path):
     # The ablation's override reached the run: it slept, without the anchor.
     assert json.loads((run / "train_config.json").read_text())["sleep"]["anchor_strength"] == 0.0
     assert json.loads((run / "progress.json").read_text())["completed"]["2.sleep"]["anchor_lambda"] == 0.0
-    with pytest.raises(ValueError, match="unknown variants"):
+    with pytest.raises(ValueError, match="variants: unknown"):
         CompareConfig(variants=["sr_typo"])
 
 

@@ -216,3 +216,24 @@ def test_the_training_only_vae_encoder_is_all_that_the_deployed_parameters_leave
     assert excluded and all(n.startswith("model.vae_encoder") for n in excluded)
     assert all(p.grad is None or not p.grad.any() for n, p in policy.named_parameters() if n in excluded)
     assert any(p.grad is not None and p.grad.any() for n, p in policy.named_parameters() if n in deployed)
+
+
+@pytest.mark.parametrize("images", [True, False])
+def test_chunk_and_features_returns_every_modality_and_the_encoder_output_in_one_pass(images):
+    """M2Distill's features: the chunk equals action_chunk's, each modality's embedding and the encoder output are
+    there, gradients reach the weights through them, and no hook is left behind."""
+    policy = ACTSRPolicy(_features(tiny_policy(), images=images))
+    batch = _batch(images=images)
+    chunk, feats = policy.action_chunk_and_features(batch)
+    assert torch.equal(chunk, policy.action_chunk(batch))
+    modalities = {"camera0"} if images else {"env_state"}
+    assert set(feats) == {"robot_state", "encoder"} | modalities
+    tokens = 2 + (0 if images else 1)  # latent, robot state [, env state] + one token per feature-map cell
+    if images:
+        cells = feats["camera0"].shape[-2] * feats["camera0"].shape[-1]
+        assert feats["camera0"].shape[0] == 4 and feats["encoder"].shape == (tokens + cells, 4, 32)
+    else:
+        assert feats["env_state"].shape == (4, 32) and feats["encoder"].shape == (tokens, 4, 32)
+    sum(f.pow(2).mean() for f in feats.values()).backward()
+    assert policy.model.encoder_robot_state_input_proj.weight.grad.abs().sum() > 0
+    assert all(not m._forward_hooks for m in policy.model.modules())

@@ -58,6 +58,8 @@ CHOICES: dict[str, list[Any]] = {
     "policy.normalization_mapping.STATE": MAPPING,
     "policy.normalization_mapping.ACTION": MAPPING,
     "stream.pairs": ["surgicai", "all", "adjacent"],
+    "stream.stats": ["first", "union"],
+    "wake.restore": ["best", "last"],
     "stream.video_backend": ["pyav", "torchcodec"],
     "eval.thresholds": sorted(THRESHOLD_PRESETS),
     # free strings and paths: another value

@@ -6,6 +6,7 @@ import json
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 from safetensors.torch import load_file
@@ -14,7 +15,7 @@ from sr_imitation.core.fingerprint import SettingsMismatchError
 from sr_imitation.core.io import CorruptFileError, write_checked_json
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.stream import train_stream
+from sr_imitation.imitation.stream import StreamConfig, train_stream
 from sr_imitation.imitation.wake import NonFiniteLossError
 from sr_imitation.stream import StreamEngine
 from tests.imitation.conftest import SKILLS
@@ -95,6 +96,32 @@ def test_stream_statistics_are_fixed_for_the_whole_stream(finished_run):
     for state in states[1:]:
         assert state.keys() == states[0].keys()
         assert all(torch.equal(state[k], states[0][k]) for k in state)
+
+
+def test_union_statistics_pool_every_skill_and_first_keeps_the_first_skills(state_datasets, tmp_path):
+    """--stream.stats: ``first`` = the first dataset's statistics; ``union`` = all datasets pooled (count-weighted
+    mean, pooled variance), checked against the frames themselves; the std floor applies to both."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from sr_imitation.imitation.substrate import ACTSubstrate
+
+    frames = {s: np.stack([np.asarray(x) for x in LeRobotDataset(f"local/sr_needle_{s}", root=state_datasets / s)
+                           .hf_dataset["observation.state"]]) for s in SKILLS}
+    stats = {}
+    for source in ("first", "union"):
+        cfg = tiny_stream_config(state_datasets, tmp_path / source, SKILLS, use_images=False)
+        cfg.stream.stats = source
+        substrate = ACTSubstrate(cfg)
+        substrate.out.mkdir(parents=True)
+        substrate.setup()
+        stats[source] = substrate.stats["observation.state"]
+    pooled = np.concatenate(list(frames.values()))
+    np.testing.assert_allclose(stats["union"]["mean"], pooled.mean(0), atol=1e-5)
+    np.testing.assert_allclose(stats["union"]["std"], pooled.std(0), rtol=1e-4)
+    np.testing.assert_allclose(stats["first"]["mean"], frames[SKILLS[0]].mean(0), atol=1e-5)
+    assert (stats["union"]["std"] > stats["first"]["std"]).all()  # the skills' states are offset by their index
+    with pytest.raises(ValueError, match="stream.stats"):
+        StreamConfig(stats="last")
 
 
 def test_sleep_changes_the_policy_and_memories_stay_frozen(finished_run):

@@ -7,9 +7,10 @@ import json
 
 import pytest
 
-from sr_imitation.experiments.mt5_compare import VARIANTS, MT5CompareConfig, memory_table, run_args, run_compare
+from sr_imitation.experiments.mt5_compare import VARIANTS, MT5CompareConfig, run_args, run_compare
 from sr_imitation.rl.cli import parse
 from sr_imitation.stream import METHODS
+from sr_imitation.stream.summary import memory_table
 from tests.rl.test_trainer import tiny_config
 
 
@@ -52,9 +53,15 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
     summary = run_compare(cfg)
     assert set(summary["variants"]) == {"wake_only", "der"}
     table = (tmp_path / "c" / "memory.md").read_text()
-    assert "| wake_only | 0.00 | - | - |" in table and "| der | " in table and "output_distillation" in table
+    assert "| wake_only | 0.00 | nothing | - |" in table
+    assert "| der | " in table and "inputs (states or observations) + the policy's outputs on them" in table
+    assert (tmp_path / "c" / "dynamics.png").stat().st_size > 0 and (tmp_path / "c" / "summary.png").is_file()
+    curve = summary["variants"]["der"]["curves"]["afsr"]
+    assert len(curve["mean"]) == 2 and curve["mean"][-1] == summary["variants"]["der"]["afsr"]["mean"]
     from sr_imitation.rl import cli
 
     monkeypatch.setattr(cli, "train", lambda cfg: pytest.fail(f"{cfg.output_dir} was re-run"))
     run_compare(cfg)  # everything finished: nothing runs again
-    memory_table({"x": {"0": {"memory_bytes_total": 2_000_000, "memory_kinds": {"sac_critic": 2_000_000}}}})
+    row = {"memory_bytes_total": {"mean": 2_000_000}, "memory_kinds": {"sac_critic": 2_000_000}}
+    assert ("| sr | 2.00 | states + the frozen twin critic + the observation normalizer's snapshot (2.00) | 3.7 |"
+            in memory_table({"variants": {"sr": row}}, {"sr": 3.7}))

@@ -181,11 +181,11 @@ def _raise() -> None:
 
 def test_registry_names_choices_and_refuses_other_substrates():
     assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
-    assert methods_for("act") == ["ewc", "lwf", "sequential_bc", "sr", "wake_only"]
+    assert methods_for("act") == ["ewc", "lwf", "m2distill", "sequential_bc", "sr", "wake_only"]
     assert methods_for("sac") == ["agem", "clear", "componet", "der", "ewc", "nash_mtl", "pcgrad",
                                   "progress_compress", "reset_distill", "sequential_bc", "sr", "wake_only"]
     with pytest.raises(ValueError, match=r"unknown method 'der' on the act substrate; choose from "
-                                         r"\['ewc', 'lwf', 'sequential_bc', 'sr', 'wake_only'\]"):
+                                         r"\['ewc', 'lwf', 'm2distill', 'sequential_bc', 'sr', 'wake_only'\]"):
         make_method("der", "act", ToySubstrate(Path("."), SKILLS).method_settings())
     with pytest.raises(ValueError, match=r"unknown method 'lwf' on the sac substrate; choose from"):
         make_method("lwf", "sac", ToySubstrate(Path("."), SKILLS).method_settings())

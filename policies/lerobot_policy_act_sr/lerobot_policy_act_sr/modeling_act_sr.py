@@ -33,6 +33,15 @@ in sleep these parameters received no memory gradient, only the anchor pull, and
 c_i of Eq. 2)."""
 
 
+FEATURE_MODULES: dict[str, str] = {
+    "encoder_robot_state_input_proj": "robot_state",
+    "encoder_env_state_input_proj": "env_state",
+    "backbone": "camera",
+    "encoder": "encoder",
+}
+"""ACT submodules whose outputs :meth:`ACTSRPolicy.action_chunk_and_features` returns, and their feature names."""
+
+
 class ACTSRPolicy(ACTPolicy):
     """ACT + Sleeping Robots (the policy class LeRobot's factory finds for ``act_sr``)."""
 
@@ -98,6 +107,34 @@ class ACTSRPolicy(ACTPolicy):
             return self.model(model_batch)[0]
         finally:
             self.model.train(was_training)
+
+    def action_chunk_and_features(self, batch: Mapping[str, Tensor]) -> tuple[Tensor, dict[str, Tensor]]:
+        """:meth:`action_chunk` with the intermediate features M2Distill distills (one forward pass).
+
+        Features, each (tokens, B, D) or (B, ...): every input modality's embedding - ``robot_state`` and
+        ``env_state`` (the state tokens' input projections), ``camera<i>`` (camera i's backbone feature map) - and
+        ``encoder`` (the transformer encoder's output tokens, the latent the decoder reads).
+        """
+        features: dict[str, Tensor] = {}
+        cameras: list[Tensor] = []
+
+        def keep(key: str) -> Callable[..., None]:
+            def hook(_module: Any, _inputs: Any, out: Any) -> None:
+                if key == "camera":
+                    cameras.append(out["feature_map"])  # the backbone runs once per camera
+                else:
+                    features[key] = out
+            return hook
+
+        handles = [module.register_forward_hook(keep(key)) for name, key in FEATURE_MODULES.items()
+                   if (module := getattr(self.model, name, None)) is not None]
+        try:
+            chunk = self.action_chunk(batch)
+        finally:
+            for handle in handles:
+                handle.remove()
+        features.update({f"camera{i}": f for i, f in enumerate(cameras)})
+        return chunk, features
 
     def memory_chunk(self, raw_observations: Mapping[str, Tensor]) -> Tensor:
         """pi_theta on raw buffered observations (what memories evaluate)."""

@@ -63,6 +63,10 @@ class NeedleEnvSettings:
         randomize: SurgicAI's needle/grasp randomisation plus arm jitter; off gives the nominal scene.
         camera_dict: return ``pixels`` as ``{"wrist": image}`` instead of the bare image; LeRobot maps that to
             ``observation.images.wrist`` (a bare array would become ``observation.image``).
+        threshold_scale: multiplies both success thresholds (position and rotation). 1 everywhere except when
+            recording demos: ``sr-record --demo_threshold_scale`` ends a demo only once the expert is well inside
+            the success region, so its last frames do not sit on the boundary (our choice, see
+            ``RecordConfig``). The jaw rule is unchanged.
     """
 
     skill: str = "approach"
@@ -77,9 +81,12 @@ class NeedleEnvSettings:
     step_limit: int = 300
     randomize: bool = True
     camera_dict: bool = False
+    threshold_scale: float = 1.0
 
     def __post_init__(self) -> None:
         self.skill = S.skill_from_name(self.skill).value
+        if not 0.0 < self.threshold_scale <= 1.0:
+            raise ValueError(f"threshold_scale must be in (0, 1], got {self.threshold_scale}")
         S.threshold_for(self.thresholds, Skill(self.skill))
         if self.reward_type not in REWARD_TYPES:
             raise ValueError(f"reward_type must be one of {REWARD_TYPES}, got {self.reward_type!r}")
@@ -219,7 +226,9 @@ class NeedleEnv(gym.Env):
     def _set_skill(self, skill: Skill) -> None:
         self.skill = skill
         self.active_arm = skill.active_arm
-        self.threshold = S.threshold_for(self.settings.thresholds, skill)
+        base = S.threshold_for(self.settings.thresholds, skill)
+        scale = self.settings.threshold_scale
+        self.threshold = S.Threshold(base.position_mm * scale, base.rotation_deg * scale)
 
     def _get_renderer(self):
         if self._renderer is None:

@@ -11,6 +11,7 @@ from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
     der,
     ewc,
     lwf,
+    m2distill,
     nash_mtl,
     pcgrad,
     progress_compress,

@@ -54,8 +54,6 @@ class WakeBargaining(ContinualMethod):
         set_grad(step.parameters, torch.as_tensor(agg.weights, dtype=jac.dtype) @ jac)
         return {"weight_current": float(np.asarray(agg.alpha)[-1]), "min_cosine_current": _min_cos(gram)}
 
-    def memory_contents(self) -> str:
-        return "states + the frozen critic per skill (SR's memory)"
 
 
 def _min_cos(gram: np.ndarray) -> float:

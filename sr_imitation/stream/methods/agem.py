@@ -68,5 +68,3 @@ class AGEM(ContinualMethod):
             set_grad(step.parameters, projected)
         return {"agem_projected": float(conflicted)}
 
-    def memory_contents(self) -> str:
-        return "states + the frozen critic per skill (SR's memory)"

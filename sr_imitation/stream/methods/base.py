@@ -129,9 +129,6 @@ class ContinualMethod:
         knowledge-base Fishers). Default: none."""
         return []
 
-    def memory_contents(self) -> str:
-        """What the memories hold, in words, for the memory-budget table."""
-        return "the substrate's skill memory" if self.stores_memories else "nothing"
 
     def wake_memories(self, skill_number: int, memories: Sequence[Memory]) -> tuple[list[Memory], float]:
         """Memories and weight gamma_k of the wake's distillation term for the ``skill_number``-th skill

@@ -46,6 +46,7 @@ class TransitionMemory(Memory):
     :meth:`loss` is the behaviour-cloning error of ``policy`` (states -> [mean, log std]) on a batch."""
 
     kind = "transitions"
+    contents = "transitions (s, a, r, s', done) + the actor's Gaussian on s (behaviour-cloning targets)"
 
     @property
     def buffer_keys(self) -> tuple[str, ...]:  # type: ignore[override]
@@ -111,5 +112,3 @@ class CLEAR(ContinualMethod):
         memory = TransitionMemory(s.memory_skill(k), {**sample, "target": target})
         return self.save_memory(k, substrate, memory)
 
-    def memory_contents(self) -> str:
-        return "transitions (s, a, r, s', done) + the actor's Gaussian on s, per skill"

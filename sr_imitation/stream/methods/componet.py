@@ -18,22 +18,18 @@ from __future__ import annotations
 
 from typing import Any
 
-from torch import Tensor
-
-from sr_imitation.core.memory import Memory, register_memory
+from sr_imitation.core.memory import Memory, WeightsMemory, register_memory
 from sr_imitation.stream.methods.base import ContinualMethod
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
 
 
 @register_memory
-class ModuleWeights(Memory):
+class ModuleWeights(WeightsMemory):
     """A skill's CompoNet module (head and attention weights), kept for the memory budget; no objective."""
 
     kind = "componet_module"
-
-    def loss(self, policy: Any, batch: Any) -> Tensor:
-        raise NotImplementedError("a CompoNet module is part of the policy, not a consolidation objective")
+    contents = "a frozen module per skill (Gaussian head + attention weights)"
 
 
 @register_method
@@ -64,5 +60,3 @@ class CompoNet(ContinualMethod):
                                           for key, t in module.state_dict().items()})
                 for j in range(1, stages)]  # the first module is the plain actor every method has
 
-    def memory_contents(self) -> str:
-        return "per-skill Gaussian heads + attention weights"

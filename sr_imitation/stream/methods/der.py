@@ -69,5 +69,3 @@ class DER(ContinualMethod):
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
         return self.save_memory(k, substrate, gaussian_memory(substrate, k))
 
-    def memory_contents(self) -> str:
-        return "states + the actor's Gaussian mean and log-std on them, per skill"

@@ -46,6 +46,7 @@ class FisherMemory(Memory):
     parameter in the substrate's parameter order. No buffer: :meth:`loss` takes the current parameters."""
 
     kind = "ewc_fisher"
+    contents = "parameter snapshot theta* + diagonal Fisher"
 
     def _validate(self) -> None:
         super()._validate()
@@ -118,5 +119,3 @@ class EWC(ContinualMethod):
                                        s.state_sample(k, self.config.fisher_states), generator)
         return self.save_memory(k, substrate, memory)
 
-    def memory_contents(self) -> str:
-        return "parameter snapshot + diagonal Fisher per skill"

@@ -8,7 +8,7 @@ before this skill's wake); at every update of wake k the loss gets
 
 the action chunk on the batch's normalized observations, averaged over its elements (lambda_LwF = 1: our choice; the
 paper does not give it). Nothing is stored between skills except that one snapshot (memory: 0 skill data; the
-snapshot is one copy of the policy, as every method's previous checkpoint).
+snapshot, one copy of the policy's weights, is counted in the memory budget as a ``policy_snapshot``).
 """
 
 from __future__ import annotations
@@ -19,6 +19,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 
+from sr_imitation.core.memory import Memory, PolicySnapshot
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -40,7 +41,7 @@ class LwF(ContinualMethod):
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        self.previous = substrate.frozen_chunk_policy() if k > 0 else None  # type: ignore[attr-defined]
+        self.previous = substrate.frozen_policy().action_chunk if k > 0 else None  # type: ignore[attr-defined]
 
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
         if self.previous is None:
@@ -48,3 +49,9 @@ class LwF(ContinualMethod):
         with torch.no_grad():
             target = self.previous(step.batch)
         return loss + self.config.weight * (step.policy(step.batch) - target).pow(2).mean()
+
+    def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
+        """The teacher of the last wake (the policy after stage K-1): one copy of the policy's weights."""
+        if stages < 2:
+            return []
+        return [PolicySnapshot(substrate.memory_skill(stages - 2), substrate.policy_weights())]  # type: ignore

@@ -103,5 +103,3 @@ class ProgressCompress(ResetDistill):
                 out.append(s.load_memory(i, name="kb_fisher"))
         return out
 
-    def memory_contents(self) -> str:
-        return "knowledge-base snapshot + Fisher per skill, expert states + outputs"

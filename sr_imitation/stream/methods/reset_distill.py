@@ -69,5 +69,3 @@ class ResetDistill(ContinualMethod):
                                      batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
         return SleepProblem(s.policy_parameters(), state_gaussian(s), config)
 
-    def memory_contents(self) -> str:
-        return "states + each expert's Gaussian mean and log-std on them, per skill"

@@ -1,0 +1,131 @@
+"""The MT-Joint oracle of the paper's SurgicAI table (appendix B): one ACT policy trained on the union of the five
+skills' demonstrations, reported apart (it is not a continual-learning method).
+
+    python -m sr_imitation.imitation.mt_joint --config_path=configs/needle_cpu.json --seed=0 \\
+        --output_dir=outputs/needle_mt_joint
+
+Flags are ``sr-train``'s. The union is built here (LeRobot 0.4.4 has no ``MultiLeRobotDataset``): each skill's
+dataset is loaded and split by episode exactly as its stream wake loads it, and the training and validation frames
+are the concatenation of all skills' (:func:`union_data`). The same ACT, normalization (the stream's fixed
+statistics, from the first skill's dataset), optimizer and wake loop as the stream; the budget is the stream's whole
+wake budget: an epoch is one pass over the union (or ``max_steps_per_epoch`` times the number of skills when the
+preset caps epochs), up to ``wake.max_epochs`` epochs with the same early stopping and restore rule. Then every skill
+is evaluated exactly as in the stream (same evaluation seeds and episodes). Results use the shared schema; there is
+no sequence, so the success matrix repeats the final evaluation in every row and the after-wake row; BWT = 0 by
+definition; SPI (subspace preservation across stages) is undefined (null).
+
+Phases (``progress.json``; a run killed inside a phase redoes it with the same numbers): ``1.wake`` (checkpoint
+``mt_joint/wake``), ``1.wake.eval`` (its evaluation, next to it). Settings are fingerprinted and checked before
+anything is written, as for a stream.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sr_imitation.core.fingerprint import settings_fingerprint
+from sr_imitation.imitation.cli import _setup_logging, parse_train_args
+from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
+from sr_imitation.imitation.report import pair_list
+from sr_imitation.imitation.stream import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict
+from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.wake import wake_train
+from sr_imitation.stream.results import build_results, write_results
+from sr_imitation.stream.rundir import RunDirectory
+
+logger = logging.getLogger(__name__)
+
+JOINT = "mt_joint"
+
+
+class JointSubstrate(ACTSubstrate):
+    """The ACT substrate with one stage, ``mt_joint``, holding the jointly trained policy and its evaluation."""
+
+    def stage_dir_name(self, index: int) -> str:
+        return JOINT
+
+
+def union_data(substrate: ACTSubstrate) -> SkillData:
+    """Every skill's dataset, split by episode as its own wake splits it, behind one index space."""
+    cfg = substrate.cfg
+    parts = [load_skill_data(skill, cfg.stream.dataset_path(i), cfg.stream.repo_id(i), substrate.policy_cfg,
+                             cfg.wake.val_fraction, substrate.phase_seed(i, "wake"), cfg.stream.video_backend)
+             for i, skill in enumerate(substrate.skills)]
+    offsets = np.cumsum([0] + [len(p.dataset) for p in parts[:-1]]).tolist()
+    return SkillData(
+        JOINT, Path(cfg.stream.dataset_root), torch.utils.data.ConcatDataset([p.dataset for p in parts]),
+        [o + i for p, o in zip(parts, offsets, strict=True) for i in p.train_indices],
+        [o + i for p, o in zip(parts, offsets, strict=True) for i in p.val_indices],
+    )
+
+
+def joint_wake(cfg: TrainStreamConfig) -> Any:
+    """The stream's wake settings with an epoch cap covering every skill (the stream's whole wake budget)."""
+    cap = cfg.wake.max_steps_per_epoch
+    return dataclasses.replace(cfg.wake, max_steps_per_epoch=None if cap is None else cap * len(cfg.stream.skills))
+
+
+def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
+    """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
+    check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before anything is written
+    stored = {**stored_config_dict(cfg), "mt_joint": True}
+    fingerprint = settings_fingerprint(stored, RESUME_ALLOW_LIST)
+    run = RunDirectory(cfg.output_dir, fingerprint, "train_config.json", stored, cfg.resume, cfg.overwrite)
+    run.prepare()
+    substrate = JointSubstrate(cfg, make_env)
+    substrate.setup()
+    skills = substrate.skills
+    if not run.done(0, "wake"):
+        substrate.begin_phase(0, "wake")
+        t0 = time.perf_counter()
+        result = wake_train(substrate.policy, substrate.preprocessor, union_data(substrate), joint_wake(cfg),
+                            substrate.phase_seed(0, "wake"), cfg.progress)
+        history = dataclasses.asdict(result)
+        substrate.save_policy(0, "wake", {"wake_history.json": history})
+        run.mark(0, "wake", {"seconds": time.perf_counter() - t0, "epochs": result.epochs,
+                              "best_epoch": result.best_epoch, "best_val_l1": result.best_val_l1,
+                              "steps": result.steps})
+    else:
+        substrate.load_policy(0, "wake")
+    if not run.done(0, "wake.eval"):
+        substrate.begin_phase(0, "wake.eval")
+        run.mark(0, "wake.eval", substrate.evaluate(0, "wake.eval", list(range(len(skills)))))
+    evals = substrate.read_eval(0, "wake")
+    per_seed = np.array([evals[s]["success_per_seed"] for s in skills]).T  # (evaluation seeds, skills)
+    n = len(skills)
+    matrix = np.repeat(per_seed[:, None, :], n, axis=1)
+    matrix[:, np.triu_indices(n, 1)[0], np.triu_indices(n, 1)[1]] = np.nan
+    results = build_results(
+        substrate="act", method=JOINT, sleep_enabled=False, seed=cfg.seed, skills=skills,
+        pairs=pair_list(cfg.stream.pairs, skills), success=matrix, after_wake=per_seed,
+        spi=np.full((per_seed.shape[0], n), np.nan), spi_features=[], memory_bytes={},
+        stages=[{"stage": 0, "skill": JOINT, "wake": run.record(0, "wake"), "wake.eval": run.record(0, "wake.eval")}],
+        config=stored, extra={"oracle": "all skills trained jointly; rows repeat the final evaluation",
+                              "episodes_per_skill_per_unit": cfg.eval.episodes})
+    write_results(cfg.output_dir, results)
+    return results
+
+
+def main(args: list[str] | None = None) -> None:
+    from sr_imitation.core.cli_errors import run_cli
+
+    def _main(argv: list[str]) -> None:
+        _setup_logging()
+        cfg = parse_train_args(argv)
+        results = run_mt_joint(cfg)
+        final = dict(zip(results["skills"], results["success_matrix"][-1], strict=True))
+        logger.info("MT-Joint: final success %s, AFSR %.3f", final, results["metrics"]["afsr"]["final"])
+
+    run_cli("mt-joint", _main, list(sys.argv[1:] if args is None else args))
+
+
+if __name__ == "__main__":
+    main()
