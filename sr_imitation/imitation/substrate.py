@@ -103,10 +103,7 @@ class ACTSubstrate:
         if stats_path.exists():
             self.stats = load_stats(stats_path)
         else:
-            stream = self.cfg.stream
-            metas = [first_meta] + ([load_metadata(stream.dataset_path(i), stream.repo_id(i))
-                                     for i in range(1, len(self.skills))] if stream.stats == "union" else [])
-            self.stats = stream_stats(metas, inputs, stream.stats_min_std)
+            self.stats = stream_stats(self.stats_metas(first_meta), inputs, self.cfg.stream.stats_min_std)
             save_stats(stats_path, self.stats)
         seed_everything(self.cfg.seed)
         self.policy: ACTSRPolicy = make_policy(self.policy_cfg, ds_meta=first_meta)  # type: ignore[assignment]
@@ -119,6 +116,14 @@ class ACTSubstrate:
             shape = self.policy_cfg.image_features[image_keys[0]].shape
             size = (int(shape[1]), int(shape[2]))
         self.make_env = self._make_env or needle_env_factory(size, self.cfg.eval)
+
+    def stats_metas(self, first_meta: Any) -> list[Any]:
+        """The datasets whose statistics normalize the stream (``--stream.stats``: the first, or all)."""
+        stream = self.cfg.stream
+        if stream.stats == "first":
+            return [first_meta]
+        return [first_meta] + [load_metadata(stream.dataset_path(i), stream.repo_id(i))
+                               for i in range(1, len(self.skills))]
 
     def _normalize_raw(self, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         obs = {k: (v.float() / 255.0 if v.dtype == torch.uint8 else v) for k, v in raw.items()}

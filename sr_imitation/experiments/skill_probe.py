@@ -1,0 +1,170 @@
+"""Probe of the base learner: one skill's wake from scratch, evaluated right after it (what the stream's
+after-own-wake row measures, without the stream around it), under chosen normalization statistics.
+
+    python -m sr_imitation.experiments.skill_probe --preset=configs/needle_cpu.json \\
+        --skills=[place,insert,regrasp] --stats=[own,first,union] --seeds=[0] --output_root=outputs/skill_probe \\
+        --extra=[--wake.max_epochs=20,--wake.min_epochs=20]
+
+``stats``: ``own`` (the probed skill's dataset), ``first`` (the preset stream's first skill's: what
+``--stream.stats=first`` gives every later skill), ``union`` (all the preset stream's datasets). The wake is the
+substrate's own (the preset's policy, wake budget and seeds; ``--extra`` adds ``sr-train`` flags) and the evaluation
+uses the skill's position in the preset's stream, so its episodes are those of the stream's evaluations. Each probe
+goes to ``<output_root>/<skill>_<stats>_seed<seed>/`` (checkpoint, ``eval.json``, trajectories, rollout video,
+``probe.json``); finished probes are skipped. ``probe.md`` / ``probe.json`` in ``output_root`` list the success,
+per evaluation seed, and the failed episodes' final state: position and rotation error (the geodesic angle between
+the tool's and the goal's orientation) and the jaw, which is how the failure modes in docs/RESULTS.md were found.
+"""
+
+from __future__ import annotations
+
+import copy
+import logging
+import math
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+import numpy as np
+
+from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
+from sr_imitation.envs.needle import geometry as G
+from sr_imitation.imitation.cli import parse_config
+from sr_imitation.imitation.data import load_metadata
+from sr_imitation.imitation.evaluate import evaluate_skills
+from sr_imitation.imitation.stream import TrainStreamConfig
+from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.main_job import MainJobConfig
+from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.record import RecordConfig, check_recorded, record
+
+logger = logging.getLogger(__name__)
+
+STATS = ("own", "first", "union")
+
+
+@dataclass
+class ProbeConfig:
+    preset: Path = Path("configs/needle_cpu.json")
+    """The sr-main preset: its policy, wake budget, evaluation and recorded datasets."""
+    skills: list[str] = field(default_factory=lambda: ["place", "insert", "regrasp"])
+    """Skills to probe (each must be in the preset's stream)."""
+    stats: list[str] = field(default_factory=lambda: ["own", "first"])
+    """Normalization statistics to probe under (own, first, union)."""
+    seeds: list[int] = field(default_factory=lambda: [0])
+    """Training seeds."""
+    output_root: Path = Path("outputs/skill_probe")
+    """Where the probes and the tables go."""
+    extra: list[str] = field(default_factory=list)
+    """sr-train flags added to every probe (e.g. --wake.max_epochs=20)."""
+
+    def __post_init__(self) -> None:
+        unknown = [s for s in self.stats if s not in STATS]
+        if unknown:
+            raise ValueError(f"stats: unknown {unknown}; choose from {list(STATS)}")
+
+
+class ProbeSubstrate(ACTSubstrate):
+    """The ACT substrate on a one-skill stream, normalized with the statistics of ``stats_from`` datasets."""
+
+    def __init__(self, cfg: TrainStreamConfig, stats_from: list[tuple[Path, str]], make_env: Any = None) -> None:
+        super().__init__(cfg, make_env)
+        self.stats_from = stats_from
+
+    def stats_metas(self, first_meta: Any) -> list[Any]:
+        return [load_metadata(path, repo_id) for path, repo_id in self.stats_from]
+
+
+def final_errors(state: np.ndarray) -> dict[str, float]:
+    """Position error (mm), geodesic rotation error (deg) and jaw of a needle ``agent_pos`` (cur, goal, ...);
+    nothing for a state of another layout."""
+    if state.shape[0] < 14:
+        return {}
+    cur, goal = state[0:7], state[7:14]
+    rotation = G.rotation_angle(G.rpy_to_matrix(*cur[3:6]), G.rpy_to_matrix(*goal[3:6]))
+    return {"position_mm": float(10.0 * np.linalg.norm(goal[:3] - cur[:3])),
+            "rotation_deg": float(math.degrees(rotation)), "jaw": float(cur[6])}
+
+
+def run_probe(base: TrainStreamConfig, skill: str, stats: str, seed: int, out: Path, make_env: Any = None
+              ) -> dict[str, Any]:
+    """One probe in ``out`` (skipped when its ``probe.json`` exists); returns its record."""
+    if (out / "probe.json").is_file():
+        return read_checked_json(out / "probe.json")
+    stream = base.stream
+    position = stream.skills.index(skill)
+    sources = {"own": [position], "first": [0], "union": list(range(len(stream.skills)))}[stats]
+    cfg = copy.deepcopy(base)
+    cfg.stream.skills, cfg.stream.dataset_paths = [skill], [stream.dataset_path(position)]
+    cfg.seed, cfg.output_dir, cfg.method = seed, out, "sequential_bc"
+    substrate = ProbeSubstrate(cfg, [(stream.dataset_path(i), stream.repo_id(i)) for i in sources], make_env)
+    out.mkdir(parents=True, exist_ok=True)
+    substrate.setup()
+    substrate.begin_phase(0, "wake")
+    wake, files = substrate.wake(0, [], 0.0)
+    substrate.save_policy(0, "wake", files)
+    substrate.begin_phase(0, "wake.eval")
+    evaluation = evaluate_skills(substrate.policy, substrate.preprocessor, substrate.postprocessor, [skill],
+                                 [position], substrate.make_env, cfg.eval, out / "videos", cfg.progress)[skill]
+    failures = [final_errors(t[-1]) for t, n in zip(evaluation.trajectories, evaluation.episode_lengths, strict=True)
+                if n >= cfg.eval.max_steps]
+    result = {"skill": skill, "stats": stats, "seed": seed, "success": evaluation.success,
+              "success_per_seed": evaluation.success_per_seed, "wake_steps": wake["steps"],
+              "wake_seconds": wake["seconds"], "failures": failures}
+    write_checked_json(out / "probe.json", result)
+    return result
+
+
+def _mean(rows: list[dict[str, float]], key: str) -> str:
+    values = [r[key] for r in rows if key in r]
+    return "-" if not values else f"{np.mean(values):.2f}"
+
+
+def render(results: list[dict[str, Any]]) -> str:
+    lines = ["Success right after the skill's own wake (mean over evaluation seeds) and the failed episodes' final "
+             "state (means).", "",
+             "| skill | stats | seed | success | per evaluation seed | failed | position (mm) | rotation (deg) | jaw |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        f = r["failures"]
+        lines.append(f"| {r['skill']} | {r['stats']} | {r['seed']} | {r['success']:.3f} | "
+                     f"{', '.join(f'{x:.2f}' for x in r['success_per_seed'])} | {len(f)} | {_mean(f, 'position_mm')} "
+                     f"| {_mean(f, 'rotation_deg')} | {_mean(f, 'jaw')} |")
+    return "\n".join(lines) + "\n"
+
+
+def run(cfg: ProbeConfig, make_env: Any = None) -> list[dict[str, Any]]:
+    main = parse_config(MainJobConfig, cfg.preset, [f"--train.{a[2:]}" if a.startswith("--") else a
+                                                    for a in cfg.extra])
+    rec = main.record
+    check_recorded(rec, rec.skills)
+    missing = [s for s in rec.skills if not rec.target(s).exists()]
+    if missing:
+        record(RecordConfig(**{**vars(rec), "skills": missing}))
+    unknown = [s for s in cfg.skills if s not in main.train.stream.skills]
+    if unknown:
+        raise ValueError(f"skills: {unknown} are not in the preset's stream {main.train.stream.skills}")
+    results = []
+    for skill in cfg.skills:
+        for stats in cfg.stats:
+            for seed in cfg.seeds:
+                out = cfg.output_root / f"{skill}_{stats}_seed{seed}"
+                logger.info("=== probe %s, %s statistics, seed %d -> %s", skill, stats, seed, out)
+                results.append(run_probe(main.train, skill, stats, seed, out, make_env))
+    write_checked_json(cfg.output_root / "probe.json", {"probes": results})
+    atomic_write_bytes(cfg.output_root / "probe.md", render(results).encode())
+    return results
+
+
+def main(args: list[str] | None = None) -> None:
+    setup_offscreen_rendering()
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    cfg = draccus.parse(ProbeConfig, args=list(sys.argv[1:] if args is None else args))
+    print(render(run(cfg)))  # noqa: T201  (command output)
+
+
+if __name__ == "__main__":
+    from sr_imitation.core.cli_errors import run_cli
+
+    run_cli("skill_probe", main)
