@@ -144,6 +144,12 @@ def test_demo_margins_end_demos_inside_the_success_region_and_datasets_remember_
     env = NeedleEnv(skill="regrasp", image_height=SIZE, image_width=SIZE)
     steps = {mm: len(rec.run_demo(env, 3, False, ExpertSettings(jaw_close_cm=mm / 10))[0]) for mm in (1.5, 0.5)}
     assert steps[0.5] > steps[1.5]
+    from sr_imitation.benchmarks.demo_endings import demo_ending  # the measurement docs/RESULTS.md reports
+
+    ending = demo_ending("regrasp", 0.5, 0.5, 3)
+    assert ending["success"] == 1.0 and ending["steps"] == steps[0.5] and ending["jaw_close_at_mm"] <= 0.5
+    assert 5.0 < demo_ending("place", 1.0, 1.5, 0)["rotation_deg"] <= 10.0 and demo_ending("place", 0.5, 0.5, 0)[
+        "rotation_deg"] <= 5.0
 
     cfg = rec.RecordConfig(skills=["approach"], num_episodes=1, root=tmp_path, image_size=SIZE,
                            demo_threshold_scale=0.5, expert_jaw_close_mm=0.5)
