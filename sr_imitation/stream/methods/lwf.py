@@ -41,13 +41,13 @@ class LwF(ContinualMethod):
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        self.previous = substrate.frozen_policy().action_chunk if k > 0 else None  # type: ignore[attr-defined]
+        self.teacher = substrate.frozen_policy() if k > 0 else None  # type: ignore[attr-defined]
 
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
-        if self.previous is None:
+        if self.teacher is None:
             return loss
         with torch.no_grad():
-            target = self.previous(step.batch)
+            target = self.teacher.action_chunk(step.batch)
         return loss + self.config.weight * (step.policy(step.batch) - target).pow(2).mean()
 
     def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:

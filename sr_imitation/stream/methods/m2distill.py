@@ -25,7 +25,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 
-from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
+from sr_imitation.stream.methods.base import WakeStep
 from sr_imitation.stream.methods.lwf import LwF
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -55,15 +55,14 @@ class M2Distill(LwF):
     config: ClassVar[M2DistillConfig] = M2DistillConfig()  # type: ignore[assignment]
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
-        ContinualMethod.begin_wake(self, k, memories, substrate)
+        super().begin_wake(k, memories, substrate)  # LwF's teacher: the policy before this wake
         self.current = substrate.chunk_and_features  # type: ignore[attr-defined]
-        self.previous = substrate.frozen_policy().action_chunk_and_features if k > 0 else None  # type: ignore
 
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
-        if self.previous is None:
+        if self.teacher is None:
             return loss
         with torch.no_grad():
-            target_chunk, target_features = self.previous(step.batch)
+            target_chunk, target_features = self.teacher.action_chunk_and_features(step.batch)
         chunk, features = self.current(step.batch)
         c = self.config
         action = (chunk - target_chunk).pow(2).mean()
