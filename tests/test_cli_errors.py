@@ -96,7 +96,8 @@ def test_bugs_keep_their_traceback_and_debug_flag_is_parsed():
     assert split_debug(["--debug=false"]) == (False, [])
 
 
-@pytest.mark.parametrize("preset", ["configs/needle_cpu.json", "configs/needle_cpu_vision.json", "configs/needle_paper.json"])
+@pytest.mark.parametrize("preset", ["configs/needle_cpu.json", "configs/needle_cpu_vision.json",
+                                    "configs/needle_paper.json"])
 def test_needle_presets_are_runnable_by_sr_train_and_sr_main(preset):
     """The module docstring's ``sr-train --config_path=configs/needle_cpu.json`` failed (DecodingError: fields
     record, train): a preset's train section is now what sr-train runs, with its record.root datasets."""

@@ -131,6 +131,9 @@ class TrainStreamConfig:
     """Evaluation after every wake and sleep."""
     method: str = "sr"
     """Continual method - sr, wake_only, sequential_bc, lwf, m2distill or ewc (sr_imitation/stream/methods)."""
+    method_options: dict[str, float] = field(default_factory=dict)
+    """Values for the method's own settings, e.g. --method_options='{lam: 100}' for EWC's lambda (each method's
+    file lists them)."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
     """Mirror the run log (log.jsonl) to Weights & Biases (offline by default)."""
     output_dir: Path = Path("outputs/needle_stream")

@@ -92,7 +92,7 @@ class ACTSubstrate:
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=self.policy_cfg.distill_weight,
-                              extra={"aggregator": self.cfg.sleep.aggregator})
+                              extra={"aggregator": self.cfg.sleep.aggregator}, options=dict(self.cfg.method_options))
 
     # -- set-up ------------------------------------------------------------------------------------------
     def setup(self) -> None:

@@ -254,6 +254,8 @@ class RLTrainConfig:
     method: str = "sr"
     """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only``, ``sequential_bc``, ``ewc``,
     ``der``, ``agem``, ``nash_mtl`` or ``pcgrad``."""
+    method_options: dict[str, float] = field(default_factory=dict)
+    """Values for the method's own settings, e.g. ``--method_options='{lam: 100}'`` for EWC's lambda."""
     sac: SACConfig = field(default_factory=SACConfig)
     """SAC (Table "SAC hyperparameters")."""
     wake: WakeConfig = field(default_factory=WakeConfig)

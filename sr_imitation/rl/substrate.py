@@ -78,7 +78,7 @@ class SACSubstrate:
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=None,
-                              extra={"aggregator": self.cfg.sleep.aggregator})
+                              extra={"aggregator": self.cfg.sleep.aggregator}, options=dict(self.cfg.method_options))
 
     # -- set-up and seeding ---------------------------------------------------------------------------------
     def setup(self) -> None:

@@ -59,11 +59,13 @@ class MethodSettings:
         distill_weight: gamma_k, the weight of wake-time distillation from the memories for the k-th skill
             (1-based); ``None`` when the substrate's wake has no distillation term (SAC).
         extra: substrate-specific settings a method may read.
+        options: ``--method_options``: values for fields of the method's own ``config`` (e.g. EWC's ``lam``).
     """
 
     sleep: bool = True
     distill_weight: Callable[[int], float] | None = None
     extra: dict[str, Any] = field(default_factory=dict)
+    options: dict[str, Any] = field(default_factory=dict)
 
 
 @runtime_checkable

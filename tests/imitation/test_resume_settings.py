@@ -59,6 +59,7 @@ CHOICES: dict[str, list[Any]] = {
     "policy.normalization_mapping.ACTION": MAPPING,
     "stream.pairs": ["surgicai", "all", "adjacent"],
     "stream.stats": ["first", "union"],
+    "method_options": [{"lam": 100.0}],
     "wake.restore": ["best", "last"],
     "stream.video_backend": ["pyav", "torchcodec"],
     "eval.thresholds": sorted(THRESHOLD_PRESETS),
@@ -81,6 +82,8 @@ CHOICES: dict[str, list[Any]] = {
 COMPANIONS: dict[str, dict[tuple[str, ...], Any]] = {
     # ACT allows a temporal ensemble only with one action step per chunk: change both (the diff names both).
     "policy.temporal_ensemble_coeff": {("policy", "n_action_steps"): 1},
+    # the stored run's method (sr) has no options: give them to a method that has them (the diff names both).
+    "method_options": {("method",): "ewc"},
 }
 SKIP: dict[str, str] = {
     "policy.type": "sr-train trains act_sr only: TrainStreamConfig.__post_init__ refuses any other policy type",

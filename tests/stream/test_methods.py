@@ -262,3 +262,31 @@ def test_componet_starts_with_the_self_bias_and_keeps_earlier_modules_exactly():
     assert all(torch.equal(a, b) for a, b in zip(before, actor(obs), strict=True))  # skill 1 acts as before
     actor.train_skill(0)
     assert {"fc1.weight", "fc2.weight"} <= {n for n, p in actor.named_parameters() if p.requires_grad}
+
+
+def test_method_options_replace_the_methods_own_settings_and_name_the_valid_ones():
+    """--method_options (both substrates): fields of the method's config for this run only; anything else is a
+    ValueError naming method_options and the valid names, raised when the method is made (before any file)."""
+    from sr_imitation.stream.methods.ewc import EWC, EWCConfig
+    from sr_imitation.stream.substrate import MethodSettings
+
+    ewc = METHODS["ewc"](MethodSettings(options={"lam": 100.0}))
+    assert ewc.config == EWCConfig(lam=100.0) and EWC.config == EWCConfig()  # the class default is untouched
+    assert METHODS["ewc"](MethodSettings()).config.lam == 1.0
+    with pytest.raises(ValueError, match=r"method_options: 'ewc' has no option\(s\) \['lambda'\]; its options: "
+                                         r"\['lam', 'fisher_states'\]"):
+        METHODS["ewc"](MethodSettings(options={"lambda": 100.0}))
+    with pytest.raises(ValueError, match="method_options: 'sr' has no option"):
+        METHODS["sr"](MethodSettings(options={"lam": 1.0}))
+
+
+def test_method_options_are_parsed_and_fingerprinted_on_both_substrates():
+    from sr_imitation.imitation.cli import parse_train_args
+    from sr_imitation.imitation.stream import resume_fingerprint
+    from sr_imitation.rl.cli import parse
+
+    act = parse_train_args(["--config_path=configs/needle_cpu.json", "--method=ewc", "--method_options={lam: 100}"])
+    assert act.method_options == {"lam": 100.0}
+    assert resume_fingerprint(act).settings["method_options.lam"] == 100.0  # a resume with another value is refused
+    assert parse(["--config_path=configs/sac_mt5_cpu.json", "--method_options={lam: 500}"]).method_options == {
+        "lam": 500.0}

@@ -20,6 +20,7 @@ earlier in the process: a resumed run must compute the same numbers.
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any, ClassVar
@@ -52,6 +53,16 @@ class WakeStep:
     generator: Any = None
 
 
+def with_options(method: str, config: Any, options: Mapping[str, Any]) -> Any:
+    """``config`` (a method's frozen settings dataclass) with ``options`` replacing fields of the same name;
+    ``ValueError`` naming ``method_options`` and the valid names for anything else."""
+    names = [f.name for f in dataclasses.fields(config)] if dataclasses.is_dataclass(config) else []
+    unknown = sorted(set(options) - set(names))
+    if unknown:
+        raise ValueError(f"method_options: {method!r} has no option(s) {unknown}; its options: {names or 'none'}")
+    return dataclasses.replace(config, **options)
+
+
 class ContinualMethod:
     """A continual-learning method. Class attributes declare what it is; hooks default to "do nothing".
 
@@ -70,6 +81,8 @@ class ContinualMethod:
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
         self.memories: list[Memory] = []
+        if settings.options:
+            self.config = with_options(self.name, getattr(type(self), "config", None), settings.options)
 
     def setup(self, substrate: Substrate) -> None:
         """Called once per process after ``substrate.setup()``, before any checkpoint is loaded (a method that
