@@ -21,7 +21,7 @@ from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import RecordConfig, check_recorded, record
+from sr_imitation.record import RecordConfig, ensure_recorded
 
 logger = logging.getLogger(__name__)
 
@@ -39,15 +39,16 @@ class MainJobConfig:
         self.record.skills = list(self.train.stream.skills)
 
 
+def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:
+    """An sr-main preset with ``sr-train`` flags applied to its train section (``--seed=1``), its datasets recorded
+    if missing and checked if present (the experiment drivers' start)."""
+    cfg = parse_config(MainJobConfig, preset, [f"--train.{a[2:]}" if a.startswith("--") else a for a in train_flags])
+    ensure_recorded(cfg.record)
+    return cfg
+
+
 def run_main_job(cfg: MainJobConfig) -> dict:
-    if not cfg.record.overwrite:
-        check_recorded(cfg.record, cfg.record.skills)  # datasets of other record settings: refused, not reused
-    missing = [s for s in cfg.record.skills if cfg.record.overwrite or not cfg.record.target(s).exists()]
-    if missing:
-        logger.info("recording demonstrations for %s into %s", missing, cfg.record.root)
-        record(RecordConfig(**{**vars(cfg.record), "skills": missing}))
-    else:
-        logger.info("datasets for all skills exist in %s; not recording", cfg.record.root)
+    ensure_recorded(cfg.record)  # datasets of other record settings: refused, not reused
     results = train_stream(cfg.train)
     if cfg.expert_video:
         from sr_imitation.envs.needle.chained import run_chained_episode

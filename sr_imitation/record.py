@@ -162,6 +162,19 @@ def check_recorded(cfg: RecordConfig, skills: list[str]) -> None:
                              f"sr-main, --overwrite=true with sr-record) or choose another record.root")
 
 
+def ensure_recorded(cfg: RecordConfig) -> None:
+    """Make ``cfg.skills``' datasets available: refuse existing ones of other content settings (unless
+    ``overwrite``, which records every skill again), record the missing ones."""
+    if not cfg.overwrite:
+        check_recorded(cfg, cfg.skills)
+    missing = [s for s in cfg.skills if cfg.overwrite or not cfg.target(s).exists()]
+    if missing:
+        logger.info("recording demonstrations for %s into %s", missing, cfg.root)
+        record(RecordConfig(**{**vars(cfg), "skills": missing}))
+    else:
+        logger.info("datasets for all skills exist in %s; not recording", cfg.root)
+
+
 def episode_seed(base_seed: int, skill_index: int, attempt: int) -> int:
     return base_seed * 1_000_000 + skill_index * 10_000 + attempt
 

@@ -33,12 +33,10 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.mt_joint import run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
-from sr_imitation.main_job import MainJobConfig
+from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import RecordConfig, check_recorded, record
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
@@ -93,13 +91,7 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
 
 
 def run_compare(cfg: CompareConfig) -> dict:
-    base = parse_config(MainJobConfig, cfg.preset, [f"--train.{a[2:]}" if a.startswith("--") else a
-                                                    for a in cfg.extra])
-    rec = base.record
-    check_recorded(rec, rec.skills)
-    missing = [s for s in rec.skills if not rec.target(s).exists()]
-    if missing:
-        record(RecordConfig(**{**vars(rec), "skills": missing}))
+    base = preset_with_datasets(cfg.preset, cfg.extra)
     runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
     for variant in cfg.variants:
         for seed in cfg.seeds:

@@ -30,14 +30,12 @@ import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.envs.needle import geometry as G
-from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.data import load_metadata
 from sr_imitation.imitation.evaluate import evaluate_skills
 from sr_imitation.imitation.stream import TrainStreamConfig
 from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.main_job import MainJobConfig
+from sr_imitation.main_job import preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import RecordConfig, check_recorded, record
 
 logger = logging.getLogger(__name__)
 
@@ -135,13 +133,7 @@ def render(results: list[dict[str, Any]]) -> str:
 
 
 def run(cfg: ProbeConfig, make_env: Any = None) -> list[dict[str, Any]]:
-    main = parse_config(MainJobConfig, cfg.preset, [f"--train.{a[2:]}" if a.startswith("--") else a
-                                                    for a in cfg.extra])
-    rec = main.record
-    check_recorded(rec, rec.skills)
-    missing = [s for s in rec.skills if not rec.target(s).exists()]
-    if missing:
-        record(RecordConfig(**{**vars(rec), "skills": missing}))
+    main = preset_with_datasets(cfg.preset, cfg.extra)
     unknown = [s for s in cfg.skills if s not in main.train.stream.skills]
     if unknown:
         raise ValueError(f"skills: {unknown} are not in the preset's stream {main.train.stream.skills}")

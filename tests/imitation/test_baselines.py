@@ -26,22 +26,30 @@ class _Policy:
     action_chunk = chunk
 
 
+class _Substrate:
+    """What LwF and M2Distill ask of a substrate: a frozen copy of the live policy, and its features."""
+
+    def __init__(self, live: _Policy) -> None:
+        self.live = live
+
+    def frozen_policy(self) -> _Policy:
+        frozen = type(self.live)()
+        frozen.net.load_state_dict(self.live.net.state_dict())
+        frozen.net.requires_grad_(False)
+        return frozen
+
+    def chunk_and_features(self, batch):
+        return self.live.action_chunk_and_features(batch)
+
+
 def test_lwf_distils_toward_the_previous_policy_not_the_current_one():
     live = _Policy()
-
-    class Substrate:
-        def frozen_policy(self):
-            frozen = _Policy()
-            frozen.net.load_state_dict(live.net.state_dict())
-            frozen.net.requires_grad_(False)
-            return frozen
-
     method = METHODS["lwf"](MethodSettings(sleep=False))
     batch = {"observation.state": torch.randn(8, 3)}
     zero = torch.zeros(())
-    method.begin_wake(0, [], Substrate())
+    method.begin_wake(0, [], _Substrate(live))
     assert method.wake_loss(zero, WakeStep(0, 0, list(live.net.parameters()), live.chunk, batch)) is zero  # skill 1
-    method.begin_wake(1, [], Substrate())
+    method.begin_wake(1, [], _Substrate(live))
     step = WakeStep(1, 0, list(live.net.parameters()), live.chunk, batch)
     assert method.wake_loss(zero, step).item() == 0.0  # at the start of the wake: the previous policy is the current
     with torch.no_grad():
@@ -100,25 +108,15 @@ class _FeaturePolicy(_Policy):
 
 def test_m2distill_distils_actions_and_features_from_the_previous_policy():
     live = _FeaturePolicy()
-
-    class Substrate:
-        chunk_and_features = live.action_chunk_and_features
-
-        def frozen_policy(self):
-            frozen = _FeaturePolicy()
-            frozen.net.load_state_dict(live.net.state_dict())
-            frozen.net.requires_grad_(False)
-            return frozen
-
     method = METHODS["m2distill"](MethodSettings(sleep=False))
     batch = {"observation.state": torch.randn(8, 3)}
     zero = torch.zeros(())
-    method.begin_wake(0, [], Substrate())
+    method.begin_wake(0, [], _Substrate(live))
     assert method.wake_loss(zero, WakeStep(0, 0, list(live.net.parameters()), live.chunk, batch)) is zero
-    method.begin_wake(1, [], Substrate())
+    method.begin_wake(1, [], _Substrate(live))
     step = WakeStep(1, 0, list(live.net.parameters()), live.chunk, batch)
     assert method.wake_loss(zero, step).item() == 0.0
-    teacher_chunk, teacher = Substrate().frozen_policy().action_chunk_and_features(batch)
+    teacher_chunk, teacher = _Substrate(live).frozen_policy().action_chunk_and_features(batch)
     with torch.no_grad():
         live.net.weight.add_(0.3)
     chunk, feats = live.action_chunk_and_features(batch)
