@@ -5,10 +5,11 @@
         --output_root=outputs/needle_compare
 
 Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper's baselines ``sequential_bc``,
-``ewc``, ``lwf``, ``m2distill``; the SR ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the
-paper's Mean-grad: raw-gradient mean), ``sr_mean_normalized`` (mean of normalized gradients) and ``sr_nash_fw``
-(the paper's warm-started Frank-Wolfe, 5 iterations); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`,
-one ACT on the union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run
+``ewc``, ``lwf``, ``m2distill`` (EWC's lambda grid: ``ewc`` = 1, ``ewc_lam100``, ``ewc_lam10000``); the SR
+ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
+``sr_mean_normalized`` (mean of normalized gradients) and ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
+iterations); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the union of the five
+datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run
 of the preset (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets
 (recorded once, as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones
 and starts the others, one after another, each evaluated on the preset's evaluation seeds.
@@ -51,11 +52,17 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "lwf": ("lwf", {"enabled": False}),
     "m2distill": ("m2distill", {"enabled": False}),
     "mt_joint": ("sequential_bc", {"enabled": False}),  # the oracle: run by imitation.mt_joint, not the stream
+    # EWC's lambda grid on ACT (ewc above: lambda 1, the paper's MT5 choice); our grid, wider than the paper's MT5
+    # {1, 100, 500}: the unit-Frobenius Fisher spreads over ACT's 678k deployed parameters, ~9x the SAC actor's
+    "ewc_lam100": ("ewc", {"enabled": False}),
+    "ewc_lam10000": ("ewc", {"enabled": False}),
     "sr_no_anchor": ("sr", {"enabled": True, "anchor_strength": 0.0}),
     "sr_mean_grad": ("sr", {"enabled": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw gradients)
     "sr_mean_normalized": ("sr", {"enabled": True, "aggregator": "mean_normalized"}),
     "sr_nash_fw": ("sr", {"enabled": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
 }
+OPTIONS: dict[str, dict[str, float]] = {"ewc_lam100": {"lam": 100.0}, "ewc_lam10000": {"lam": 10000.0}}
+"""variant -> its method's --method_options."""
 PAIRED_BASELINE = "sr"
 TABLE_2 = ["sr", "wake_only", "sequential_bc", "ewc", "lwf", "m2distill", "mt_joint"]
 
@@ -84,6 +91,7 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
     train = copy.deepcopy(base.train)
     train.method, sleep_settings = VARIANTS[variant]
     train.sleep = dataclasses.replace(train.sleep, **sleep_settings)
+    train.method_options = {**train.method_options, **OPTIONS.get(variant, {})}
     train.seed = seed
     train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
     train.resume = (train.output_dir / "progress.json").exists()

@@ -232,6 +232,8 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, m
     assert json.loads((run / "progress.json").read_text())["completed"]["2.sleep"]["anchor_lambda"] == 0.0
     with pytest.raises(ValueError, match="variants: unknown"):
         CompareConfig(variants=["sr_typo"])
+    grid = needle_compare.run_config(cfg, needle_compare.preset_with_datasets(config_path, []), "ewc_lam100", 3)
+    assert (grid.method, grid.method_options, grid.seed) == ("ewc", {"lam": 100.0}, 3)  # EWC's lambda grid
 
 
 def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_job_run, tmp_path):
