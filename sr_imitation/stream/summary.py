@@ -195,7 +195,7 @@ def plot_dynamics(summary: Mapping[str, Any], path: Path) -> None:
 
     variants = summary["variants"]
     fig, axes = plt.subplots(1, len(METRICS), figsize=(3.6 * len(METRICS), 3.4))
-    colors = plt.get_cmap("tab20").colors
+    colors = plt.get_cmap("tab10").colors + plt.get_cmap("Dark2").colors  # distinct hues first
     for ax, m in zip(axes, METRICS, strict=True):
         for j, (name, row) in enumerate(variants.items()):
             curve = row.get("curves", {}).get(m) or {"mean": [], "sem": []}
