@@ -32,6 +32,7 @@ from typing import Any
 import draccus
 
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
@@ -83,9 +84,7 @@ class MT5CompareConfig:
     """Flags added to every run (e.g. ``--eval.episodes=10``)."""
 
     def __post_init__(self) -> None:
-        unknown = [v for v in self.variants if v not in VARIANTS]
-        if unknown:
-            raise ValueError(f"variants: unknown {unknown}; choose from {sorted(VARIANTS)}")
+        check_choices("variants", self.variants, VARIANTS)
         if "sr_mt8" in self.variants and ("sr" not in self.variants
                                           or self.variants.index("sr") > self.variants.index("sr_mt8")):
             raise ValueError("variants: sr_mt8 continues the seed's sr run; list sr before it")

@@ -38,6 +38,7 @@ from sr_imitation.imitation.mt_joint import run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
@@ -81,9 +82,7 @@ class CompareConfig:
     """sr-train flags added to every run (e.g. ``--eval.episodes=20``)."""
 
     def __post_init__(self) -> None:
-        unknown = [v for v in self.variants if v not in VARIANTS]
-        if unknown:
-            raise ValueError(f"variants: unknown {unknown}; choose from {sorted(VARIANTS)}")
+        check_choices("variants", self.variants, VARIANTS)
 
 
 def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int) -> TrainStreamConfig:

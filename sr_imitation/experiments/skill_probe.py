@@ -36,6 +36,7 @@ from sr_imitation.imitation.stream import TrainStreamConfig
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.main_job import preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.config import check_choices
 
 logger = logging.getLogger(__name__)
 
@@ -58,9 +59,7 @@ class ProbeConfig:
     """sr-train flags added to every probe (e.g. --wake.max_epochs=20)."""
 
     def __post_init__(self) -> None:
-        unknown = [s for s in self.stats if s not in STATS]
-        if unknown:
-            raise ValueError(f"stats: unknown {unknown}; choose from {list(STATS)}")
+        check_choices("stats", self.stats, STATS)
 
 
 class ProbeSubstrate(ACTSubstrate):

@@ -18,6 +18,7 @@ into a one-line hint.
 
 from __future__ import annotations
 
+from collections.abc import Iterable, Sequence
 from typing import Any
 
 RENAMED_FLAGS: dict[str, str] = {
@@ -66,6 +67,15 @@ def renamed_key_hint(config: Any, prefix: str = "") -> str | None:
         if found is not None:
             return found
     return None
+
+
+def check_choices(key: str, given: Sequence[str], known: Iterable[str]) -> None:
+    """``ValueError`` naming ``key``, the unknown values and the valid ones, unless every value of ``given`` is
+    one of ``known`` (the experiment drivers' variant and option lists)."""
+    known = list(known)
+    unknown = [v for v in given if v not in known]
+    if unknown:
+        raise ValueError(f"{key}: unknown {unknown}; choose from {sorted(known)}")
 
 
 def check_shared_settings(cfg: Any, substrate: str) -> None:

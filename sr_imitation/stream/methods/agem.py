@@ -67,4 +67,3 @@ class AGEM(ContinualMethod):
         if conflicted:
             set_grad(step.parameters, projected)
         return {"agem_projected": float(conflicted)}
-

@@ -142,7 +142,6 @@ class ContinualMethod:
         knowledge-base Fishers). Default: none."""
         return []
 
-
     def wake_memories(self, skill_number: int, memories: Sequence[Memory]) -> tuple[list[Memory], float]:
         """Memories and weight gamma_k of the wake's distillation term for the ``skill_number``-th skill
         (1-based); none by default."""

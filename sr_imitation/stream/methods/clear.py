@@ -111,4 +111,3 @@ class CLEAR(ContinualMethod):
             target = s.gaussian_policy(sample["obs"])
         memory = TransitionMemory(s.memory_skill(k), {**sample, "target": target})
         return self.save_memory(k, substrate, memory)
-

@@ -59,4 +59,3 @@ class CompoNet(ContinualMethod):
                                            ("attention", actor.attention[j]))
                                           for key, t in module.state_dict().items()})
                 for j in range(1, stages)]  # the first module is the plain actor every method has
-

@@ -68,4 +68,3 @@ class DER(ContinualMethod):
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
         return self.save_memory(k, substrate, gaussian_memory(substrate, k))
-

@@ -118,4 +118,3 @@ class EWC(ContinualMethod):
         memory = FisherMemory.estimate(s.memory_skill(k), s.policy_parameters(), s.log_likelihood,
                                        s.state_sample(k, self.config.fisher_states), generator)
         return self.save_memory(k, substrate, memory)
-

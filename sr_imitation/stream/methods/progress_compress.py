@@ -102,4 +102,3 @@ class ProgressCompress(ResetDistill):
             with contextlib.suppress(FileNotFoundError):  # the last skill's Fisher: only if another skill follows
                 out.append(s.load_memory(i, name="kb_fisher"))
         return out
-

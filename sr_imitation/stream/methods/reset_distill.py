@@ -68,4 +68,3 @@ class ResetDistill(ContinualMethod):
         config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
                                      batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
         return SleepProblem(s.policy_parameters(), state_gaussian(s), config)
-
