@@ -174,13 +174,22 @@ def settings_fingerprint(cfg: Any, allow: Iterable[str] = ()) -> SettingsFingerp
 
 
 def diff_settings(stored: Mapping[str, Any], current: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
-    """Keys whose values differ, with (stored, current); a key on one side only has :data:`ABSENT` on the other."""
+    """Keys whose values differ, with (stored, current); a key on one side only has :data:`ABSENT` on the other.
+
+    An empty mapping and an absent key are the same: both mean "no values" (our choice). A mapping setting added
+    later with an empty default (``method_options``) so does not block resuming a run that started before it."""
     out = {}
     for key in sorted(set(stored) | set(current)):
         a, b = stored.get(key, ABSENT), current.get(key, ABSENT)
+        if _no_values(a) and _no_values(b):
+            continue
         if a is ABSENT or b is ABSENT or canonical_json(a) != canonical_json(b):
             out[key] = (a, b)
     return out
+
+
+def _no_values(value: Any) -> bool:
+    return value is ABSENT or (isinstance(value, Mapping) and not value)
 
 
 def _show(value: Any) -> str:

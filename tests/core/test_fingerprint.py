@@ -249,3 +249,15 @@ def assert_refused_naming(check: Callable[[], Any], key: str) -> SettingsMismatc
         if isinstance(old, float) and isinstance(new, float) and not (math.isnan(old) or math.isnan(new)):
             assert old != new
     return err
+
+
+def test_an_empty_mapping_is_the_same_as_an_absent_key():
+    # A run started before `method_options` existed resumes under code whose default is `{}`; a non-empty value
+    # (a real option) still counts, as does an empty list or string (not "no values").
+    assert diff_settings({"seed": 1}, {"seed": 1, "method_options": {}}) == {}
+    assert diff_settings({"seed": 1, "method_options": {}}, {"seed": 1}) == {}
+    assert diff_settings({"seed": 1}, {"seed": 1, "method_options": {"lam": 100}}) == {
+        "method_options": (ABSENT, {"lam": 100})}
+    assert diff_settings({"m": {}}, {"m": {"lam": 1}}) == {"m": ({}, {"lam": 1})}
+    assert diff_settings({}, {"v": []}) == {"v": (ABSENT, [])}
+    assert diff_settings({}, {"v": ""}) == {"v": (ABSENT, "")}
