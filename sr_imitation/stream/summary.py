@@ -23,7 +23,7 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, write_checked_json
+from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.stream.results import METRICS, load_results
@@ -58,12 +58,25 @@ def group_runs(runs: Sequence[str | Path]) -> dict[str, dict[str, dict[str, Any]
         run = Path(path)
         results = load_results(run)
         results["run"] = str(run)
+        results["phase_seconds"] = phase_seconds(run)
         seeds = groups.setdefault(name or results["label"], {})
         seed = str(results["seed"])
         if seed in seeds:
             raise ValueError(f"{run}: a second {results['label']} run with seed {seed} (also {seeds[seed]['run']})")
         seeds[seed] = results
     return groups
+
+
+def phase_seconds(run: str | Path) -> float | None:
+    """A run's compute time: the sum of its completed phases' ``seconds`` in ``progress.json`` (wake, sleep,
+    evaluation, memory; not process start-up or data loading); ``None`` without a progress file. A resumed run
+    counts each phase once, as it finally completed."""
+    path = Path(run) / "progress.json"
+    if not path.is_file():
+        return None
+    completed = read_checked_json(path, unsealed_ok=True).get("completed") or {}  # committed older raw files
+    return float(sum(rec["seconds"] for rec in completed.values()
+                     if isinstance(rec, Mapping) and isinstance(rec.get("seconds"), (int, float))))
 
 
 def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: str = DEFAULT_BASELINE
@@ -83,6 +96,7 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
         variants[variant] = {
             "seeds": list(per_seed),
             "runs": {seed: r.get("run") for seed, r in per_seed.items()},
+            "phase_seconds": {seed: r.get("phase_seconds") for seed, r in per_seed.items()},
             "substrate": runs[0]["substrate"],
             **{m: mean_sem_dict(list(finals[variant][m].values())) for m in METRICS},
             "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(skills)},
@@ -131,13 +145,19 @@ def render_markdown(summary: Mapping[str, Any]) -> str:
         for v, row in paired.items():
             lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS) + " |")
     lines += ["", "Per run (each value: the run's mean over its evaluation units):", "",
-              "| variant | seed | run | " + " | ".join(SHORT[m] for m in METRICS) + " |",
-              "|---" * (len(METRICS) + 3) + "|"]
+              "| variant | seed | run | " + " | ".join(SHORT[m] for m in METRICS) + " | time (min) |",
+              "|---" * (len(METRICS) + 4) + "|"]
+    total = 0.0
     for v, row in variants.items():
         for j, seed in enumerate(row["seeds"]):
             cells = [row[m]["per_seed"][j] for m in METRICS]
+            seconds = (row.get("phase_seconds") or {}).get(seed)
+            total += seconds or 0.0
             lines.append(f"| {v} | {seed} | {row['runs'][seed]} | "
-                         + " | ".join("-" if c is None else f"{c:.3f}" for c in cells) + " |")
+                         + " | ".join("-" if c is None else f"{c:.3f}" for c in cells)
+                         + f" | {'-' if seconds is None else f'{seconds / 60:.1f}'} |")
+    lines += ["", f"Time: the sum of each run's completed phases (progress.json; wake, sleep, evaluation). All runs "
+                  f"above: {total / 3600:.2f} h."]
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):
         lines += ["", f"{title}, mean +- SE over training seeds:", "",
@@ -247,7 +267,8 @@ def write_summary(output: Path, summary: Mapping[str, Any], paper_mb: Mapping[st
 
 def load_groups(runs: Mapping[str, Mapping[str, Path]]) -> dict[str, dict[str, dict[str, Any]]]:
     """``{variant: {seed: results}}`` of an experiment driver's ``{variant: {seed: run directory}}``."""
-    return {variant: {seed: load_results(run) for seed, run in per_seed.items()} for variant, per_seed in runs.items()}
+    return {variant: {seed: {**load_results(run), "run": str(run), "phase_seconds": phase_seconds(run)}
+                      for seed, run in per_seed.items()} for variant, per_seed in runs.items()}
 
 
 def print_final_means(summary: Mapping[str, Any], written: Sequence[Path]) -> None:

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sr_imitation.core.io import read_checked_json
+from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.stream.results import (
     RESULTS_VERSION,
     build_results,
@@ -18,7 +18,8 @@ from sr_imitation.stream.results import (
     upgrade_results,
     write_results,
 )
-from sr_imitation.stream.summary import group_runs, main, summarize, write_summary
+from sr_imitation.stream.summary import group_runs, load_groups, main, phase_seconds, summarize, write_summary
+from sr_imitation.stream.summary import render_markdown as render_markdown_summary
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "results"
 N = np.nan
@@ -102,6 +103,20 @@ def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
     assert set(named) == {"no_anchor", "sr"}
     with pytest.raises(ValueError, match="second sr run with seed 0"):
         group_runs([runs[0], _write_run(tmp_path, "again", _results(seed=0))])
+
+
+def test_summary_reports_each_runs_phase_time(tmp_path):
+    timed = _write_run(tmp_path, "timed", _results(seed=0))
+    write_checked_json(timed / "progress.json", {"version": 1, "completed": {
+        "1.wake": {"seconds": 90.0, "steps": 10}, "1.wake.eval": {"seconds": 30}, "2.memory": {"bytes": 5}}})
+    untimed = _write_run(tmp_path, "untimed", _results(seed=1))
+    assert phase_seconds(timed) == 120.0 and phase_seconds(untimed) is None
+    summary = summarize(group_runs([timed, untimed]))
+    assert summary["variants"]["sr"]["phase_seconds"] == {"0": 120.0, "1": None}
+    md = render_markdown_summary(summary)
+    assert f"| {timed} | " in md and " | 2.0 |" in md and " | - |" in md and "All runs above: 0.03 h." in md
+    # the experiment drivers' path (load_groups) names the run and times it too
+    assert summarize(load_groups({"sr": {"0": timed}}))["variants"]["sr"]["runs"] == {"0": str(timed)}
 
 
 def test_unknown_versions_and_missing_files_are_named(tmp_path):
