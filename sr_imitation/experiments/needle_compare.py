@@ -5,7 +5,9 @@
         --output_root=outputs/needle_compare
 
 Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper's baselines ``sequential_bc``,
-``ewc``, ``lwf``, ``m2distill`` (EWC's lambda grid: ``ewc`` = 1, ``ewc_lam100``, ``ewc_lam10000``); the SR
+``ewc``, ``lwf``, ``m2distill``, with grids over the weights the paper does not give for ACT (EWC's lambda: ``ewc`` =
+1, ``ewc_lam100``, ``ewc_lam10000``; the distillation weights: ``lwf`` = 1, ``lwf_w0.1``, ``lwf_w0.01``,
+``m2distill`` = 1, ``m2distill_w0.1``, ``m2distill_w0.01``); the SR
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
 ``sr_mean_normalized`` (mean of normalized gradients) and ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
 iterations); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the union of the five
@@ -57,12 +59,24 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     # {1, 100, 500}: the unit-Frobenius Fisher spreads over ACT's 678k deployed parameters, ~9x the SAC actor's
     "ewc_lam100": ("ewc", {"enabled": False}),
     "ewc_lam10000": ("ewc", {"enabled": False}),
+    # LwF's and M2Distill's distillation weights (the paper gives none; 1 is our default): at 1 LwF's teacher term on
+    # the new skill's own observations outweighs the l1 behaviour cloning and the new skill is not learned
+    # (seed 0: place 0.00 right after its wake), so the grid goes down
+    "lwf_w0.1": ("lwf", {"enabled": False}),
+    "lwf_w0.01": ("lwf", {"enabled": False}),
+    "m2distill_w0.1": ("m2distill", {"enabled": False}),
+    "m2distill_w0.01": ("m2distill", {"enabled": False}),
     "sr_no_anchor": ("sr", {"enabled": True, "anchor_strength": 0.0}),
     "sr_mean_grad": ("sr", {"enabled": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw gradients)
     "sr_mean_normalized": ("sr", {"enabled": True, "aggregator": "mean_normalized"}),
     "sr_nash_fw": ("sr", {"enabled": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
 }
-OPTIONS: dict[str, dict[str, float]] = {"ewc_lam100": {"lam": 100.0}, "ewc_lam10000": {"lam": 10000.0}}
+OPTIONS: dict[str, dict[str, float]] = {
+    "ewc_lam100": {"lam": 100.0}, "ewc_lam10000": {"lam": 10000.0},
+    "lwf_w0.1": {"weight": 0.1}, "lwf_w0.01": {"weight": 0.01},
+    "m2distill_w0.1": {"action_weight": 0.1, "feature_weight": 0.1},
+    "m2distill_w0.01": {"action_weight": 0.01, "feature_weight": 0.01},
+}
 """variant -> its method's --method_options."""
 PAIRED_BASELINE = "sr"
 TABLE_2 = ["sr", "wake_only", "sequential_bc", "ewc", "lwf", "m2distill", "mt_joint"]

@@ -290,3 +290,14 @@ def test_method_options_are_parsed_and_fingerprinted_on_both_substrates():
     assert resume_fingerprint(act).settings["method_options.lam"] == 100.0  # a resume with another value is refused
     assert parse(["--config_path=configs/sac_mt5_cpu.json", "--method_options={lam: 500}"]).method_options == {
         "lam": 500.0}
+
+
+def test_every_grid_variant_of_the_needle_comparison_sets_existing_options_of_its_method():
+    """The comparison's lambda / weight grids (needle_compare.OPTIONS) reach their method's config, field by field."""
+    from sr_imitation.experiments.needle_compare import OPTIONS, VARIANTS
+    from sr_imitation.stream.substrate import MethodSettings
+
+    assert {"ewc_lam100", "lwf_w0.1", "m2distill_w0.01"} <= set(OPTIONS)
+    for variant, options in OPTIONS.items():
+        method = METHODS[VARIANTS[variant][0]](MethodSettings(options=options))
+        assert {k: getattr(method.config, k) for k in options} == options, variant
