@@ -9,8 +9,9 @@ Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper
 1, ``ewc_lam100``, ``ewc_lam10000``; the distillation weights: ``lwf`` = 1, ``lwf_w0.1``, ``lwf_w0.01``,
 ``m2distill`` = 1, ``m2distill_w0.1``, ``m2distill_w0.01``); the SR
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
-``sr_mean_normalized`` (mean of normalized gradients) and ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
-iterations); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the union of the five
+``sr_mean_normalized`` (mean of normalized gradients), ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
+iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamma_k = 0, so every wake is sequential
+BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the union of the five
 datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run
 of the preset (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets
 (recorded once, as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones
@@ -67,6 +68,7 @@ VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
     "m2distill_w0.1": ("m2distill", {"enabled": False}),
     "m2distill_w0.01": ("m2distill", {"enabled": False}),
     "sr_no_anchor": ("sr", {"enabled": True, "anchor_strength": 0.0}),
+    "sr_sleep_only": ("sr", {"enabled": True}),  # no wake distillation (POLICY): can sleep alone repair forgetting?
     "sr_mean_grad": ("sr", {"enabled": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw gradients)
     "sr_mean_normalized": ("sr", {"enabled": True, "aggregator": "mean_normalized"}),
     "sr_nash_fw": ("sr", {"enabled": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
@@ -78,6 +80,9 @@ OPTIONS: dict[str, dict[str, float]] = {
     "m2distill_w0.01": {"action_weight": 0.01, "feature_weight": 0.01},
 }
 """variant -> its method's --method_options."""
+POLICY: dict[str, dict[str, float]] = {"sr_sleep_only": {"distill_weight_second": 0.0, "distill_weight_later": 0.0}}
+"""variant -> policy settings (--policy.*) that differ from the preset (our ablation: sleep without the wake-time
+distillation, i.e. sequential BC followed by each stage's sleep)."""
 PAIRED_BASELINE = "sr"
 TABLE_2 = ["sr", "wake_only", "sequential_bc", "ewc", "lwf", "m2distill", "mt_joint"]
 
@@ -105,6 +110,8 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
     train.method, sleep_settings = VARIANTS[variant]
     train.sleep = dataclasses.replace(train.sleep, **sleep_settings)
     train.method_options = {**train.method_options, **OPTIONS.get(variant, {})}
+    if variant in POLICY:
+        train.policy = dataclasses.replace(train.policy, **POLICY[variant])
     train.seed = seed
     train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
     train.resume = (train.output_dir / "progress.json").exists()

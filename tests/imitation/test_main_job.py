@@ -234,6 +234,10 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, m
         CompareConfig(variants=["sr_typo"])
     grid = needle_compare.run_config(cfg, needle_compare.preset_with_datasets(config_path, []), "ewc_lam100", 3)
     assert (grid.method, grid.method_options, grid.seed) == ("ewc", {"lam": 100.0}, 3)  # EWC's lambda grid
+    alone = needle_compare.run_config(cfg, needle_compare.preset_with_datasets(config_path, []), "sr_sleep_only", 3)
+    assert alone.sleep.enabled and alone.method == "sr"  # sleep without the wake-time distillation
+    assert [alone.policy.distill_weight(k) for k in (1, 2, 3)] == [0.0, 0.0, 0.0]
+    assert grid.policy.distill_weight(2) == 1.0  # the preset's policy untouched for the others
 
 
 def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_job_run, tmp_path):
