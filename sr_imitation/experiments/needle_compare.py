@@ -11,11 +11,11 @@ Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
 ``sr_mean_normalized`` (mean of normalized gradients), ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
 iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamma_k = 0, so every wake is sequential
-BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the union of the five
-datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run
-of the preset (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets
-(recorded once, as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones
-and starts the others, one after another, each evaluated on the preset's evaluation seeds.
+BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the
+union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run of the preset
+(plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets (recorded once,
+as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones and starts the
+others, one after another, each evaluated on the preset's evaluation seeds.
 
 Written to ``output_root`` (:func:`sr_imitation.stream.summary.write_summary`): ``summary.md`` / ``.json`` /
 ``.png`` (the final AFSR, PRS, BWT against both references and SPI, mean +- SE over training seeds, each seed's
