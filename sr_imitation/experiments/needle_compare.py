@@ -33,7 +33,7 @@ import logging
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import draccus
 
@@ -47,43 +47,46 @@ from sr_imitation.stream.summary import summarize as summary_of
 
 logger = logging.getLogger(__name__)
 
-# variant -> (continual method, sleep settings (--sleep.*) that differ from the preset)
-VARIANTS: dict[str, tuple[str, dict[str, Any]]] = {
-    "sr": ("sr", {"enabled": True}),
-    "wake_only": ("sr", {"enabled": False}),
-    "sequential_bc": ("sequential_bc", {"enabled": False}),
-    "ewc": ("ewc", {"enabled": False}),
-    "lwf": ("lwf", {"enabled": False}),
-    "m2distill": ("m2distill", {"enabled": False}),
-    "mt_joint": ("sequential_bc", {"enabled": False}),  # the oracle: run by imitation.mt_joint, not the stream
+class Variant(NamedTuple):
+    """What one variant changes in the preset: the continual method, sleep settings (``--sleep.*``), the method's own
+    options (``--method_options``) and policy settings (``--policy.*``)."""
+
+    method: str
+    sleep: dict[str, Any]
+    options: dict[str, float] = {}
+    policy: dict[str, float] = {}
+
+
+_OFF: dict[str, Any] = {"enabled": False}
+VARIANTS: dict[str, Variant] = {
+    "sr": Variant("sr", {"enabled": True}),
+    "wake_only": Variant("sr", _OFF),
+    "sequential_bc": Variant("sequential_bc", _OFF),
+    "ewc": Variant("ewc", _OFF),
+    "lwf": Variant("lwf", _OFF),
+    "m2distill": Variant("m2distill", _OFF),
+    "mt_joint": Variant("sequential_bc", _OFF),  # the oracle: run by imitation.mt_joint, not the stream
     # EWC's lambda grid on ACT (ewc above: lambda 1, the paper's MT5 choice); our grid, wider than the paper's MT5
     # {1, 100, 500}: the unit-Frobenius Fisher spreads over ACT's 678k deployed parameters, ~9x the SAC actor's
-    "ewc_lam100": ("ewc", {"enabled": False}),
-    "ewc_lam10000": ("ewc", {"enabled": False}),
-    "ewc_lam1000000": ("ewc", {"enabled": False}),  # 10000 kept approach at 0.87 for three stages, lost it at the fifth
+    "ewc_lam100": Variant("ewc", _OFF, {"lam": 100.0}),
+    "ewc_lam10000": Variant("ewc", _OFF, {"lam": 10000.0}),
+    "ewc_lam1000000": Variant("ewc", _OFF, {"lam": 1e6}),  # 10000 kept approach for three stages, lost it at the 5th
     # LwF's and M2Distill's distillation weights (the paper gives none; 1 is our default): at 1 LwF's teacher term on
     # the new skill's own observations outweighs the l1 behaviour cloning and the new skill is not learned
     # (seed 0: place 0.00 right after its wake), so the grid goes down
-    "lwf_w0.1": ("lwf", {"enabled": False}),
-    "lwf_w0.01": ("lwf", {"enabled": False}),
-    "m2distill_w0.1": ("m2distill", {"enabled": False}),
-    "m2distill_w0.01": ("m2distill", {"enabled": False}),
-    "sr_no_anchor": ("sr", {"enabled": True, "anchor_strength": 0.0}),
-    "sr_sleep_only": ("sr", {"enabled": True}),  # no wake distillation (POLICY): can sleep alone repair forgetting?
-    "sr_mean_grad": ("sr", {"enabled": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw gradients)
-    "sr_mean_normalized": ("sr", {"enabled": True, "aggregator": "mean_normalized"}),
-    "sr_nash_fw": ("sr", {"enabled": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
+    "lwf_w0.1": Variant("lwf", _OFF, {"weight": 0.1}),
+    "lwf_w0.01": Variant("lwf", _OFF, {"weight": 0.01}),
+    "m2distill_w0.1": Variant("m2distill", _OFF, {"action_weight": 0.1, "feature_weight": 0.1}),
+    "m2distill_w0.01": Variant("m2distill", _OFF, {"action_weight": 0.01, "feature_weight": 0.01}),
+    "sr_no_anchor": Variant("sr", {"enabled": True, "anchor_strength": 0.0}),
+    # our ablation: sleep without the wake-time distillation (gamma_k = 0), i.e. sequential BC followed by each
+    # stage's sleep - can sleep alone repair forgetting?
+    "sr_sleep_only": Variant("sr", {"enabled": True},
+                             policy={"distill_weight_second": 0.0, "distill_weight_later": 0.0}),
+    "sr_mean_grad": Variant("sr", {"enabled": True, "aggregator": "mean_grad"}),  # the paper's Mean-grad (raw)
+    "sr_mean_normalized": Variant("sr", {"enabled": True, "aggregator": "mean_normalized"}),
+    "sr_nash_fw": Variant("sr", {"enabled": True, "aggregator": "nash_fw"}),  # the paper's Frank-Wolfe, 5 iterations
 }
-OPTIONS: dict[str, dict[str, float]] = {
-    "ewc_lam100": {"lam": 100.0}, "ewc_lam10000": {"lam": 10000.0}, "ewc_lam1000000": {"lam": 1e6},
-    "lwf_w0.1": {"weight": 0.1}, "lwf_w0.01": {"weight": 0.01},
-    "m2distill_w0.1": {"action_weight": 0.1, "feature_weight": 0.1},
-    "m2distill_w0.01": {"action_weight": 0.01, "feature_weight": 0.01},
-}
-"""variant -> its method's --method_options."""
-POLICY: dict[str, dict[str, float]] = {"sr_sleep_only": {"distill_weight_second": 0.0, "distill_weight_later": 0.0}}
-"""variant -> policy settings (--policy.*) that differ from the preset (our ablation: sleep without the wake-time
-distillation, i.e. sequential BC followed by each stage's sleep)."""
 PAIRED_BASELINE = "sr"
 TABLE_2 = ["sr", "wake_only", "sequential_bc", "ewc", "lwf", "m2distill", "mt_joint"]
 
@@ -108,11 +111,12 @@ class CompareConfig:
 def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int) -> TrainStreamConfig:
     """The ``sr-train`` config of one run: the preset's (with ``extra``) plus the variant's method and sleep."""
     train = copy.deepcopy(base.train)
-    train.method, sleep_settings = VARIANTS[variant]
-    train.sleep = dataclasses.replace(train.sleep, **sleep_settings)
-    train.method_options = {**train.method_options, **OPTIONS.get(variant, {})}
-    if variant in POLICY:
-        train.policy = dataclasses.replace(train.policy, **POLICY[variant])
+    spec = VARIANTS[variant]
+    train.method = spec.method
+    train.sleep = dataclasses.replace(train.sleep, **spec.sleep)
+    train.method_options = {**train.method_options, **spec.options}
+    if spec.policy:
+        train.policy = dataclasses.replace(train.policy, **spec.policy)
     train.seed = seed
     train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
     train.resume = (train.output_dir / "progress.json").exists()

@@ -56,15 +56,18 @@ def group_runs(runs: Sequence[str | Path]) -> dict[str, dict[str, dict[str, Any]
     for spec in runs:
         name, _, path = str(spec).rpartition("=") if "=" in str(spec) else ("", "", str(spec))
         run = Path(path)
-        results = load_results(run)
-        results["run"] = str(run)
-        results["phase_seconds"] = phase_seconds(run)
+        results = _load_run(run)
         seeds = groups.setdefault(name or results["label"], {})
         seed = str(results["seed"])
         if seed in seeds:
             raise ValueError(f"{run}: a second {results['label']} run with seed {seed} (also {seeds[seed]['run']})")
         seeds[seed] = results
     return groups
+
+
+def _load_run(run: str | Path) -> dict[str, Any]:
+    """A run's results with its directory (``run``) and compute time (``phase_seconds``)."""
+    return {**load_results(Path(run)), "run": str(run), "phase_seconds": phase_seconds(run)}
 
 
 def phase_seconds(run: str | Path) -> float | None:
@@ -267,8 +270,7 @@ def write_summary(output: Path, summary: Mapping[str, Any], paper_mb: Mapping[st
 
 def load_groups(runs: Mapping[str, Mapping[str, Path]]) -> dict[str, dict[str, dict[str, Any]]]:
     """``{variant: {seed: results}}`` of an experiment driver's ``{variant: {seed: run directory}}``."""
-    return {variant: {seed: {**load_results(run), "run": str(run), "phase_seconds": phase_seconds(run)}
-                      for seed, run in per_seed.items()} for variant, per_seed in runs.items()}
+    return {variant: {seed: _load_run(run) for seed, run in per_seed.items()} for variant, per_seed in runs.items()}
 
 
 def print_final_means(summary: Mapping[str, Any], written: Sequence[Path]) -> None:

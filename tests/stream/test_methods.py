@@ -293,9 +293,11 @@ def test_method_options_are_parsed_and_fingerprinted_on_both_substrates():
 
 
 def test_every_grid_variant_of_the_needle_comparison_sets_existing_options_of_its_method():
-    """The comparison's lambda / weight grids (needle_compare.OPTIONS) reach their method's config, field by field."""
-    from sr_imitation.experiments.needle_compare import OPTIONS, VARIANTS
+    """The comparison's lambda / weight grids (the variants' options) reach their method's config, field by field."""
+    from sr_imitation.experiments.needle_compare import VARIANTS
     from sr_imitation.stream.substrate import MethodSettings
+
+    OPTIONS = {variant: spec.options for variant, spec in VARIANTS.items() if spec.options}  # noqa: N806
 
     assert {"ewc_lam100", "lwf_w0.1", "m2distill_w0.01"} <= set(OPTIONS)
     for variant, options in OPTIONS.items():
