@@ -195,6 +195,45 @@ def test_state_only_mode_feeds_the_state_as_environment_state():
     assert torch.isfinite(loss)
 
 
+def _backbone_feature_rms(policy: ACTSRPolicy, conv_scale: float) -> float:
+    """RMS of the backbone's feature map after multiplying every conv weight by ``conv_scale`` (what weight
+    growth during training does)."""
+    with torch.no_grad():
+        for module in policy.model.backbone.modules():
+            if isinstance(module, torch.nn.Conv2d):
+                module.weight.mul_(conv_scale)
+        images = torch.rand(4, 3, IMAGE, IMAGE, generator=torch.Generator().manual_seed(0))
+        return policy.model.backbone(images)["feature_map"].pow(2).mean().sqrt().item()
+
+
+def test_a_backbone_without_pretrained_weights_is_group_normalized_and_keeps_its_feature_scale():
+    """Without pretrained weights LeRobot's frozen batch norm normalizes nothing: the features grow geometrically
+    with the conv weights (the CPU vision preset's image tokens reached RMS 95,000 and drowned the state token).
+    GroupNorm makes the features invariant to that scale."""
+    from torchvision.ops.misc import FrozenBatchNorm2d
+
+    def norms(policy: ACTSRPolicy) -> set[type]:
+        return {type(m) for m in policy.model.backbone.modules()} & {FrozenBatchNorm2d, torch.nn.GroupNorm}
+
+    rms = {}
+    for norm in ("auto", "group", "frozen_batch"):
+        torch.manual_seed(0)
+        policy = ACTSRPolicy(_features(tiny_policy(backbone_norm=norm)))
+        assert norms(policy) == ({FrozenBatchNorm2d} if norm == "frozen_batch" else {torch.nn.GroupNorm})
+        rms[norm] = (_backbone_feature_rms(policy, 1.0), _backbone_feature_rms(policy, 2.0))
+    group, frozen = rms["group"], rms["frozen_batch"]
+    assert group[1] == pytest.approx(group[0], rel=1e-3)
+    assert frozen[1] > 100 * frozen[0]  # geometric: 2x per conv, 9 convs on the shortest path (measured 480x)
+    assert rms["auto"] == rms["group"]
+    assert ACTSRConfig(device="cpu", pretrained_backbone_weights="x").resolved_backbone_norm == "frozen_batch"
+    with pytest.raises(ValueError, match="backbone_norm"):
+        ACTSRConfig(device="cpu", backbone_norm="batch")
+    # Trainable: the group norms' affine parameters are in the backbone's optimizer group.
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    names = {n for n, _ in policy.named_parameters() if "backbone" in n}
+    assert any(n.endswith("bn1.weight") for n in names)
+
+
 def test_the_training_only_vae_encoder_is_all_that_the_deployed_parameters_leave_out():
     """Exactly the parameters no inference output depends on through a module the deployed policy runs: the VAE
     encoder gets no gradient from the action chunk; every excluded name belongs to it."""

@@ -52,6 +52,7 @@ CHOICES: dict[str, list[Any]] = {
     "method": methods_for("act"),
     "sleep.aggregator": sorted(AGGREGATORS),
     "policy.distill_reduction": ["mean", "sum"],
+    "policy.backbone_norm": ["auto", "group", "frozen_batch"],
     "policy.feedforward_activation": ["relu", "gelu"],
     "policy.vision_backbone": ["resnet18", "resnet34"],
     "policy.normalization_mapping.VISUAL": MAPPING,

@@ -19,6 +19,7 @@ import torch
 from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor
+from torchvision.ops.misc import FrozenBatchNorm2d
 
 from lerobot_policy_act_sr.configuration_act_sr import ACTSRConfig
 from sr_imitation.core.memory import Memory, summed_objective
@@ -42,6 +43,24 @@ FEATURE_MODULES: dict[str, str] = {
 """ACT submodules whose outputs :meth:`ACTSRPolicy.action_chunk_and_features` returns, and their feature names."""
 
 
+GROUP_NORM_CHANNELS = 16
+"""Channels per group of the ``group`` backbone normalization (ResNet-18's 64..512 channels: 4..32 groups)."""
+
+
+def group_norm_backbone(backbone: torch.nn.Module) -> int:
+    """Replace every ``FrozenBatchNorm2d`` of ``backbone`` (in place) by a trainable ``GroupNorm`` over the same
+    channels with :data:`GROUP_NORM_CHANNELS` channels per group (weight 1, bias 0, no random draw); returns how
+    many were replaced. See :attr:`ACTSRConfig.backbone_norm` for why."""
+    replaced = 0
+    for parent in list(backbone.modules()):
+        for name, child in list(parent.named_children()):
+            if isinstance(child, FrozenBatchNorm2d):
+                channels = child.weight.numel()
+                setattr(parent, name, torch.nn.GroupNorm(max(1, channels // GROUP_NORM_CHANNELS), channels))
+                replaced += 1
+    return replaced
+
+
 class ACTSRPolicy(ACTPolicy):
     """ACT + Sleeping Robots (the policy class LeRobot's factory finds for ``act_sr``)."""
 
@@ -51,6 +70,8 @@ class ACTSRPolicy(ACTPolicy):
     def __init__(self, config: ACTSRConfig, **kwargs: Any) -> None:
         super().__init__(config, **kwargs)
         self.config: ACTSRConfig = config
+        if config.image_features and config.resolved_backbone_norm == "group":
+            group_norm_backbone(self.model.backbone)
         self._wake_memories: list[Memory] = []
         self._distill_weight = 0.0
         self._normalize_observation: ObservationNormalizer | None = None
