@@ -12,7 +12,10 @@ uses the skill's position in the preset's stream, so its episodes are those of t
 goes to ``<output_root>/<skill>_<stats>_seed<seed>/`` (checkpoint, ``eval.json``, trajectories, rollout video,
 ``probe.json``); finished probes are skipped. ``probe.md`` / ``probe.json`` in ``output_root`` list the success,
 per evaluation seed, and the failed episodes' final state: position and rotation error (the geodesic angle between
-the tool's and the goal's orientation) and the jaw, which is how the failure modes in docs/RESULTS.md were found.
+the tool's and the goal's orientation) and the jaw, which is how the failure modes in docs/RESULTS.md were found;
+and the RMS of each input modality's features after the wake (the state tokens' projections, each camera's
+backbone feature map, the encoder output) on :data:`FEATURE_FRAMES` demonstration frames, which is how the vision
+backbone's unnormalized features were found (``--extra=[--policy.backbone_norm=frozen_batch]`` shows them).
 """
 
 from __future__ import annotations
@@ -27,6 +30,7 @@ from typing import Any
 
 import draccus
 import numpy as np
+import torch
 
 from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.envs.needle import geometry as G
@@ -41,6 +45,8 @@ from sr_imitation.stream.config import check_choices
 logger = logging.getLogger(__name__)
 
 STATS = ("own", "first", "union")
+FEATURE_FRAMES = 64
+"""Demonstration frames the feature RMS is measured on."""
 
 
 @dataclass
@@ -108,9 +114,20 @@ def run_probe(base: TrainStreamConfig, skill: str, stats: str, seed: int, out: P
                 if n >= cfg.eval.max_steps]
     result = {"skill": skill, "stats": stats, "seed": seed, "success": evaluation.success,
               "success_per_seed": evaluation.success_per_seed, "wake_steps": wake["steps"],
-              "wake_seconds": wake["seconds"], "failures": failures}
+              "wake_seconds": wake["seconds"], "failures": failures, "feature_rms": feature_rms(substrate)}
     write_checked_json(out / "probe.json", result)
     return result
+
+
+def feature_rms(substrate: ACTSubstrate) -> dict[str, float]:
+    """RMS of each modality's features of the current policy (see :meth:`ACTSRPolicy.action_chunk_and_features`) on
+    :data:`FEATURE_FRAMES` of the skill's demonstration frames (after the evaluation: it draws nothing the probe
+    uses)."""
+    frames = substrate.state_sample(0, FEATURE_FRAMES)
+    batch = {key: torch.cat([f[key] for f in frames]) for key in frames[0] if isinstance(frames[0][key], torch.Tensor)}
+    with torch.no_grad():
+        _, features = substrate.chunk_and_features(batch)
+    return {name: float(f.float().pow(2).mean().sqrt()) for name, f in sorted(features.items())}
 
 
 def _mean(rows: list[dict[str, float]], key: str) -> str:
@@ -128,6 +145,14 @@ def render(results: list[dict[str, Any]]) -> str:
         lines.append(f"| {r['skill']} | {r['stats']} | {r['seed']} | {r['success']:.3f} | "
                      f"{', '.join(f'{x:.2f}' for x in r['success_per_seed'])} | {len(f)} | {_mean(f, 'position_mm')} "
                      f"| {_mean(f, 'rotation_deg')} | {_mean(f, 'jaw')} |")
+    scales = [r for r in results if r.get("feature_rms")]
+    if scales:
+        names = sorted({n for r in scales for n in r["feature_rms"]})
+        lines += ["", f"Feature RMS after the wake ({FEATURE_FRAMES} demonstration frames):", "",
+                  "| skill | stats | seed | " + " | ".join(names) + " |", "|---|---|---|" + "---|" * len(names)]
+        lines += [f"| {r['skill']} | {r['stats']} | {r['seed']} | "
+                  + " | ".join(f"{r['feature_rms'][n]:.3g}" if n in r["feature_rms"] else "-" for n in names) + " |"
+                  for r in scales]
     return "\n".join(lines) + "\n"
 
 

@@ -33,11 +33,25 @@ def test_probe_uses_the_chosen_statistics_and_skips_finished_probes(state_datase
     np.testing.assert_allclose(means["first"], meta["approach"], atol=1e-5)  # the preset stream's first skill's
     np.testing.assert_allclose(means["union"], np.mean([meta[s] for s in SKILLS], axis=0), atol=1e-4)  # equal sizes
     table = (tmp_path / "probe" / "probe.md").read_text()
-    assert table.count("| insert |") == 3
+    assert table.count("| insert |") == 3 + 3  # success table and feature-RMS table
+    assert all(set(r["feature_rms"]) == {"robot_state", "env_state", "encoder"} for r in results)
+    assert all(0 < v < 1e3 for r in results for v in r["feature_rms"].values())
     monkeypatch.setattr(skill_probe.ProbeSubstrate, "setup", lambda self: pytest.fail("a finished probe re-ran"))
     assert run(cfg, fake_env_factory) == results
     with pytest.raises(ValueError, match="not in the preset's stream"):
         run(ProbeConfig(preset=preset, skills=["pullout"], output_root=tmp_path / "p2"), fake_env_factory)
+
+
+@pytest.mark.parametrize("norm", ["group", "frozen_batch"])
+def test_probe_measures_the_camera_features_it_is_asked_about(image_datasets, tmp_path, norm):
+    """The vision probe reports the backbone's feature scale (how the unnormalized random ResNet was found)."""
+    train = stored_config_dict(tiny_stream_config(image_datasets, tmp_path / "unused", SKILLS, backbone_norm=norm))
+    preset = tmp_path / "preset.json"
+    preset.write_text(json.dumps({"record": {"root": str(image_datasets), "num_episodes": 3}, "train": train}))
+    (result,) = run(ProbeConfig(preset=preset, skills=["approach"], stats=["own"], seeds=[0],
+                                output_root=tmp_path / "probe"), fake_env_factory)
+    assert set(result["feature_rms"]) == {"robot_state", "camera0", "encoder"}
+    assert "camera0" in (tmp_path / "probe" / "probe.md").read_text()
 
 
 def test_final_errors_of_a_needle_state():
