@@ -210,34 +210,53 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
 
 def plot_dynamics(summary: Mapping[str, Any], path: Path) -> None:
     """The paper's Figure 2: AFSR, PRS, BWT, BWT_wake and SPI after each stage k, one line per variant (mean over
-    training seeds, band +- SE); an oracle (no sequence) is a dashed line at its final value."""
+    training seeds, band +- SE); an oracle (no sequence) is a dashed line at its final value. The paired baseline
+    (SR) is drawn black, thickest and on top; beyond ten other variants colours repeat with another line style and
+    marker; the legend sits under the panels (one entry per variant)."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     variants = summary["variants"]
+    baseline = summary.get("baseline")
+    colors = plt.get_cmap("tab10").colors
+    styles = [("-", "o"), (":", "s"), ("-.", "^")]
     fig, axes = plt.subplots(1, len(METRICS), figsize=(3.6 * len(METRICS), 3.4))
-    colors = plt.get_cmap("tab10").colors + plt.get_cmap("Dark2").colors  # distinct hues first
+    stages = 1
     for ax, m in zip(axes, METRICS, strict=True):
-        for j, (name, row) in enumerate(variants.items()):
+        others = [name for name in variants if name != baseline]
+        for name, row in variants.items():
             curve = row.get("curves", {}).get(m) or {"mean": [], "sem": []}
             mean = np.array(curve["mean"], dtype=float)
             if mean.size == 0 or np.isnan(mean).all():
                 continue
-            color = colors[j % len(colors)]
+            j = others.index(name) if name in others else 0
+            color = "k" if name == baseline else colors[j % len(colors)]
+            line, marker = ("-", "o") if name == baseline else styles[(j // len(colors)) % len(styles)]
             k = np.arange(1, len(mean) + 1)
+            stages = max(stages, len(mean))
             if row.get("oracle"):
                 ax.axhline(mean[-1], color=color, ls="--", lw=1.2, label=f"{name} (oracle)")
                 continue
+            main = name == baseline
             sem = np.nan_to_num(np.array(curve["sem"], dtype=float))
-            ax.plot(k, mean, marker="o", ms=3, color=color, label=name, lw=2.2 if name.startswith("sr") else 1.2)
+            ax.plot(k, mean, ls=line, marker=marker, ms=3, color=color, label=name, lw=2.6 if main else 1.3,
+                    zorder=4 if main else 2)
             ax.fill_between(k, mean - sem, mean + sem, color=color, alpha=0.15, lw=0)
         ax.set_title(SHORT[m])
         ax.set_xlabel("after stage k")
         ax.axhline(0.0, color="grey", lw=0.5)
-    axes[0].legend(fontsize=6, ncol=2)
-    fig.tight_layout()
+    for ax in axes:
+        ax.set_xticks(np.arange(1, stages + 1))
+    entries = {}
+    for ax in axes:  # every variant once, in the summary's order, whichever panel drew it
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            entries.setdefault(label, handle)
+    columns = min(len(entries), 8) or 1
+    rows = -(-len(entries) // columns)
+    fig.legend(list(entries.values()), list(entries), loc="lower center", ncol=columns, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.07 * rows, 1, 1))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
