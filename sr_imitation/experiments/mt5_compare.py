@@ -5,7 +5,9 @@
 
 Each (variant, seed) is an ordinary ``sr-train --substrate=sac`` run of the preset plus the variant's flags, in
 ``<output_root>/<variant>_seed<seed>``. The runner skips finished runs (``results.json`` present), resumes killed ones
-(``progress.json`` present) and starts the others, one after another, then writes the shared multi-run summary
+(``progress.json`` present) and starts the others, one after another (``--archive=docs/results/<folder>``: also skips
+the runs that folder holds with the same settings and copies each run finished now into it,
+:mod:`sr_imitation.experiments.archive`), then writes the shared multi-run summary
 (``summary.json`` / ``.md`` / ``.png``: AFSR, PRS, BWT against both references, SPI, mean +- SE over seeds, paired
 differences to ``sr``) and ``memory.md`` (bytes each method's continual-learning mechanism stores at the end of the
 stream, by memory kind, next to the paper's memory-budget table).
@@ -31,6 +33,7 @@ from typing import Any
 
 import draccus
 
+from sr_imitation.experiments.archive import archive_run, archived_run
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
@@ -82,6 +85,10 @@ class MT5CompareConfig:
     """Where the runs, the summary and the memory table go."""
     extra: list[str] = field(default_factory=list)
     """Flags added to every run (e.g. ``--eval.episodes=10``)."""
+    archive: Path | None = None
+    """A folder of finished runs' raw outputs (e.g. ``docs/results/mt5_compare``;
+    :mod:`sr_imitation.experiments.archive`): runs it holds with the same settings are skipped and summarized from
+    there, runs finished now are copied into it. ``None``: only ``output_root``."""
 
     def __post_init__(self) -> None:
         check_choices("variants", self.variants, VARIANTS)
@@ -103,21 +110,27 @@ def run_args(cfg: MT5CompareConfig, variant: str, seed: int) -> list[str]:
 
 def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
     from sr_imitation.rl.cli import parse, train
-    from sr_imitation.rl.mt_joint import run_mt_joint
+    from sr_imitation.rl.mt_joint import joint_fingerprint, run_mt_joint
 
     runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
-    for variant in cfg.variants:
-        for seed in cfg.seeds:
-            out = cfg.output_root / f"{variant}_seed{seed}"
-            if (out / "results.json").exists():
-                logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
-            elif variant == "mt_joint":
-                logger.info("=== %s seed %d -> %s", variant, seed, out)
-                run_mt_joint(parse(run_args(cfg, variant, seed)))
-            else:
-                logger.info("=== %s seed %d -> %s", variant, seed, out)
-                train(parse(run_args(cfg, variant, seed)))
-            runs[variant][str(seed)] = out
+    plan = {(v, s): parse(run_args(cfg, v, s)) for v in cfg.variants for s in cfg.seeds}
+    archived = {key: archived_run(cfg.archive, Path(run.output_dir).name,
+                                  joint_fingerprint(run) if key[0] == "mt_joint" else run.resume_fingerprint())
+                for key, run in plan.items()}  # every archived run checked before the first one starts
+    for (variant, seed), run in plan.items():
+        out = Path(run.output_dir)
+        if archived[variant, seed] is not None:
+            logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, archived[variant, seed])
+            runs[variant][str(seed)] = archived[variant, seed]
+            continue
+        if (out / "results.json").exists():
+            logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
+        else:
+            logger.info("=== %s seed %d -> %s", variant, seed, out)
+            (run_mt_joint if variant == "mt_joint" else train)(run)
+        runs[variant][str(seed)] = out
+        if cfg.archive is not None:
+            runs[variant][str(seed)] = archive_run(out, cfg.archive, out.name)
     return summarize(runs, cfg.output_root)
 
 

@@ -15,7 +15,9 @@ BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imi
 union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run of the preset
 (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets (recorded once,
 as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones and starts the
-others, one after another, each evaluated on the preset's evaluation seeds.
+others, one after another, each evaluated on the preset's evaluation seeds. ``--archive=docs/results/<folder>``
+(:mod:`sr_imitation.experiments.archive`) also skips the runs that folder holds with the same settings and copies
+every run finished now into it, so a comparison spread over sessions keeps its raw outputs in one place.
 
 Written to ``output_root`` (:func:`sr_imitation.stream.summary.write_summary`): ``summary.md`` / ``.json`` /
 ``.png`` (the final AFSR, PRS, BWT against both references and SPI, mean +- SE over training seeds, each seed's
@@ -37,8 +39,9 @@ from typing import Any, NamedTuple
 
 import draccus
 
-from sr_imitation.imitation.mt_joint import run_mt_joint
-from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+from sr_imitation.experiments.archive import archive_run, archived_run
+from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
+from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
@@ -107,6 +110,10 @@ class CompareConfig:
     """Where the runs and the tables go."""
     extra: list[str] = field(default_factory=list)
     """sr-train flags added to every run (e.g. ``--eval.episodes=20``)."""
+    archive: Path | None = None
+    """A folder of finished runs' raw outputs (e.g. ``docs/results/needle_cpu_v2_compare``;
+    :mod:`sr_imitation.experiments.archive`): runs it holds with the same settings are skipped and summarized from
+    there, runs finished now are copied into it. ``None``: only ``output_root``."""
 
     def __post_init__(self) -> None:
         check_choices("variants", self.variants, VARIANTS)
@@ -130,15 +137,23 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
 def run_compare(cfg: CompareConfig) -> dict:
     base = preset_with_datasets(cfg.preset, cfg.extra)
     runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
-    for variant in cfg.variants:
-        for seed in cfg.seeds:
-            train = run_config(cfg, base, variant, seed)
-            if (train.output_dir / "results.json").exists():
-                logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, train.output_dir)
-            else:
-                logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
-                (run_mt_joint if variant == "mt_joint" else train_stream)(train)
-            runs[variant][str(seed)] = train.output_dir
+    plan = {(v, s): run_config(cfg, base, v, s) for v in cfg.variants for s in cfg.seeds}
+    archived = {key: archived_run(cfg.archive, train.output_dir.name,
+                                  (joint_fingerprint if key[0] == "mt_joint" else resume_fingerprint)(train))
+                for key, train in plan.items()}  # every archived run checked before the first one starts
+    for (variant, seed), train in plan.items():
+        if archived[variant, seed] is not None:
+            logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, archived[variant, seed])
+            runs[variant][str(seed)] = archived[variant, seed]
+            continue
+        if (train.output_dir / "results.json").exists():
+            logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, train.output_dir)
+        else:
+            logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
+            (run_mt_joint if variant == "mt_joint" else train_stream)(train)
+        runs[variant][str(seed)] = train.output_dir
+        if cfg.archive is not None:
+            runs[variant][str(seed)] = archive_run(train.output_dir, cfg.archive, train.output_dir.name)
     return summarize(runs, cfg.output_root)
 
 

@@ -31,7 +31,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from sr_imitation.core.fingerprint import settings_fingerprint
+from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
 from sr_imitation.imitation.report import pair_list
@@ -73,12 +73,22 @@ def joint_wake(cfg: TrainStreamConfig) -> Any:
     return dataclasses.replace(cfg.wake, max_steps_per_epoch=None if cap is None else cap * len(cfg.stream.skills))
 
 
+def joint_stored_config(cfg: TrainStreamConfig) -> dict[str, Any]:
+    """The oracle's ``train_config.json``: the stream's stored config marked ``mt_joint``."""
+    return {**stored_config_dict(cfg), "mt_joint": True}
+
+
+def joint_fingerprint(cfg: TrainStreamConfig) -> SettingsFingerprint:
+    """The settings an oracle run is fingerprinted with (checked on resume and by the drivers' archive)."""
+    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST)
+
+
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
     """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
     check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before anything is written
-    stored = {**stored_config_dict(cfg), "mt_joint": True}
-    fingerprint = settings_fingerprint(stored, RESUME_ALLOW_LIST)
-    run = RunDirectory(cfg.output_dir, fingerprint, "train_config.json", stored, cfg.resume, cfg.overwrite)
+    stored = joint_stored_config(cfg)
+    run = RunDirectory(cfg.output_dir, joint_fingerprint(cfg), "train_config.json", stored, cfg.resume,
+                       cfg.overwrite)
     run.prepare()
     substrate = JointSubstrate(cfg, make_env)
     substrate.setup()

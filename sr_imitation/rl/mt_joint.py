@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import torch
 
-from sr_imitation.core.fingerprint import settings_fingerprint
+from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.core.io import load_checked_safetensors, save_checked_safetensors
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
 from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
@@ -85,12 +85,21 @@ def joint_config(cfg: RLTrainConfig, episodes: int) -> RLTrainConfig:
     return dataclasses.replace(cfg, wake=wake, excitability=dataclasses.replace(cfg.excitability, enabled=False))
 
 
+def joint_fingerprint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> SettingsFingerprint:
+    """The settings the oracle run of the stream config ``cfg`` is fingerprinted with (as :func:`run_mt_joint`)."""
+    return settings_fingerprint(_stored_config(joint_config(cfg, episodes), episodes), RESUME_ALLOW_LIST)
+
+
+def _stored_config(joint: RLTrainConfig, episodes: int) -> dict[str, Any]:
+    return {**joint.stored_config(), "mt_joint_episodes": episodes}
+
+
 def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str, Any]:
     cfg = joint_config(cfg, episodes)
     out = Path(cfg.output_dir)
-    stored = {**cfg.stored_config(), "mt_joint_episodes": episodes}
-    fingerprint = settings_fingerprint(stored, RESUME_ALLOW_LIST)
-    run = RunDirectory(out, fingerprint, "config.json", stored, cfg.resume, cfg.overwrite)
+    stored = _stored_config(cfg, episodes)
+    run = RunDirectory(out, settings_fingerprint(stored, RESUME_ALLOW_LIST), "config.json", stored, cfg.resume,
+                       cfg.overwrite)
     run.prepare()
     torch.set_num_threads(cfg.torch_threads)
     torch.manual_seed(stage_seed(cfg.seed, len(cfg.stream_skills), 1))

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 import subprocess
@@ -220,6 +221,15 @@ def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, m
     monkeypatch.setattr(needle_compare, "train_stream", lambda c: pytest.fail(f"{c.output_dir} was re-run"))
     monkeypatch.setattr(needle_compare, "run_mt_joint", lambda c: pytest.fail(f"{c.output_dir} was re-run"))
     assert run_compare(cfg)["variants"].keys() == summary["variants"].keys()  # finished runs are skipped
+    # with an archive: finished runs are copied into it, and a new scratch folder summarizes them from there
+    archive = tmp_path / "archive"
+    run_compare(dataclasses.replace(cfg, archive=archive))
+    assert sorted(p.name for p in archive.iterdir()) == ["mt_joint_seed0", "sequential_bc_seed0",
+                                                         "sr_no_anchor_seed0"]
+    again = run_compare(dataclasses.replace(cfg, archive=archive, output_root=tmp_path / "next"))
+    assert again["variants"]["mt_joint"]["runs"] == {"0": str(archive / "mt_joint_seed0")}
+    assert again["variants"]["sr_no_anchor"]["afsr"]["per_seed"] == summary["variants"]["sr_no_anchor"]["afsr"][
+        "per_seed"]
     saved = json.loads((tmp_path / "summary.json").read_text())
     run = tmp_path / "sr_no_anchor_seed0"
     final = json.loads((run / "results.json").read_text())["metrics"]["afsr"]["final"]

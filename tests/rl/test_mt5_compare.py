@@ -65,3 +65,31 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
     row = {"memory_bytes_total": {"mean": 2_000_000}, "memory_kinds": {"sac_critic": 2_000_000}}
     assert ("| sr | 2.00 | states + the frozen twin critic + the observation normalizer's snapshot (2.00) | 3.7 |"
             in memory_table({"variants": {"sr": row}}, {"sr": 3.7}))
+
+
+def test_the_archive_keeps_finished_runs_and_refuses_other_settings(tmp_path, tiny_preset, monkeypatch):
+    from sr_imitation.core.fingerprint import SettingsMismatchError
+    from sr_imitation.experiments.archive import ARCHIVED_FILES
+    from sr_imitation.rl import cli
+
+    archive = tmp_path / "archive"
+    cfg = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["wake_only"], output_root=tmp_path / "a",
+                           archive=archive)
+    first = run_compare(cfg)
+    kept = archive / "wake_only_seed0"
+    # a finished run is copied at once: its report files, no checkpoints, no temporary folder left
+    assert {p.name for p in kept.iterdir()} <= set(ARCHIVED_FILES) and (kept / "results.json").is_file()
+    assert any((tmp_path / "a" / "wake_only_seed0").rglob("*.safetensors"))
+    assert not any(kept.rglob("*.safetensors")) and [p.name for p in archive.iterdir()] == ["wake_only_seed0"]
+    # a new session's scratch folder is empty: the archived run is skipped and summarized from the archive
+    monkeypatch.setattr(cli, "train", lambda c: pytest.fail(f"{c.output_dir} was re-run"))
+    again = run_compare(MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["wake_only"],
+                                         output_root=tmp_path / "b", archive=archive))
+    assert again["variants"]["wake_only"]["afsr"]["per_seed"] == first["variants"]["wake_only"]["afsr"]["per_seed"]
+    assert again["variants"]["wake_only"]["runs"] == {"0": str(kept)}
+    # the same run name under other settings is refused, naming the archived file and the key, before any run
+    other = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["wake_only"], output_root=tmp_path / "c",
+                             archive=archive, extra=["--sac.batch_size=7"])
+    with pytest.raises(SettingsMismatchError, match=r"wake_only_seed0/settings_fingerprint.json.*sac.batch_size"):
+        run_compare(other)
+    assert not (tmp_path / "c").exists()

@@ -1,0 +1,92 @@
+"""An archive of finished runs for the comparison drivers: the folder of raw outputs the results are read from.
+
+A comparison (``needle_compare``, ``mt5_compare``) is many runs over many sessions; a session's scratch directory
+does not survive it. With ``--archive=docs/results/<comparison>`` a driver
+
+* skips a (variant, seed) whose run the archive already holds, finished (``results.json``) **with the settings this
+  run would have** (its ``settings_fingerprint.json``, checksum verified, against the fingerprint the driver
+  computes for the run; a differing value is a one-line error naming the file and the keys), and summarizes it
+  from there;
+* copies every run it finishes into the archive at once (:data:`ARCHIVED_FILES`: results, progress with the
+  per-phase seconds, settings, config, plots; no checkpoints, videos or logs), atomically (a temporary folder
+  renamed into place), so a run's raw outputs land next to the earlier ones the moment it ends.
+
+Keys the archived run does not have at all are settings added to the code after it ran (e.g.
+``policy.backbone_norm``): they are named in a warning and the run counts as finished (our choice; the commits a
+result spans are recorded with it in docs/RESULTS.md). Keys it has with another value always refuse.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+from pathlib import Path
+
+from sr_imitation.core.fingerprint import (
+    ABSENT,
+    SettingsFingerprint,
+    SettingsMismatchError,
+    diff_settings,
+    is_allowed,
+    read_fingerprint,
+)
+
+logger = logging.getLogger(__name__)
+
+ARCHIVED_FILES = ("results.json", "results.md", "progress.json", "settings_fingerprint.json", "train_config.json",
+                  "config.json", "metrics.png", "success_matrix.png")
+"""The files of a run directory the archive keeps (those present): what the summaries and docs/RESULTS.md read."""
+
+FINGERPRINT_FILE = "settings_fingerprint.json"
+
+
+def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerprint) -> Path | None:
+    """``archive / name`` if it holds a finished run with ``fingerprint``'s settings, else ``None``.
+
+    Raises :class:`SettingsMismatchError` naming the archived fingerprint file if a setting both have differs,
+    and ``CorruptFileError`` if that file is unreadable or fails its checksum."""
+    if archive is None:
+        return None
+    run = Path(archive) / name
+    if not (run / "results.json").is_file():
+        return None
+    stored = {k: v for k, v in read_fingerprint(run / FINGERPRINT_FILE).items()
+              if not is_allowed(k, fingerprint.allow)}
+    diffs = diff_settings(stored, fingerprint.settings)
+    added = sorted(k for k, (old, _) in diffs.items() if old is ABSENT)
+    differing = {k: v for k, v in diffs.items() if k not in added}
+    if differing:
+        raise SettingsMismatchError(run / FINGERPRINT_FILE, differing)
+    if added:
+        logger.warning("%s predates the settings %s (added to the code since it ran); counted as finished",
+                       run, ", ".join(added))
+    return run
+
+
+def archive_run(run: Path, archive: Path, name: str) -> Path:
+    """Copy a finished run's :data:`ARCHIVED_FILES` into ``archive / name`` (replacing an older copy) atomically;
+    returns the archived directory."""
+    run, target = Path(run), Path(archive) / name
+    if not (run / "results.json").is_file():
+        raise FileNotFoundError(f"{run}: no results.json, the run has not finished; nothing archived")
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=target.parent))
+    try:
+        for file in ARCHIVED_FILES:
+            if (run / file).is_file():
+                shutil.copy2(run / file, tmp / file)
+        old = None
+        if target.exists():
+            old = target.with_name(f".{name}.old")
+            shutil.rmtree(old, ignore_errors=True)
+            os.replace(target, old)
+        os.replace(tmp, target)
+        if old is not None:
+            shutil.rmtree(old)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    logger.info("archived %s -> %s", run, target)
+    return target

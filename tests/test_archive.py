@@ -1,0 +1,71 @@
+"""The comparison drivers' archive of finished runs (sr_imitation.experiments.archive), on synthetic run folders."""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import pytest
+
+from sr_imitation.core.fingerprint import SettingsMismatchError, settings_fingerprint, write_fingerprint
+from sr_imitation.core.io import CorruptFileError
+from sr_imitation.experiments.archive import archive_run, archived_run
+
+SETTINGS = {"seed": 0, "sleep": {"lr": 1e-5, "enabled": True}, "output_dir": "x"}
+ALLOW = ("output_dir",)
+
+
+def _run(path, settings=SETTINGS, finished=True):
+    path.mkdir(parents=True)
+    write_fingerprint(path / "settings_fingerprint.json", settings_fingerprint(settings, ALLOW))
+    (path / "progress.json").write_text("{}")
+    (path / "model.safetensors").write_bytes(b"weights")
+    if finished:
+        (path / "results.json").write_text(json.dumps({"metrics": {}}))
+    return path
+
+
+def test_a_finished_run_with_the_same_settings_is_found(tmp_path):
+    _run(tmp_path / "a" / "sr_seed0")
+    current = settings_fingerprint({**SETTINGS, "output_dir": "elsewhere"}, ALLOW)  # location is not a setting
+    assert archived_run(tmp_path / "a", "sr_seed0", current) == tmp_path / "a" / "sr_seed0"
+    assert archived_run(None, "sr_seed0", current) is None
+    assert archived_run(tmp_path / "a", "sr_seed1", current) is None  # not there
+    _run(tmp_path / "a" / "sr_seed2", finished=False)
+    assert archived_run(tmp_path / "a", "sr_seed2", current) is None  # killed: not finished
+
+
+def test_other_values_refuse_and_added_settings_warn(tmp_path, caplog):
+    _run(tmp_path / "sr_seed0")
+    changed = settings_fingerprint({**SETTINGS, "sleep": {"lr": 1e-4, "enabled": True}}, ALLOW)
+    with pytest.raises(SettingsMismatchError, match=r"sr_seed0/settings_fingerprint.json.*sleep.lr: 1e-05 -> 0.0001"):
+        archived_run(tmp_path, "sr_seed0", changed)
+    removed = settings_fingerprint({"seed": 0, "sleep": {"lr": 1e-5}}, ALLOW)  # the run has a key the code lost
+    with pytest.raises(SettingsMismatchError, match="sleep.enabled"):
+        archived_run(tmp_path, "sr_seed0", removed)
+    added = settings_fingerprint({**SETTINGS, "policy": {"backbone_norm": "auto"}}, ALLOW)
+    with caplog.at_level(logging.WARNING):
+        assert archived_run(tmp_path, "sr_seed0", added) == tmp_path / "sr_seed0"
+    assert "predates the settings policy.backbone_norm" in caplog.text
+
+
+def test_an_edited_fingerprint_is_refused(tmp_path):
+    run = _run(tmp_path / "sr_seed0")
+    data = json.loads((run / "settings_fingerprint.json").read_text())
+    data["settings"]["seed"] = 1
+    (run / "settings_fingerprint.json").write_text(json.dumps(data))
+    with pytest.raises(CorruptFileError, match="settings_fingerprint.json"):
+        archived_run(tmp_path, "sr_seed0", settings_fingerprint({**SETTINGS, "seed": 1}, ALLOW))
+
+
+def test_archiving_copies_the_report_files_and_replaces_an_older_copy(tmp_path):
+    run = _run(tmp_path / "runs" / "sr_seed0")
+    kept = archive_run(run, tmp_path / "archive", "sr_seed0")
+    assert sorted(p.name for p in kept.iterdir()) == ["progress.json", "results.json", "settings_fingerprint.json"]
+    (run / "results.json").write_text(json.dumps({"metrics": {"afsr": 1}}))
+    archive_run(run, tmp_path / "archive", "sr_seed0")
+    assert json.loads((kept / "results.json").read_text()) == {"metrics": {"afsr": 1}}
+    assert [p.name for p in (tmp_path / "archive").iterdir()] == ["sr_seed0"]  # no temporary or old folder left
+    with pytest.raises(FileNotFoundError, match="has not finished"):
+        archive_run(_run(tmp_path / "runs" / "sr_seed1", finished=False), tmp_path / "archive", "sr_seed1")
+    assert not (tmp_path / "archive" / "sr_seed1").exists()
