@@ -118,6 +118,14 @@ def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
                                   joint_fingerprint(run) if key[0] == "mt_joint" else run.resume_fingerprint())
                 for key, run in plan.items()}  # every archived run checked before the first one starts
     for (variant, seed), run in plan.items():
+        source = run.stream.extend_from
+        if variant == "sr_mt8" and archived[variant, seed] is None and archived[("sr", seed)] is not None \
+                and not (Path(source) / "stages").is_dir():
+            raise FileNotFoundError(
+                f"{source}: sr_mt8 seed {seed} continues this sr run, which is only in the archive "
+                f"({archived[('sr', seed)]}, report files, no checkpoints); run sr seed {seed} into this "
+                "output_root first (without --archive), then sr_mt8")
+    for (variant, seed), run in plan.items():
         out = Path(run.output_dir)
         if archived[variant, seed] is not None:
             logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, archived[variant, seed])

@@ -93,3 +93,14 @@ def test_the_archive_keeps_finished_runs_and_refuses_other_settings(tmp_path, ti
     with pytest.raises(SettingsMismatchError, match=r"wake_only_seed0/settings_fingerprint.json.*sac.batch_size"):
         run_compare(other)
     assert not (tmp_path / "c").exists()
+
+
+def test_mt8_refuses_to_continue_an_archived_run_without_its_checkpoints(tmp_path, tiny_preset):
+    archive = tmp_path / "archive"
+    run_compare(MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["sr"], output_root=tmp_path / "a",
+                                 archive=archive))
+    later = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["sr", "sr_mt8"], output_root=tmp_path / "b",
+                             archive=archive)
+    with pytest.raises(FileNotFoundError, match=r"sr_seed0: sr_mt8 seed 0 continues this sr run.*no checkpoints"):
+        run_compare(later)
+    assert not (tmp_path / "b").exists()  # refused before anything ran or was written
