@@ -22,24 +22,26 @@ import logging
 import os
 import shutil
 import tempfile
+from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from sr_imitation.core.fingerprint import (
-    ABSENT,
+    FINGERPRINT_FILE,
     SettingsFingerprint,
-    SettingsMismatchError,
+    check_settings,
     diff_settings,
-    is_allowed,
     read_fingerprint,
 )
 
 logger = logging.getLogger(__name__)
 
+RunKey = tuple[str, int]
+"""(variant, training seed)."""
+
 ARCHIVED_FILES = ("results.json", "results.md", "progress.json", "settings_fingerprint.json", "train_config.json",
                   "config.json", "metrics.png", "success_matrix.png")
 """The files of a run directory the archive keeps (those present): what the summaries and docs/RESULTS.md read."""
-
-FINGERPRINT_FILE = "settings_fingerprint.json"
 
 
 def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerprint) -> Path | None:
@@ -52,16 +54,13 @@ def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerpri
     run = Path(archive) / name
     if not (run / "results.json").is_file():
         return None
-    stored = {k: v for k, v in read_fingerprint(run / FINGERPRINT_FILE).items()
-              if not is_allowed(k, fingerprint.allow)}
-    diffs = diff_settings(stored, fingerprint.settings)
-    added = sorted(k for k, (old, _) in diffs.items() if old is ABSENT)
-    differing = {k: v for k, v in diffs.items() if k not in added}
-    if differing:
-        raise SettingsMismatchError(run / FINGERPRINT_FILE, differing)
+    stored = read_fingerprint(run / FINGERPRINT_FILE)
+    added = diff_settings({}, {k: v for k, v in fingerprint.settings.items() if k not in stored})  # with values
+    # a setting the run predates counts as equal; every other difference refuses, as on resume
+    check_settings(run / FINGERPRINT_FILE, {**stored, **{k: fingerprint.settings[k] for k in added}}, fingerprint)
     if added:
         logger.warning("%s predates the settings %s (added to the code since it ran); counted as finished",
-                       run, ", ".join(added))
+                       run, ", ".join(sorted(added)))
     return run
 
 
@@ -90,3 +89,33 @@ def archive_run(run: Path, archive: Path, name: str) -> Path:
         raise
     logger.info("archived %s -> %s", run, target)
     return target
+
+
+def check_archive(plan: Mapping[RunKey, Any], archive: Path | None,
+                  fingerprint: Callable[[str, Any], SettingsFingerprint]) -> dict[RunKey, Path | None]:
+    """:func:`archived_run` for every planned run (``plan``: (variant, seed) -> its config, with ``output_dir``),
+    all before the first one starts; ``fingerprint(variant, config)`` is the run's settings fingerprint."""
+    return {key: archived_run(archive, Path(cfg.output_dir).name, fingerprint(key[0], cfg))
+            for key, cfg in plan.items()}
+
+
+def run_plan(plan: Mapping[RunKey, Any], archived: Mapping[RunKey, Path | None], archive: Path | None,
+             run: Callable[[str, Any], object]) -> dict[str, dict[str, Path]]:
+    """Run the planned runs in order: skip the archived ones and those finished in their ``output_dir``, run the
+    others with ``run(variant, config)`` (it resumes a killed run), and copy each finished one into ``archive``
+    (when given). Returns ``{variant: {seed: run directory}}`` for the summary (archived runs: their archive copy)."""
+    runs: dict[str, dict[str, Path]] = {}
+    for (variant, seed), cfg in plan.items():
+        out = Path(cfg.output_dir)
+        kept = archived.get((variant, seed))
+        if kept is not None:
+            logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, kept)
+        elif (out / "results.json").exists():
+            logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
+        else:
+            logger.info("=== %s seed %d -> %s", variant, seed, out)
+            run(variant, cfg)
+        if kept is None and archive is not None:
+            kept = archive_run(out, archive, out.name)
+        runs.setdefault(variant, {})[str(seed)] = kept or out
+    return runs

@@ -33,7 +33,7 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.experiments.archive import archive_run, archived_run
+from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
@@ -112,11 +112,9 @@ def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
     from sr_imitation.rl.cli import parse, train
     from sr_imitation.rl.mt_joint import joint_fingerprint, run_mt_joint
 
-    runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
     plan = {(v, s): parse(run_args(cfg, v, s)) for v in cfg.variants for s in cfg.seeds}
-    archived = {key: archived_run(cfg.archive, Path(run.output_dir).name,
-                                  joint_fingerprint(run) if key[0] == "mt_joint" else run.resume_fingerprint())
-                for key, run in plan.items()}  # every archived run checked before the first one starts
+    archived = check_archive(plan, cfg.archive,
+                             lambda v, run: joint_fingerprint(run) if v == "mt_joint" else run.resume_fingerprint())
     for (variant, seed), run in plan.items():
         source = run.stream.extend_from
         if variant == "sr_mt8" and archived[variant, seed] is None and archived[("sr", seed)] is not None \
@@ -125,20 +123,7 @@ def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
                 f"{source}: sr_mt8 seed {seed} continues this sr run, which is only in the archive "
                 f"({archived[('sr', seed)]}, report files, no checkpoints); run sr seed {seed} into this "
                 "output_root first (without --archive), then sr_mt8")
-    for (variant, seed), run in plan.items():
-        out = Path(run.output_dir)
-        if archived[variant, seed] is not None:
-            logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, archived[variant, seed])
-            runs[variant][str(seed)] = archived[variant, seed]
-            continue
-        if (out / "results.json").exists():
-            logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
-        else:
-            logger.info("=== %s seed %d -> %s", variant, seed, out)
-            (run_mt_joint if variant == "mt_joint" else train)(run)
-        runs[variant][str(seed)] = out
-        if cfg.archive is not None:
-            runs[variant][str(seed)] = archive_run(out, cfg.archive, out.name)
+    runs = run_plan(plan, archived, cfg.archive, lambda v, run: (run_mt_joint if v == "mt_joint" else train)(run))
     return summarize(runs, cfg.output_root)
 
 

@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 
 import draccus
 
-from sr_imitation.experiments.archive import archive_run, archived_run
+from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
@@ -136,24 +136,11 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
 
 def run_compare(cfg: CompareConfig) -> dict:
     base = preset_with_datasets(cfg.preset, cfg.extra)
-    runs: dict[str, dict[str, Path]] = {v: {} for v in cfg.variants}
     plan = {(v, s): run_config(cfg, base, v, s) for v in cfg.variants for s in cfg.seeds}
-    archived = {key: archived_run(cfg.archive, train.output_dir.name,
-                                  (joint_fingerprint if key[0] == "mt_joint" else resume_fingerprint)(train))
-                for key, train in plan.items()}  # every archived run checked before the first one starts
-    for (variant, seed), train in plan.items():
-        if archived[variant, seed] is not None:
-            logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, archived[variant, seed])
-            runs[variant][str(seed)] = archived[variant, seed]
-            continue
-        if (train.output_dir / "results.json").exists():
-            logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, train.output_dir)
-        else:
-            logger.info("=== %s seed %d -> %s", variant, seed, train.output_dir)
-            (run_mt_joint if variant == "mt_joint" else train_stream)(train)
-        runs[variant][str(seed)] = train.output_dir
-        if cfg.archive is not None:
-            runs[variant][str(seed)] = archive_run(train.output_dir, cfg.archive, train.output_dir.name)
+    archived = check_archive(plan, cfg.archive,
+                             lambda v, train: (joint_fingerprint if v == "mt_joint" else resume_fingerprint)(train))
+    runs = run_plan(plan, archived, cfg.archive,
+                    lambda v, train: (run_mt_joint if v == "mt_joint" else train_stream)(train))
     return summarize(runs, cfg.output_root)
 
 
