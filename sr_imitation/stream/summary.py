@@ -105,7 +105,8 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(skills)},
             "success_after_own_wake": {s: mean_sem_dict(wake[:, i].tolist()) for i, s in enumerate(skills)},
             "memory_bytes_total": mean_sem_dict([r["memory_bytes_total"] for r in runs]),
-            "memory_kinds": dict(runs[0].get("memory_kinds") or {}),
+            # None: the run predates per-kind memory accounting (results.json without "memory_kinds")
+            "memory_kinds": None if runs[0].get("memory_kinds") is None else dict(runs[0]["memory_kinds"]),
             "oracle": bool((runs[0].get("extra") or {}).get("oracle")),
             "curves": {m: _curve_stats([r["metrics"][m].get("curve") for r in runs]) for m in METRICS},
         }
@@ -265,11 +266,13 @@ def plot_dynamics(summary: Mapping[str, Any], path: Path) -> None:
 
 def memory_table(summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None) -> str:
     """Markdown: per variant the bytes its continual-learning mechanism stores at the end of the stream (first
-    seed's run) and what, by memory kind, next to the paper's number where it gives one."""
+    seed's run) and what, by memory kind, next to the paper's number where it gives one. A run recorded before
+    per-kind accounting says so instead of "nothing"."""
     lines = ["| variant | ours (MB) | what it stores (MB) | paper (MB) |", "|---|---|---|---|"]
     for variant, row in summary["variants"].items():
-        kinds = row.get("memory_kinds") or {}
-        stored = "; ".join(f"{memory_contents(k)} ({v / 1e6:.2f})" for k, v in sorted(kinds.items())) or "nothing"
+        kinds = row.get("memory_kinds")
+        stored = ("not recorded (the run predates per-kind memory accounting)" if kinds is None else
+                  "; ".join(f"{memory_contents(k)} ({v / 1e6:.2f})" for k, v in sorted(kinds.items())) or "nothing")
         paper = (paper_mb or {}).get(variant)
         lines.append(f"| {variant} | {row['memory_bytes_total']['mean'] / 1e6:.2f} | {stored} | "
                      f"{'-' if paper is None else f'{paper:.1f}'} |")

@@ -65,6 +65,9 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
     row = {"memory_bytes_total": {"mean": 2_000_000}, "memory_kinds": {"sac_critic": 2_000_000}}
     assert ("| sr | 2.00 | states + the frozen twin critic + the observation normalizer's snapshot (2.00) | 3.7 |"
             in memory_table({"variants": {"sr": row}}, {"sr": 3.7}))
+    legacy = {"memory_bytes_total": {"mean": 3_916_600}, "memory_kinds": None}  # results.json of older code
+    assert "| sr | 3.92 | not recorded (the run predates per-kind memory accounting) | 3.7 |" in memory_table(
+        {"variants": {"sr": legacy}}, {"sr": 3.7})
 
 
 def test_the_archive_keeps_finished_runs_and_refuses_other_settings(tmp_path, tiny_preset, monkeypatch):
