@@ -107,3 +107,21 @@ def test_mt8_refuses_to_continue_an_archived_run_without_its_checkpoints(tmp_pat
     with pytest.raises(FileNotFoundError, match=r"sr_seed0: sr_mt8 seed 0 continues this sr run.*no checkpoints"):
         run_compare(later)
     assert not (tmp_path / "b").exists()  # refused before anything ran or was written
+
+
+def test_the_memory_table_describes_critic_memories_when_every_run_is_archived():
+    # a fresh interpreter with only the driver's own imports, as when every run is skipped from the archive
+    import subprocess
+    import sys
+
+    script = """
+import sr_imitation.experiments.mt5_compare as m
+from sr_imitation.stream.summary import memory_table
+m.load_groups = lambda runs: {"agem": {}}
+m.summary_of = lambda groups, baseline: {"variants": {"agem": {
+    "memory_bytes_total": {"mean": 1e6}, "memory_kinds": {"sac_critic": 1000000}}}}
+m.write_summary = lambda output, summary, paper: print(memory_table(summary, paper))
+m.summarize({}, None)
+"""
+    table = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout
+    assert "| agem | 1.00 | states + the frozen twin critic" in table
