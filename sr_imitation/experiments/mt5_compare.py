@@ -129,9 +129,6 @@ def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
     """The shared summary of ``{variant: {seed: run}}`` paired against ``sr``, and the memory table."""
-    # the critic memory's class describes its kind in the memory table; nothing else imports it when every run
-    # comes from the archive
-    import sr_imitation.rl.critic_memory  # noqa: F401
     groups = load_groups(runs)
     summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))
     write_summary(output_root, summary, PAPER_MEMORY_MB)

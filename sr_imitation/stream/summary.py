@@ -268,6 +268,11 @@ def memory_table(summary: Mapping[str, Any], paper_mb: Mapping[str, float] | Non
     """Markdown: per variant the bytes its continual-learning mechanism stores at the end of the stream (first
     seed's run) and what, by memory kind, next to the paper's number where it gives one. A run recorded before
     per-kind accounting says so instead of "nothing"."""
+    # the substrates' memory classes describe their kinds (they register on import); a summary read only from
+    # archived runs has imported neither
+    import sr_imitation.imitation.actor_memory  # noqa: F401
+    import sr_imitation.rl.critic_memory  # noqa: F401
+
     lines = ["| variant | ours (MB) | what it stores (MB) | paper (MB) |", "|---|---|---|---|"]
     for variant, row in summary["variants"].items():
         kinds = row.get("memory_kinds")
