@@ -86,13 +86,14 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
               ) -> dict[str, Any]:
     """The summary dictionary of ``{variant: {seed: results}}`` (see the module docstring)."""
     variants: dict[str, Any] = {}
-    skills: list[str] = []
+    skills: list[str] = []  # every variant's skills, in order of first appearance (streams may differ: MT8, reverse)
     finals: dict[str, dict[str, dict[str, float | None]]] = {}
     for variant, per_seed in groups.items():
         runs = list(per_seed.values())
-        skills = runs[0]["skills"]
-        if any(r["skills"] != skills for r in runs):
+        own = runs[0]["skills"]
+        if any(r["skills"] != own for r in runs):
             raise ValueError(f"{variant}: runs with different skill lists cannot be summarized together")
+        skills += [s for s in own if s not in skills]
         finals[variant] = {m: {seed: r["metrics"][m]["final"] for seed, r in per_seed.items()} for m in METRICS}
         last = np.array([[np.nan if x is None else x for x in r["success_matrix"][-1]] for r in runs], dtype=float)
         wake = np.array([[np.nan if x is None else x for x in r["success_after_own_wake"]] for r in runs], dtype=float)
@@ -102,8 +103,9 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "phase_seconds": {seed: r.get("phase_seconds") for seed, r in per_seed.items()},
             "substrate": runs[0]["substrate"],
             **{m: mean_sem_dict(list(finals[variant][m].values())) for m in METRICS},
-            "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(skills)},
-            "success_after_own_wake": {s: mean_sem_dict(wake[:, i].tolist()) for i, s in enumerate(skills)},
+            "skills": list(own),
+            "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(own)},
+            "success_after_own_wake": {s: mean_sem_dict(wake[:, i].tolist()) for i, s in enumerate(own)},
             "memory_bytes_total": mean_sem_dict([r["memory_bytes_total"] for r in runs]),
             # None: the run predates per-kind memory accounting (results.json without "memory_kinds")
             "memory_kinds": None if runs[0].get("memory_kinds") is None else dict(runs[0]["memory_kinds"]),
@@ -162,12 +164,16 @@ def render_markdown(summary: Mapping[str, Any]) -> str:
                          + f" | {'-' if seconds is None else f'{seconds / 60:.1f}'} |")
     lines += ["", f"Time: the sum of each run's completed phases (progress.json; wake, sleep, evaluation). All runs "
                   f"above: {total / 3600:.2f} h."]
+    mixed = any(row.get("skills", skills) != skills for row in variants.values())
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):
-        lines += ["", f"{title}, mean +- SE over training seeds:", "",
+        lines += ["", f"{title}, mean +- SE over training seeds"
+                  + (" (-: not in the variant's stream; the streams differ in skills or order)" if mixed else "")
+                  + ":", "",
                   "| variant | " + " | ".join(skills) + " |", "|---" * (len(skills) + 1) + "|"]
         for v, row in variants.items():
-            lines.append(f"| {v} | " + " | ".join(_fmt(row[key][s]) for s in skills) + " |")
+            lines.append(f"| {v} | " + " | ".join(_fmt(row[key][s]) if s in row[key] else "-" for s in skills)
+                         + " |")
     return "\n".join(lines) + "\n"
 
 
@@ -195,7 +201,7 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
     ax = axes[-1]
     width = 0.8 / max(len(names), 1)
     for j, v in enumerate(names):
-        cells = [variants[v]["final_success"][s] for s in skills]
+        cells = [variants[v]["final_success"].get(s, {"mean": np.nan, "sem": np.nan}) for s in skills]
         ax.bar(np.arange(len(skills)) + j * width, [c["mean"] for c in cells], width,
                yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=2, label=v)
     ax.set_xticks(np.arange(len(skills)) + 0.4 - width / 2, skills, rotation=20)

@@ -105,6 +105,24 @@ def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
         group_runs([runs[0], _write_run(tmp_path, "again", _results(seed=0))])
 
 
+def test_summary_of_streams_with_other_skills_or_order(tmp_path):
+    """Reverse and longer streams (MT5 reversed, MT8) share one summary: per-skill cells by name, '-' elsewhere."""
+    runs = [_write_run(tmp_path, "fwd", _results(seed=0)),
+            _write_run(tmp_path, "rev", _results(seed=0, skills=["c", "b", "a"], pairs=[("c", "b"), ("b", "a")])),
+            _write_run(tmp_path, "other", _results(seed=0, skills=["a", "b", "d"], pairs=[("a", "b"), ("b", "d")]))]
+    summary = summarize(group_runs([f"sr={runs[0]}", f"sr_reverse={runs[1]}", f"sr_long={runs[2]}"]), "sr")
+    assert summary["skills"] == ["a", "b", "c", "d"]
+    rev = summary["variants"]["sr_reverse"]
+    assert rev["skills"] == ["c", "b", "a"] and rev["final_success"]["c"]["mean"] == pytest.approx(
+        summary["variants"]["sr"]["final_success"]["a"]["mean"])  # same matrix, skills renamed: by name
+    md = render_markdown_summary(summary)
+    assert "| sr_long | 0.600 | 0.600 | - | 0.900 |" in md and "not in the variant's stream" in md
+    assert "| sr | 0.600 | 0.600 | 0.900 | - |" in md
+    write_summary(tmp_path / "out", summary)
+    assert (tmp_path / "out" / "summary.png").stat().st_size > 1000
+    assert "not in the variant's stream" not in render_markdown_summary(summarize(group_runs(runs[:1])))
+
+
 def test_summary_reports_each_runs_phase_time(tmp_path):
     timed = _write_run(tmp_path, "timed", _results(seed=0))
     write_checked_json(timed / "progress.json", {"version": 1, "completed": {
