@@ -70,6 +70,18 @@ PAPER_MEMORY_MB = {"ewc": 3.0, "agem": 0.7, "der": 1.6, "clear": 2.5, "reset_dis
                    "progress_compress": 3.0, "nash_mtl": 3.7, "pcgrad": 3.7, "componet": 4.0, "sr": 3.7}
 """The paper's memory-budget table (MB at K = 5)."""
 
+SECTIONS: dict[str, list[str]] = {
+    "Continual baselines (the paper's Table 1, MT5 final performance)": [
+        "wake_only", "sequential", "ewc", "agem", "der", "clear", "reset_distill", "progress_compress", "nash_mtl",
+        "pcgrad", "componet"],
+    "Ablations (the paper's MT5 ablation table)": [
+        "wake_only", "sr_mean_grad", "sr_no_anchor", "sr_no_exc", "sr_no_wake_exc", "sr_no_sleep_exc"],
+    "Order and length (the paper's order/length table; MT8's metrics are over its eight skills)": [
+        "sr_reverse", "sr_mt8"],
+    "Oracle, reported apart (multi-task SAC on all skills at once; BWT 0 by definition)": ["mt_joint"],
+}
+"""The tables of ``summary.md`` (each with ``sr``'s row), as the paper groups them."""
+
 PAIRED_BASELINE = "sr"
 
 
@@ -131,7 +143,7 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
     """The shared summary of ``{variant: {seed: run}}`` paired against ``sr``, and the memory table."""
     groups = load_groups(runs)
     summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))
-    write_summary(output_root, summary, PAPER_MEMORY_MB)
+    write_summary(output_root, summary, PAPER_MEMORY_MB, SECTIONS)
     return summary
 
 

@@ -134,22 +134,44 @@ def _fmt(d: Mapping[str, Any]) -> str:
     return f"{mean:.3f}" if sem is None or not math.isfinite(sem) else f"{mean:.3f} +- {sem:.3f}"
 
 
-def render_markdown(summary: Mapping[str, Any]) -> str:
-    skills, variants, paired = summary["skills"], summary["variants"], summary["paired"]
+def _final_tables(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]:
+    """The final-metrics table of ``names`` and their paired differences to the baseline (markdown lines)."""
+    variants, paired = summary["variants"], summary["paired"]
     header = "| variant | seeds | " + " | ".join(SHORT[m] for m in METRICS) + " | memory (MB) |"
     rule = "|---" * (len(METRICS) + 3) + "|"
-    lines = ["Final metrics after the full stream, mean +- SE over training seeds. BWT: reference = success on skill "
-             "i after stage i (after its sleep); BWT_wake: reference = success on skill i right after its own wake.",
-             "", header, rule]
-    for v, row in variants.items():
+    lines = [header, rule]
+    for v in names:
+        row = variants[v]
         mb = row["memory_bytes_total"]["mean"] / 1e6
         lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS)
                      + f" | {mb:.2f} |")
-    if paired:
+    if any(v in paired for v in names):
         lines += ["", f"Paired difference variant - {summary['baseline']} (same training seed), mean +- SE:", "",
                   header.removesuffix(" memory (MB) |"), rule.removesuffix("|---|") + "|"]
-        for v, row in paired.items():
-            lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS) + " |")
+        for v in names:
+            if v in paired:
+                row = paired[v]
+                lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS)
+                             + " |")
+    return lines
+
+
+def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[str]] | None = None) -> str:
+    """``summary.md``. ``sections`` (title -> variants, e.g. baselines / ablations / streams) splits the final-metrics
+    table into one table per section, each with the baseline's row; variants in no section come last."""
+    skills, variants = summary["skills"], summary["variants"]
+    lines = ["Final metrics after the full stream, mean +- SE over training seeds. BWT: reference = success on skill "
+             "i after stage i (after its sleep); BWT_wake: reference = success on skill i right after its own wake.",
+             ""]
+    base = summary.get("baseline")
+    groups = [(title, [v for v in variants if v in names and v != base]) for title, names in (sections or {}).items()]
+    rest = [v for v in variants if v != base and not any(v in g for _, g in groups)]
+    groups = [(title, g) for title, g in [*groups, ("Other variants", rest)] if g] if sections else []
+    if not groups:
+        lines += _final_tables(summary, list(variants))
+    for j, (title, names) in enumerate(groups):
+        lines += [*([""] if j else []), f"**{title}**", "",
+                  *_final_tables(summary, [v for v in variants if v == base] + names)]
     lines += ["", "Per run (each value: the run's mean over its evaluation units):", "",
               "| variant | seed | run | " + " | ".join(SHORT[m] for m in METRICS) + " | time (min) |",
               "|---" * (len(METRICS) + 4) + "|"]
@@ -290,12 +312,14 @@ def memory_table(summary: Mapping[str, Any], paper_mb: Mapping[str, float] | Non
     return "\n".join(lines) + "\n"
 
 
-def write_summary(output: Path, summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None) -> None:
-    """``summary.json``, ``summary.md``, ``summary.png`` (final metrics), ``dynamics.png`` (per stage) and
-    ``memory.md`` (the memory-budget table) in ``output`` (atomic)."""
+def write_summary(output: Path, summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None,
+                  sections: Mapping[str, Sequence[str]] | None = None) -> None:
+    """``summary.json``, ``summary.md`` (final-metrics tables split by ``sections``, :func:`render_markdown`),
+    ``summary.png`` (final metrics), ``dynamics.png`` (per stage) and ``memory.md`` (the memory-budget table) in
+    ``output`` (atomic)."""
     output.mkdir(parents=True, exist_ok=True)
     write_checked_json(output / "summary.json", summary)
-    atomic_write_bytes(output / "summary.md", render_markdown(summary).encode())
+    atomic_write_bytes(output / "summary.md", render_markdown(summary, sections).encode())
     atomic_write_bytes(output / "memory.md", memory_table(summary, paper_mb).encode())
     plot(summary, output / "summary.png")
     plot_dynamics(summary, output / "dynamics.png")

@@ -52,6 +52,10 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
     cfg = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["wake_only", "der"], output_root=tmp_path / "c")
     summary = run_compare(cfg)
     assert set(summary["variants"]) == {"wake_only", "der"}
+    md = (tmp_path / "c" / "summary.md").read_text()
+    # the paper's tables, each led by the paired baseline (here wake_only: no sr run); a table of it alone is dropped
+    assert "**Continual baselines (the paper's Table 1" in md and "**Ablations" not in md
+    assert md.count("| wake_only | 0 |") == 2 and md.count("| der | 0 |") == 3  # final (+ paired), per run
     table = (tmp_path / "c" / "memory.md").read_text()
     assert "| wake_only | 0.00 | nothing | - |" in table
     assert "| der | " in table and "inputs (states or observations) + the policy's outputs on them" in table
@@ -120,7 +124,7 @@ from sr_imitation.stream.summary import memory_table
 m.load_groups = lambda runs: {"agem": {}}
 m.summary_of = lambda groups, baseline: {"variants": {"agem": {
     "memory_bytes_total": {"mean": 1e6}, "memory_kinds": {"sac_critic": 1000000}}}}
-m.write_summary = lambda output, summary, paper: print(memory_table(summary, paper))
+m.write_summary = lambda output, summary, paper, sections: print(memory_table(summary, paper))
 m.summarize({}, None)
 """
     table = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, check=True).stdout

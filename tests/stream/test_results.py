@@ -121,6 +121,13 @@ def test_summary_of_streams_with_other_skills_or_order(tmp_path):
     write_summary(tmp_path / "out", summary)
     assert (tmp_path / "out" / "summary.png").stat().st_size > 1000
     assert "not in the variant's stream" not in render_markdown_summary(summarize(group_runs(runs[:1])))
+    # sections: one table per section, each with the baseline's row first; unplaced variants last; empty ones dropped
+    md = render_markdown_summary(summary, {"Streams": ["sr_reverse"], "Empty": ["nothing"]})
+    streams, other = md.index("**Streams**"), md.index("**Other variants**")
+    assert "**Empty**" not in md and streams < other < md.index("| sr_long | 0 |")
+    assert md.index("| sr | 0 |", streams) < md.index("| sr_reverse | 0 |", streams) < other
+    assert md.index("| sr | 0 |", other) < md.index("| sr_long | 0 |", other)
+    assert md.count("| sr_reverse | 0 |") == 3  # final row, paired difference, per-run row: not again under Other
 
 
 def test_summary_reports_each_runs_phase_time(tmp_path):
