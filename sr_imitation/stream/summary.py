@@ -116,7 +116,9 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
     if baseline in finals:
         for variant, per_metric in finals.items():
             seeds = [s for s in variants[variant]["seeds"] if s in variants[baseline]["seeds"]]
-            if variant == baseline or not seeds:
+            # a stream of other skills (MT8 against MT5) has no paired difference; another order of the same does
+            same_skills = set(variants[variant]["skills"]) == set(variants[baseline]["skills"])
+            if variant == baseline or not seeds or not same_skills:
                 continue
             paired[variant] = {"seeds": seeds}
             for m in METRICS:

@@ -128,6 +128,7 @@ def test_summary_of_streams_with_other_skills_or_order(tmp_path):
     assert md.index("| sr | 0 |", streams) < md.index("| sr_reverse | 0 |", streams) < other
     assert md.index("| sr | 0 |", other) < md.index("| sr_long | 0 |", other)
     assert md.count("| sr_reverse | 0 |") == 3  # final row, paired difference, per-run row: not again under Other
+    assert "sr_reverse" in summary["paired"] and "sr_long" not in summary["paired"]  # other skills: nothing paired
 
 
 def test_summary_reports_each_runs_phase_time(tmp_path):
