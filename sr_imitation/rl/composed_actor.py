@@ -8,7 +8,7 @@ from torch import Tensor, nn
 
 from sr_imitation.rl.config import SACConfig
 from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
-from sr_imitation.rl.sac import Actor
+from sr_imitation.rl.sac import Actor, RunningNormalizer
 
 SELF_BIAS = 2.0
 """Initial attention logit of a module on its own head (paper: self-bias 2.0)."""
@@ -35,6 +35,12 @@ class ComposedActor(Actor):
                 att.bias[j] = SELF_BIAS
         self.log_std_min, self.log_std_max = cfg.log_std_min, cfg.log_std_max
         self.active = 0
+        # the observation normalizer's statistics at the end of each module's wake (count 0: not taken yet); the
+        # agent's normalizer keeps updating in later wakes, so a frozen module acts exactly as it did only on its own
+        # statistics (our choice; saved with the actor, so a resumed run has them)
+        self.register_buffer("norm_mean", torch.zeros(n_skills, obs_dim, dtype=torch.float64))
+        self.register_buffer("norm_var", torch.ones(n_skills, obs_dim, dtype=torch.float64))
+        self.register_buffer("norm_count", torch.zeros(n_skills, dtype=torch.float64))
 
     def select_skill(self, j: int) -> None:
         if not 0 <= j < len(self.heads_mean):
@@ -50,6 +56,24 @@ class ComposedActor(Actor):
         if j == 0:
             for module in (self.fc1, self.fc2):
                 module.requires_grad_(True)
+
+    @torch.no_grad()
+    def snapshot_normalizer(self, j: int, normalizer: RunningNormalizer) -> None:
+        """Keep ``normalizer``'s statistics as module j's (called at the end of wake j)."""
+        self.norm_mean[j].copy_(normalizer.mean)
+        self.norm_var[j].copy_(normalizer.var)
+        self.norm_count[j].copy_(normalizer.count)
+
+    def module_normalizer(self, j: int, normalizer: RunningNormalizer) -> RunningNormalizer:
+        """The normalizer module j acts with: its end-of-wake statistics, or ``normalizer`` before they exist."""
+        if self.norm_count[j] == 0:
+            return normalizer
+        frozen = RunningNormalizer(self.norm_mean.shape[1], enabled=normalizer.enabled, clip=normalizer.clip,
+                                   eps=normalizer.eps).to(normalizer.mean.device)
+        frozen.mean.copy_(self.norm_mean[j])
+        frozen.var.copy_(self.norm_var[j])
+        frozen.count.copy_(self.norm_count[j])
+        return frozen
 
     def attention_weights(self, obs: Tensor) -> Tensor:
         """softmax over modules 1..j of the active module j (B x j)."""

@@ -151,6 +151,9 @@ class SACSubstrate:
         with SkillEnv(self.skills[k], seed=seed % (2**31), max_episode_steps=cfg.max_episode_steps) as env:
             wake, memory = train_skill(self.agent, env, k, cfg.sac, cfg.wake, cfg.excitability, cfg.memory,
                                        seed=seed, progress=cfg.progress, method=method)
+        snapshot = getattr(self.agent.actor, "snapshot_normalizer", None)  # per-skill modules (CompoNet)
+        if snapshot is not None:
+            snapshot(k, self.agent.normalizer)  # before the wake checkpoint, which keeps it
         # what the memory phase may need once the replay buffer is gone (kept for a resume; not a memory itself)
         memory.save(self.stage_dir(k) / "memory.safetensors")  # SR's M_k comes from the wake's replay buffer
         if wake.state_sample is not None:
@@ -284,24 +287,29 @@ class SACSubstrate:
         if spec is not None:
             shutil.rmtree(spec.directory, ignore_errors=True)  # leftovers of a killed attempt at this stage
         select = getattr(agent.actor, "select_skill", None)  # an architecture with per-skill modules (CompoNet)
-        for i in skills:
-            skill = self.skills[i]
-            if select is not None:
-                select(i)
-            env = self._eval_envs.get(skill)
-            if env is None:
-                env = self._eval_envs[skill] = SkillEnv(skill, seed=0, max_episode_steps=cfg.max_episode_steps)
-            configurations = evaluation_configurations(cfg.seed, skill, cfg.eval.episodes)
-            res = evaluate_policy(
-                lambda obs: agent.act(obs, deterministic=cfg.eval.deterministic), env, cfg.eval.episodes,
-                seed=cfg.seed, success_mode=cfg.eval.success_mode, stop_on_success=cfg.eval.stop_on_success,
-                record_trajectories=trajectories, configurations=configurations, video=spec,
-            )
-            rows.append({**res.summary(), "configurations": configurations})
-            if spec is not None:
-                rows[-1]["videos"] = [p.relative_to(self.out).as_posix() for p in res.videos]
-            if trajectories:
-                motions[skill] = policy_motion(res.trajectories, SPI_FEATURES)
+        live = agent.normalizer
+        try:
+            for i in skills:
+                skill = self.skills[i]
+                if select is not None:
+                    select(i)
+                    agent.normalizer = agent.actor.module_normalizer(i, live)  # its own end-of-wake statistics
+                env = self._eval_envs.get(skill)
+                if env is None:
+                    env = self._eval_envs[skill] = SkillEnv(skill, seed=0, max_episode_steps=cfg.max_episode_steps)
+                configurations = evaluation_configurations(cfg.seed, skill, cfg.eval.episodes)
+                res = evaluate_policy(
+                    lambda obs: agent.act(obs, deterministic=cfg.eval.deterministic), env, cfg.eval.episodes,
+                    seed=cfg.seed, success_mode=cfg.eval.success_mode, stop_on_success=cfg.eval.stop_on_success,
+                    record_trajectories=trajectories, configurations=configurations, video=spec,
+                )
+                rows.append({**res.summary(), "configurations": configurations})
+                if spec is not None:
+                    rows[-1]["videos"] = [p.relative_to(self.out).as_posix() for p in res.videos]
+                if trajectories:
+                    motions[skill] = policy_motion(res.trajectories, SPI_FEATURES)
+        finally:
+            agent.normalizer = live
         return rows, motions
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:

@@ -48,6 +48,15 @@ def test_a_baseline_runs_end_to_end_on_sac(tmp_path, method, monkeypatch):
         for name in ("actor.fc1.weight", "actor.fc2.bias", "actor.heads_mean.0.weight", "actor.attention.0.bias"):
             assert torch.equal(first[name], last[name]), name
         assert not torch.equal(first["actor.heads_mean.1.weight"], last["actor.heads_mean.1.weight"])
+        # the agent's normalizer moves on in wake 2; module 1 keeps its end-of-wake statistics and acts with them,
+        # so skill 1's evaluation after stage 2 repeats stage 1's exactly (same paired start, same actions)
+        assert not torch.equal(first["normalizer.mean"], last["normalizer.mean"])
+        assert torch.equal(last["actor.norm_mean"][0], first["normalizer.mean"])
+        assert last["actor.norm_count"][0] == first["normalizer.count"] < last["actor.norm_count"][1]
+        traj = [load_checked_safetensors(trainer.substrate.stage_dir(k) / "trajectories.safetensors")[0]["traj.reach"]
+                for k in (0, 1)]
+        assert torch.equal(traj[0], traj[1])
+        assert trainer.substrate.agent.normalizer.count == last["normalizer.count"]  # the live one is back
         return
     kinds = {type(m).__name__ for m in trainer.engine.memories}
     assert kinds == {"ewc": {"FisherMemory"}, "der": {"OutputDistillationMemory"},

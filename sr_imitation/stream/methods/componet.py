@@ -7,10 +7,10 @@ and log-std from the trunk's features) and an attention over the heads 1..j, sof
 start at the self-bias (b_j = 2.0 on its own head, 0 elsewhere, W_j = 0: our choice of a state-dependent attention
 with that initialization). The action distribution for skill j mixes the heads' means and log-stds with those
 weights. In the wake of skill j only h_j and the attention j (and, for j = 1, the trunk) learn; earlier heads and
-attentions stay frozen, so earlier modules keep exactly their weights. Known defect (session 22,
-docs/results/mt5_compare_superseded/README.md): the agent's observation normalizer keeps updating in later wakes, so
-a frozen module sees other inputs and its skill's policy still drifts; the fix is a per-module snapshot of the
-normalizer at the end of its wake. A fresh twin critic per skill. Acting on
+attentions stay frozen, and each module keeps the observation normalizer's statistics of the end of its wake (the
+agent's normalizer moves on in later wakes; our choice, session 22: before it, frozen modules saw drifting inputs,
+docs/results/mt5_compare_superseded/README.md), so earlier skills keep exactly their policies (tested: their
+evaluation trajectories repeat bit for bit). A fresh twin critic per skill. Acting on
 skill j uses module j: CompoNet needs the skill's identity at evaluation (the substrate selects it per evaluated
 skill), unlike every other method here.
 
