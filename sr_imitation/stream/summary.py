@@ -188,7 +188,7 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
                          + f" | {'-' if seconds is None else f'{seconds / 60:.1f}'} |")
     lines += ["", f"Time: the sum of each run's completed phases (progress.json; wake, sleep, evaluation). All runs "
                   f"above: {total / 3600:.2f} h."]
-    mixed = any(row.get("skills", skills) != skills for row in variants.values())
+    mixed = any(row["skills"] != skills for row in variants.values())
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):
         lines += ["", f"{title}, mean +- SE over training seeds"
