@@ -160,17 +160,28 @@ class SettingsFingerprint:
     settings: dict[str, Any]
     sha256: str
     allow: tuple[str, ...] = ()
+    derived: tuple[str, ...] = ()
+    """Top-level keys computed from the configuration by the code rather than set in it (``method_config``: the
+    method's settings with their defaults). A stored fingerprint without such a key predates it and counts as equal
+    there (:func:`check_settings`); one that has it must match."""
 
     def to_json(self) -> dict[str, Any]:
         return {"format": FINGERPRINT_FORMAT, "version": FINGERPRINT_VERSION, "sha256": self.sha256,
-                "allow_list": list(self.allow), "settings": self.settings}
+                "allow_list": list(self.allow), "derived": list(self.derived), "settings": self.settings}
 
 
-def settings_fingerprint(cfg: Any, allow: Iterable[str] = ()) -> SettingsFingerprint:
-    """Flatten ``cfg`` (:func:`flatten_settings`), drop the keys ``allow`` covers, hash the rest."""
-    allow = tuple(allow)
-    flat = {k: v for k, v in sorted(flatten_settings(cfg).items()) if not is_allowed(k, allow)}
-    return SettingsFingerprint(flat, settings_digest(flat), allow)
+def settings_fingerprint(cfg: Any, allow: Iterable[str] = (), derived: Mapping[str, Any] | None = None
+                         ) -> SettingsFingerprint:
+    """Flatten ``cfg`` (:func:`flatten_settings`) and ``derived`` (see :attr:`SettingsFingerprint.derived`; a key
+    of both is refused), drop the keys ``allow`` covers, hash the rest."""
+    allow, derived = tuple(allow), dict(derived or {})
+    flat = flatten_settings(cfg)
+    clash = sorted(set(derived) & {k.split(".")[0] for k in flat})
+    if clash:
+        raise ValueError(f"derived settings {clash} are also settings of the configuration")
+    flat.update(flatten_settings(derived))
+    flat = {k: v for k, v in sorted(flat.items()) if not is_allowed(k, allow)}
+    return SettingsFingerprint(flat, settings_digest(flat), allow, tuple(derived))
 
 
 def diff_settings(stored: Mapping[str, Any], current: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
@@ -214,8 +225,11 @@ def check_settings(path: str | os.PathLike[str], stored: Mapping[str, Any], curr
     """Raise :class:`SettingsMismatchError` naming ``path`` unless ``stored`` equals ``current.settings``.
 
     ``stored`` is filtered with ``current.allow`` first, so a key allow-listed since the run started (or an older
-    run's stored config, see :func:`settings_from_config`) is not counted."""
+    run's stored config, see :func:`settings_from_config`) is not counted; a key under one of ``current.derived``
+    that ``stored`` lacks is taken as equal (the run predates it: its code did not record it)."""
     stored = {k: v for k, v in stored.items() if not is_allowed(k, current.allow)}
+    predates = {k: v for k, v in current.settings.items() if k not in stored and is_allowed(k, current.derived)}
+    stored = {**stored, **predates}
     diffs = diff_settings(stored, current.settings)
     if diffs:
         raise SettingsMismatchError(path, diffs)

@@ -39,7 +39,7 @@ from sr_imitation.imitation.data import STATS_SOURCES, check_stream_datasets
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
 from sr_imitation.imitation.wake import WakeConfig
-from sr_imitation.stream import RunDirectory, StreamEngine, make_method, methods_for
+from sr_imitation.stream import RunDirectory, StreamEngine, make_method, method_config, methods_for
 from sr_imitation.stream.config import check_shared_settings
 
 __all__ = ["RESUME_ALLOW_LIST", "StreamConfig", "StreamTrainer", "TrainStreamConfig", "resume_fingerprint",
@@ -194,8 +194,10 @@ resume; the check runs before anything is written (:meth:`StreamTrainer._prepare
 
 
 def resume_fingerprint(cfg: TrainStreamConfig) -> SettingsFingerprint:
-    """The settings of ``cfg`` that a resume must keep (everything but :data:`RESUME_ALLOW_LIST`)."""
-    return settings_fingerprint(_config_dict(cfg), RESUME_ALLOW_LIST)
+    """The settings of ``cfg`` that a resume must keep (everything but :data:`RESUME_ALLOW_LIST`), plus the method's
+    own settings with their defaults (``method_config``, :func:`~sr_imitation.stream.methods.method_config`)."""
+    return settings_fingerprint(_config_dict(cfg), RESUME_ALLOW_LIST,
+                                {"method_config": method_config(cfg.method, cfg.method_options)})
 
 
 def stored_config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:

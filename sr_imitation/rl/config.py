@@ -309,8 +309,12 @@ class RLTrainConfig:
         return out
 
     def resume_fingerprint(self) -> SettingsFingerprint:
-        """The settings a resume must keep: the whole config minus :data:`RESUME_ALLOW_LIST`."""
-        return settings_fingerprint(self, RESUME_ALLOW_LIST)
+        """The settings a resume must keep: the whole config minus :data:`RESUME_ALLOW_LIST`, plus the method's
+        own settings with their defaults (``method_config``, :func:`~sr_imitation.stream.methods.method_config`)."""
+        from sr_imitation.stream import method_config
+
+        return settings_fingerprint(self, RESUME_ALLOW_LIST,
+                                    {"method_config": method_config(self.method, self.method_options)})
 
 
 RESUME_ALLOW_LIST: dict[str, str] = {

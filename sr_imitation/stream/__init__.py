@@ -9,9 +9,16 @@ Substrate-free: nothing here imports LeRobot, MuJoCo or Meta-World (tested).
 """
 
 from sr_imitation.stream.engine import StreamEngine
-from sr_imitation.stream.methods import METHODS, ContinualMethod, make_method, methods_for, register_method
+from sr_imitation.stream.methods import (
+    METHODS,
+    ContinualMethod,
+    make_method,
+    method_config,
+    methods_for,
+    register_method,
+)
 from sr_imitation.stream.rundir import RunDirectory
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem, Substrate
 
 __all__ = ["METHODS", "ContinualMethod", "MethodSettings", "RunDirectory", "SleepProblem", "StreamEngine",
-           "Substrate", "make_method", "methods_for", "register_method"]
+           "Substrate", "make_method", "method_config", "methods_for", "register_method"]

@@ -261,3 +261,28 @@ def test_an_empty_mapping_is_the_same_as_an_absent_key():
     assert diff_settings({"m": {}}, {"m": {"lam": 1}}) == {"m": ({}, {"lam": 1})}
     assert diff_settings({}, {"v": []}) == {"v": (ABSENT, [])}
     assert diff_settings({}, {"v": ""}) == {"v": (ABSENT, "")}
+
+
+def test_derived_settings_are_fingerprinted_and_a_run_that_predates_them_still_matches(tmp_path):
+    derived = {"method_config": {"lam": 1.0, "fisher_states": 2000}}
+    current = settings_fingerprint(Outer(), ("output_dir",), derived)
+    assert current.derived == ("method_config",)
+    assert current.settings["method_config.lam"] == 1.0 and current.settings["seed"] == 1
+    assert current.sha256 != settings_fingerprint(Outer(), ("output_dir",)).sha256
+    write_fingerprint(tmp_path / FINGERPRINT_FILE, current)
+    assert json.loads((tmp_path / FINGERPRINT_FILE).read_text())["derived"] == ["method_config"]
+    check_settings(tmp_path / "x.json", read_fingerprint(tmp_path / FINGERPRINT_FILE), current)
+    # a stored fingerprint written before the code derived the key: counts as equal there ...
+    older = settings_fingerprint(Outer(), ("output_dir",)).settings
+    check_settings(tmp_path / "x.json", older, current)
+    # ... but a recorded value that differs (a changed default), and any other setting, still refuse
+    changed = settings_fingerprint(Outer(), ("output_dir",), {"method_config": {"lam": 100.0, "fisher_states": 2000}})
+    with pytest.raises(SettingsMismatchError, match=r"x.json: .*method_config.lam: 1.0 -> 100.0 "):
+        check_settings(tmp_path / "x.json", current.settings, changed)
+    with pytest.raises(SettingsMismatchError, match=r"seed: 2 -> 1 "):
+        check_settings(tmp_path / "x.json", {**older, "seed": 2}, current)
+    # the leniency is for derived keys only: a configuration key the stored run lacks refuses
+    with pytest.raises(SettingsMismatchError, match=r"inner.lr: <absent> -> 0.001 "):
+        check_settings(tmp_path / "x.json", {k: v for k, v in older.items() if k != "inner.lr"}, current)
+    with pytest.raises(ValueError, match=r"derived settings \['seed'\] are also settings"):
+        settings_fingerprint(Outer(), (), {"seed": 3})

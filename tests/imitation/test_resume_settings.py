@@ -171,7 +171,8 @@ def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
     assert str(out) not in (out / FINGERPRINT_FILE).read_text() + (out / "train_config.json").read_text()
     assert not any(is_allowed(k, RESUME_ALLOW_LIST) for k in settings)
     expected = {".".join(p) for p, _ in leaves(saved) if not is_allowed(".".join(p), RESUME_ALLOW_LIST)}
-    assert set(settings) == expected
+    assert set(settings) == expected | {"method_config"}  # + the method's own settings with defaults (sr: none)
+    assert settings["method_config"] == {}
     assert {"sleep.batch_size", "policy.n_action_steps", "sleep.anchor_tau", "policy.dim_feedforward",
             "policy.optimizer_lr", "sleep.fw_iterations", "policy.distill_batch_size", "sleep.enabled",
             "memory.buffer_size", "substrate"} <= set(settings)
@@ -215,7 +216,9 @@ def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stor
             break
         else:
             pytest.fail(f"{key} = {value!r}: no valid changed value ({tried}); add one to CHOICES or a reasoned SKIP")
-    assert covered == set(stored_settings)  # every fingerprinted setting was visited
+    # every fingerprinted setting was visited; method_config is derived from --method and the method's defaults
+    # (tests/rl/test_baselines.py::test_a_methods_own_defaults_are_fingerprinted)
+    assert covered | {"method_config"} == set(stored_settings)
     assert set(SKIP) <= covered and len(refused) == len(covered) - len(SKIP) >= 60
 
 

@@ -9,11 +9,12 @@ import dataclasses
 import pytest
 import torch
 
+from sr_imitation.core.fingerprint import SettingsMismatchError
 from sr_imitation.core.io import load_checked_safetensors
 from sr_imitation.rl.config import EvalConfig
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream import METHODS
-from sr_imitation.stream.methods.ewc import EWC
+from sr_imitation.stream.methods.ewc import EWC, EWCConfig
 from tests.rl.test_trainer import tiny_config
 
 WAKE_NUMBERS = {"agem": "agem_projected", "nash_mtl": "weight_current", "pcgrad": "weight_current",
@@ -74,3 +75,17 @@ def test_sac_wake_only_stores_no_memory(tmp_path):
     results = trainer.run()
     assert results["label"] == "wake_only" and results["memory_bytes_total"] == 0
     assert not any(key.endswith("memory") for key in trainer.run_dir.progress["completed"])
+
+
+def test_a_methods_own_defaults_are_fingerprinted(tmp_path, monkeypatch):
+    # EWC's lambda lives in the method's config, not the run's: a changed default must refuse a resume (and the
+    # archive's reuse of a finished run) instead of changing results silently
+    settings = tiny_config(tmp_path / "run", method="ewc").resume_fingerprint().settings
+    assert settings["method_config.lam"] == 1.0 and settings["method_config.fisher_states"] == 2000
+    options = tiny_config(tmp_path / "run", method="ewc", method_options={"lam": 100}).resume_fingerprint()
+    assert options.settings["method_config.lam"] == 100
+    assert tiny_config(tmp_path / "sr").resume_fingerprint().settings["method_config"] == {}  # no settings of its own
+    StreamTrainer(tiny_config(tmp_path / "run", method="ewc")).run_dir.prepare()  # writes the fingerprint
+    monkeypatch.setattr(EWC, "config", EWCConfig(lam=100.0))
+    with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: .*method_config.lam: 1.0 -> 100.0"):
+        StreamTrainer(tiny_config(tmp_path / "run", method="ewc", resume=True)).run_dir.prepare()

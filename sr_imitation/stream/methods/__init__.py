@@ -20,6 +20,7 @@ from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
     sleeping_robots,
 )
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
-from sr_imitation.stream.methods.registry import METHODS, make_method, methods_for, register_method
+from sr_imitation.stream.methods.registry import METHODS, make_method, method_config, methods_for, register_method
 
-__all__ = ["METHODS", "ContinualMethod", "WakeStep", "make_method", "methods_for", "register_method"]
+__all__ = ["METHODS", "ContinualMethod", "WakeStep", "make_method", "method_config", "methods_for",
+           "register_method"]

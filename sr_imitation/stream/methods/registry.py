@@ -2,9 +2,11 @@
 
 from __future__ import annotations
 
-from typing import TypeVar
+from collections.abc import Mapping
+from typing import Any, TypeVar
 
-from sr_imitation.stream.methods.base import ContinualMethod
+from sr_imitation.core.fingerprint import to_jsonable
+from sr_imitation.stream.methods.base import ContinualMethod, with_options
 from sr_imitation.stream.substrate import MethodSettings
 
 METHODS: dict[str, type[ContinualMethod]] = {}
@@ -35,3 +37,17 @@ def make_method(name: str, substrate: str, settings: MethodSettings) -> Continua
         where = "" if cls is None else f" on the {substrate} substrate"
         raise ValueError(f"unknown method {name!r}{where}; choose from {methods_for(substrate)}")
     return cls(settings)
+
+
+def method_config(name: str, options: Mapping[str, Any] | None = None) -> dict[str, Any]:
+    """The settings method ``name`` runs with, as JSON data: its ``config`` dataclass's defaults with ``options``
+    (``--method_options``) applied; ``{}`` for a method without settings of its own. Runs fingerprint this (key
+    ``method_config``), so a changed default in the code (EWC's lambda, ...) refuses a resume or an archived run
+    instead of changing results silently. ``ValueError`` naming ``method_options`` for an option the method lacks."""
+    cls = METHODS.get(name)
+    if cls is None:
+        raise ValueError(f"method: unknown method {name!r}; choose from {sorted(METHODS)}")
+    config = getattr(cls, "config", None)
+    if options:
+        config = with_options(name, config, options)
+    return to_jsonable(config) if config is not None else {}
