@@ -201,8 +201,19 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
     return "\n".join(lines) + "\n"
 
 
+def _colors(names: Sequence[str], baseline: str | None) -> dict[str, Any]:
+    """One colour per variant, the same in every figure of a summary: the paired baseline black, the others
+    ``tab10`` in order (``tab20`` beyond ten, so no two bars of a group share a colour)."""
+    import matplotlib.pyplot as plt
+
+    others = [n for n in names if n != baseline]
+    cmap = plt.get_cmap("tab10" if len(others) <= 10 else "tab20").colors
+    return {n: "k" if n == baseline else cmap[others.index(n) % len(cmap)] for n in names}
+
+
 def plot(summary: Mapping[str, Any], path: Path) -> None:
-    """Bars: mean over training seeds with +- SE; dots: the individual seeds; last panel: final success per skill."""
+    """Bars: mean over training seeds with +- SE; dots: the individual seeds; last panel: final success per skill
+    (one bar per variant, coloured as in the legend under the panels)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -210,16 +221,17 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
 
     skills, variants = summary["skills"], summary["variants"]
     names = list(variants)
-    fig, axes = plt.subplots(1, len(METRICS) + 1, figsize=(4 * (len(METRICS) + 1), 3.6))
+    colors = _colors(names, summary.get("baseline"))
+    fig, axes = plt.subplots(1, len(METRICS) + 1, figsize=(4 * (len(METRICS) + 1), 4.2))
     x = np.arange(len(names))
     for ax, m in zip(axes, METRICS, strict=False):
         cells = [variants[v][m] for v in names]
-        ax.bar(x, [c["mean"] for c in cells], yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=4,
+        ax.bar(x, [c["mean"] for c in cells], yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=3,
                color="#8fb3d9")
         for i, c in enumerate(cells):
             ys = [y for y in c["per_seed"] if y is not None]
             ax.scatter([i] * len(ys), ys, color="k", s=10, zorder=3)
-        ax.set_xticks(x, names, rotation=20)
+        ax.set_xticks(x, names, rotation=50, ha="right", fontsize=7)
         ax.set_title(SHORT[m])
         ax.axhline(0.0, color="grey", lw=0.5)
     ax = axes[-1]
@@ -227,12 +239,14 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
     for j, v in enumerate(names):
         cells = [variants[v]["final_success"].get(s, {"mean": np.nan, "sem": np.nan}) for s in skills]
         ax.bar(np.arange(len(skills)) + j * width, [c["mean"] for c in cells], width,
-               yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=2, label=v)
-    ax.set_xticks(np.arange(len(skills)) + 0.4 - width / 2, skills, rotation=20)
+               yerr=[np.nan_to_num(c["sem"]) for c in cells], capsize=1, label=v, color=colors[v])
+    ax.set_xticks(np.arange(len(skills)) + 0.4 - width / 2, skills, rotation=50, ha="right", fontsize=7)
     ax.set_ylim(0, 1.05)
     ax.set_title("final success per skill")
-    ax.legend(fontsize=7)
-    fig.tight_layout()
+    columns = min(len(names), 10) or 1
+    rows = -(-len(names) // columns)
+    fig.legend(*ax.get_legend_handles_labels(), loc="lower center", ncol=columns, fontsize=7, frameon=False)
+    fig.tight_layout(rect=(0, 0.06 * rows, 1, 1))
     buf = io.BytesIO()
     fig.savefig(buf, format="png", dpi=110)
     plt.close(fig)
@@ -314,17 +328,37 @@ def memory_table(summary: Mapping[str, Any], paper_mb: Mapping[str, float] | Non
     return "\n".join(lines) + "\n"
 
 
+def section_figures(summary: Mapping[str, Any], sections: Mapping[str, Sequence[str]] | None
+                    ) -> dict[str, dict[str, Any]]:
+    """Per section with runs (``tag``: its title's first word, lower case, e.g. ``ablations``): ``summary`` cut to
+    the baseline and that section's variants, for figures of one table's rows (every variant in one figure is hard
+    to read). Sections whose variants are all oracles (no per-stage curve) get none, as does a section that would
+    repeat the whole summary."""
+    variants, base = summary["variants"], summary.get("baseline")
+    out = {}
+    for title, names in (sections or {}).items():
+        rows = {v: row for v, row in variants.items() if v == base or v in names}
+        if any(v != base and not row.get("oracle") for v, row in rows.items()) and len(rows) < len(variants):
+            skills = [s for s in summary["skills"] if any(s in row["skills"] for row in rows.values())]
+            out[title.split()[0].lower()] = {**summary, "variants": rows, "skills": skills}
+    return out
+
+
 def write_summary(output: Path, summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None,
                   sections: Mapping[str, Sequence[str]] | None = None) -> None:
     """``summary.json``, ``summary.md`` (final-metrics tables split by ``sections``, :func:`render_markdown`),
-    ``summary.png`` (final metrics), ``dynamics.png`` (per stage) and ``memory.md`` (the memory-budget table) in
-    ``output`` (atomic)."""
+    ``summary.png`` (final metrics), ``dynamics.png`` (per stage), both with every variant and again per section
+    (``summary_<tag>.png``, ``dynamics_<tag>.png``, :func:`section_figures`), and ``memory.md`` (the memory-budget
+    table) in ``output`` (atomic)."""
     output.mkdir(parents=True, exist_ok=True)
     write_checked_json(output / "summary.json", summary)
     atomic_write_bytes(output / "summary.md", render_markdown(summary, sections).encode())
     atomic_write_bytes(output / "memory.md", memory_table(summary, paper_mb).encode())
     plot(summary, output / "summary.png")
     plot_dynamics(summary, output / "dynamics.png")
+    for tag, part in section_figures(summary, sections).items():
+        plot(part, output / f"summary_{tag}.png")
+        plot_dynamics(part, output / f"dynamics_{tag}.png")
 
 
 def load_groups(runs: Mapping[str, Mapping[str, Path]]) -> dict[str, dict[str, dict[str, Any]]]:

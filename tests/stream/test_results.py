@@ -18,7 +18,15 @@ from sr_imitation.stream.results import (
     upgrade_results,
     write_results,
 )
-from sr_imitation.stream.summary import group_runs, load_groups, main, phase_seconds, summarize, write_summary
+from sr_imitation.stream.summary import (
+    group_runs,
+    load_groups,
+    main,
+    phase_seconds,
+    section_figures,
+    summarize,
+    write_summary,
+)
 from sr_imitation.stream.summary import render_markdown as render_markdown_summary
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "results"
@@ -128,6 +136,14 @@ def test_summary_of_streams_with_other_skills_or_order(tmp_path):
     assert md.index("| sr | 0 |", streams) < md.index("| sr_reverse | 0 |", streams) < other
     assert md.index("| sr | 0 |", other) < md.index("| sr_long | 0 |", other)
     assert md.count("| sr_reverse | 0 |") == 3  # final row, paired difference, per-run row: not again under Other
+    # figures per section as well: the baseline and the section's variants, over their skills only
+    sections = {"Streams (order)": ["sr_reverse"], "Empty": ["nothing"], "All": ["sr_reverse", "sr_long"]}
+    parts = section_figures(summary, sections)
+    assert list(parts) == ["streams"]  # Empty has no runs; All would repeat the whole summary
+    assert list(parts["streams"]["variants"]) == ["sr", "sr_reverse"] and parts["streams"]["skills"] == ["a", "b", "c"]
+    write_summary(tmp_path / "parts", summary, sections=sections)
+    assert sorted(p.name for p in (tmp_path / "parts").glob("*.png")) == [
+        "dynamics.png", "dynamics_streams.png", "summary.png", "summary_streams.png"]
     assert "sr_reverse" in summary["paired"] and "sr_long" not in summary["paired"]  # other skills: nothing paired
 
 
