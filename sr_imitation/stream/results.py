@@ -19,7 +19,9 @@ Schema (``results_version`` :data:`RESULTS_VERSION`)::
     success_after_own_wake_per_unit  U x K
     metrics.<afsr|prs|bwt|bwt_wake|spi>: {final, final_sem, final_per_unit, curve, curve_sem}
     spi_features, memory_bytes {skill: bytes}, memory_bytes_total, stages (substrate records), config,
-    extra (substrate-specific additions, e.g. ACT's whole success matrix right after each wake)
+    extra (substrate-specific additions, e.g. ACT's whole success matrix right after each wake),
+    code {commit, dirty} (the git commit that wrote the results, :mod:`sr_imitation.core.provenance`; absent in
+    runs written before it was recorded)
 
 ``label`` names the variant in summaries: the method, or ``wake_only`` for ``sr`` with ``--sleep.enabled=false``.
 :func:`upgrade_results` reads the two older per-substrate schemas (ACT 2, SAC 3) into this one for summaries.
@@ -38,6 +40,7 @@ import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
+from sr_imitation.core.provenance import code_version
 
 RESULTS_VERSION = 4
 """4: one schema for both substrates (before: ACT 2 with ``final_mean`` dictionaries, SAC 3 with bare floats)."""
@@ -129,6 +132,7 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "stages": stages,
         "config": dict(config),
         "extra": dict(extra or {}),
+        "code": code_version(),
     }
     # numpy scalars as floats; NaN (an undefined metric, e.g. PRS at k = 1) and infinities as null
     return json.loads(json.dumps(results, default=float), parse_constant=lambda _: None)
@@ -164,6 +168,9 @@ def render_markdown(results: Mapping[str, Any]) -> str:
         lines.append(f"| {skills[k]} | " + " | ".join(_cell(x) if i <= k else "" for i, x in enumerate(row)) + " |")
     lines.append("| right after own wake | " + " | ".join(_cell(x) for x in results["success_after_own_wake"]) + " |")
     lines += ["", f"Continual-learning memory stored: {results['memory_bytes_total'] / 1e6:.2f} MB", ""]
+    code = results.get("code") or {}
+    if code.get("commit"):
+        lines += [f"Code: commit {code['commit']}" + (" with uncommitted changes" if code.get("dirty") else ""), ""]
     return "\n".join(lines)
 
 

@@ -101,6 +101,7 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "seeds": list(per_seed),
             "runs": {seed: r.get("run") for seed, r in per_seed.items()},
             "phase_seconds": {seed: r.get("phase_seconds") for seed, r in per_seed.items()},
+            "code": {seed: r.get("code") for seed, r in per_seed.items()},
             "substrate": runs[0]["substrate"],
             **{m: mean_sem_dict(list(finals[variant][m].values())) for m in METRICS},
             "skills": list(own),
@@ -175,19 +176,22 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
         lines += [*([""] if j else []), f"**{title}**", "",
                   *_final_tables(summary, [v for v in variants if v == base] + names)]
     lines += ["", "Per run (each value: the run's mean over its evaluation units):", "",
-              "| variant | seed | run | " + " | ".join(SHORT[m] for m in METRICS) + " | time (min) |",
-              "|---" * (len(METRICS) + 4) + "|"]
+              "| variant | seed | run | " + " | ".join(SHORT[m] for m in METRICS) + " | time (min) | commit |",
+              "|---" * (len(METRICS) + 5) + "|"]
     total = 0.0
     for v, row in variants.items():
         for j, seed in enumerate(row["seeds"]):
             cells = [row[m]["per_seed"][j] for m in METRICS]
             seconds = (row.get("phase_seconds") or {}).get(seed)
             total += seconds or 0.0
+            code = (row.get("code") or {}).get(seed) or {}
+            commit = code.get("commit") and code["commit"][:7] + (" (dirty)" if code.get("dirty") else "")
             lines.append(f"| {v} | {seed} | {row['runs'][seed]} | "
                          + " | ".join("-" if c is None else f"{c:.3f}" for c in cells)
-                         + f" | {'-' if seconds is None else f'{seconds / 60:.1f}'} |")
+                         + f" | {'-' if seconds is None else f'{seconds / 60:.1f}'} | {commit or '-'} |")
     lines += ["", f"Time: the sum of each run's completed phases (progress.json; wake, sleep, evaluation). All runs "
-                  f"above: {total / 3600:.2f} h."]
+                  f"above: {total / 3600:.2f} h. Commit: the code that wrote the run's results (results.json "
+                  "`code`; dirty: with uncommitted changes; -: written before it was recorded)."]
     mixed = any(row["skills"] != skills for row in variants.values())
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):

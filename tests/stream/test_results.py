@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from sr_imitation.core.io import read_checked_json, write_checked_json
+from sr_imitation.core.provenance import code_version
 from sr_imitation.stream.results import (
     RESULTS_VERSION,
     build_results,
@@ -106,6 +107,14 @@ def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
     write_summary(tmp_path / "out", summary)
     assert (tmp_path / "out" / "summary.png").stat().st_size > 1000
     assert "| sr | 0,1 |" in (tmp_path / "out" / "summary.md").read_text()
+    # each run names the commit that wrote it (results.json "code"); runs from before that show "-"
+    assert groups["sr"]["0"]["code"] == code_version()
+    old = {**_results(seed=0), "code": {"commit": "0123456789abcdef" * 2 + "01234567", "dirty": True}}
+    md = render_markdown_summary(summarize(group_runs([_write_run(tmp_path, "old", {
+        k: v for k, v in _results(seed=1).items() if k != "code"}), _write_run(tmp_path, "dirty", old)])))
+    rows = {line.split(" | ")[1]: line for line in md.splitlines() if line.startswith("| sr | ") and "/old" in line
+            or "/dirty" in line}
+    assert rows["0"].endswith(" | 0123456 (dirty) |") and rows["1"].endswith(" | - | - |")  # time, commit
     # NAME=DIR names a variant (ablations share their method's label); a duplicate variant/seed is refused
     named = group_runs([f"no_anchor={runs[0]}", runs[1]])
     assert set(named) == {"no_anchor", "sr"}

@@ -1,0 +1,34 @@
+"""Which code produced a result: the git commit of the running ``sr_imitation`` checkout.
+
+``results.json`` records it (``code``), so a number in docs/RESULTS.md names its commit from the run itself rather
+than from notes. Not a setting (it is not fingerprinted: a resume under a later commit is allowed, and the results
+record the commit that wrote them). Substrate-free: the standard library only.
+"""
+
+from __future__ import annotations
+
+import subprocess
+from pathlib import Path
+from typing import Any
+
+PACKAGE_ROOT = Path(__file__).resolve().parents[2]
+"""The directory holding the ``sr_imitation`` package (a git checkout's top level, or site-packages)."""
+
+
+def code_version(root: Path = PACKAGE_ROOT) -> dict[str, Any]:
+    """``{"commit": <40 hex digits>, "dirty": <tracked files differ from it>}`` of the git checkout at ``root``;
+    both ``None`` when ``root`` is not the top of a git checkout (an installed wheel) or git is unavailable."""
+    unknown = {"commit": None, "dirty": None}
+    if not (Path(root) / ".git").exists():
+        return unknown
+    try:
+        commit = _git(root, "rev-parse", "HEAD")
+        dirty = bool(_git(root, "status", "--porcelain", "--untracked-files=no"))
+    except (OSError, subprocess.SubprocessError):
+        return unknown
+    return {"commit": commit, "dirty": dirty}
+
+
+def _git(root: Path, *args: str) -> str:
+    return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, timeout=30,
+                          check=True).stdout.strip()

@@ -1,0 +1,36 @@
+"""The code version results record: the git commit of the running checkout, nothing outside one."""
+
+from __future__ import annotations
+
+import subprocess
+
+import pytest
+
+from sr_imitation.core.provenance import PACKAGE_ROOT, code_version
+
+
+def _git(root, *args):
+    return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, check=True).stdout.strip()
+
+
+def test_code_version_names_the_commit_and_whether_tracked_files_changed(tmp_path):
+    assert code_version(tmp_path) == {"commit": None, "dirty": None}  # not a checkout (an installed wheel)
+    repo = tmp_path / "repo"
+    repo.mkdir()
+    try:
+        _git(repo, "init", "-q")
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("git is not available")
+    (repo / "f.txt").write_text("a")
+    _git(repo, "add", "f.txt")
+    _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "x")
+    head = _git(repo, "rev-parse", "HEAD")
+    assert code_version(repo) == {"commit": head, "dirty": False}
+    (repo / "new.txt").write_text("untracked files do not count")
+    assert code_version(repo)["dirty"] is False
+    (repo / "f.txt").write_text("b")
+    assert code_version(repo) == {"commit": head, "dirty": True}
+
+
+def test_the_package_root_holds_the_package():
+    assert (PACKAGE_ROOT / "sr_imitation" / "core" / "provenance.py").is_file()
