@@ -7,6 +7,7 @@ record the commit that wrote them). Substrate-free: the standard library only.
 
 from __future__ import annotations
 
+import functools
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -15,18 +16,31 @@ PACKAGE_ROOT = Path(__file__).resolve().parents[2]
 """The directory holding the ``sr_imitation`` package (a git checkout's top level, or site-packages)."""
 
 
+CODE_PATHS = ("sr_imitation", "policies")
+"""The paths of a checkout whose changes count as "dirty" (the code; docs, results and configs do not: configs are
+settings, fingerprinted)."""
+
+
 def code_version(root: Path = PACKAGE_ROOT) -> dict[str, Any]:
-    """``{"commit": <40 hex digits>, "dirty": <tracked files differ from it>}`` of the git checkout at ``root``;
-    both ``None`` when ``root`` is not the top of a git checkout (an installed wheel) or git is unavailable."""
+    """``{"commit": <40 hex digits>, "dirty": <tracked files under CODE_PATHS differ from it>}`` of the git checkout
+    at ``root``; both ``None`` when ``root`` is not the top of a git checkout (an installed wheel) or git is
+    unavailable."""
     unknown = {"commit": None, "dirty": None}
     if not (Path(root) / ".git").exists():
         return unknown
     try:
         commit = _git(root, "rev-parse", "HEAD")
-        dirty = bool(_git(root, "status", "--porcelain", "--untracked-files=no"))
+        dirty = bool(_git(root, "status", "--porcelain", "--untracked-files=no", "--", *CODE_PATHS))
     except (OSError, subprocess.SubprocessError):
         return unknown
     return {"commit": commit, "dirty": dirty}
+
+
+@functools.lru_cache(maxsize=1)
+def process_code_version() -> dict[str, Any]:
+    """:func:`code_version` of this package, taken once per process: the stream engine asks at the start of a run,
+    so results name the code the process imported even if the checkout moves on while it runs."""
+    return code_version()
 
 
 def _git(root: Path, *args: str) -> str:

@@ -20,8 +20,8 @@ Schema (``results_version`` :data:`RESULTS_VERSION`)::
     metrics.<afsr|prs|bwt|bwt_wake|spi>: {final, final_sem, final_per_unit, curve, curve_sem}
     spi_features, memory_bytes {skill: bytes}, memory_bytes_total, stages (substrate records), config,
     extra (substrate-specific additions, e.g. ACT's whole success matrix right after each wake),
-    code {commit, dirty} (the git commit that wrote the results, :mod:`sr_imitation.core.provenance`; absent in
-    runs written before it was recorded)
+    code {commit, dirty} (the git commit the writing process started from, :mod:`sr_imitation.core.provenance`;
+    absent in runs written before it was recorded)
 
 ``label`` names the variant in summaries: the method, or ``wake_only`` for ``sr`` with ``--sleep.enabled=false``.
 :func:`upgrade_results` reads the two older per-substrate schemas (ACT 2, SAC 3) into this one for summaries.
@@ -40,7 +40,7 @@ import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
-from sr_imitation.core.provenance import code_version
+from sr_imitation.core.provenance import process_code_version
 
 RESULTS_VERSION = 4
 """4: one schema for both substrates (before: ACT 2 with ``final_mean`` dictionaries, SAC 3 with bare floats)."""
@@ -132,7 +132,7 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "stages": stages,
         "config": dict(config),
         "extra": dict(extra or {}),
-        "code": code_version(),
+        "code": dict(process_code_version()),
     }
     # numpy scalars as floats; NaN (an undefined metric, e.g. PRS at k = 1) and infinities as null
     return json.loads(json.dumps(results, default=float), parse_constant=lambda _: None)

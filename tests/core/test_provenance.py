@@ -6,7 +6,7 @@ import subprocess
 
 import pytest
 
-from sr_imitation.core.provenance import PACKAGE_ROOT, code_version
+from sr_imitation.core.provenance import PACKAGE_ROOT, code_version, process_code_version
 
 
 def _git(root, *args):
@@ -21,16 +21,24 @@ def test_code_version_names_the_commit_and_whether_tracked_files_changed(tmp_pat
         _git(repo, "init", "-q")
     except (OSError, subprocess.CalledProcessError):
         pytest.skip("git is not available")
-    (repo / "f.txt").write_text("a")
-    _git(repo, "add", "f.txt")
+    (repo / "sr_imitation").mkdir()
+    (repo / "sr_imitation" / "f.py").write_text("a")
+    (repo / "notes.md").write_text("a")
+    _git(repo, "add", ".")
     _git(repo, "-c", "user.name=t", "-c", "user.email=t@t", "commit", "-qm", "x")
     head = _git(repo, "rev-parse", "HEAD")
     assert code_version(repo) == {"commit": head, "dirty": False}
-    (repo / "new.txt").write_text("untracked files do not count")
+    (repo / "sr_imitation" / "new.py").write_text("untracked files do not count")
+    (repo / "notes.md").write_text("nor do changes outside the code (docs, results)")
     assert code_version(repo)["dirty"] is False
-    (repo / "f.txt").write_text("b")
+    (repo / "sr_imitation" / "f.py").write_text("b")
     assert code_version(repo) == {"commit": head, "dirty": True}
 
 
 def test_the_package_root_holds_the_package():
     assert (PACKAGE_ROOT / "sr_imitation" / "core" / "provenance.py").is_file()
+
+
+def test_the_process_takes_its_code_version_once():
+    assert process_code_version() is process_code_version()
+    assert process_code_version() == code_version()  # nothing changed the checkout during the test

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from sr_imitation.core.io import read_checked_json, write_checked_json
-from sr_imitation.core.provenance import code_version
+from sr_imitation.core.provenance import process_code_version
 from sr_imitation.stream.results import (
     RESULTS_VERSION,
     build_results,
@@ -108,7 +108,7 @@ def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
     assert (tmp_path / "out" / "summary.png").stat().st_size > 1000
     assert "| sr | 0,1 |" in (tmp_path / "out" / "summary.md").read_text()
     # each run names the commit that wrote it (results.json "code"); runs from before that show "-"
-    assert groups["sr"]["0"]["code"] == code_version()
+    assert groups["sr"]["0"]["code"] == process_code_version()
     old = {**_results(seed=0), "code": {"commit": "0123456789abcdef" * 2 + "01234567", "dirty": True}}
     md = render_markdown_summary(summarize(group_runs([_write_run(tmp_path, "old", {
         k: v for k, v in _results(seed=1).items() if k != "code"}), _write_run(tmp_path, "dirty", old)])))
