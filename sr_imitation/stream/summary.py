@@ -206,8 +206,8 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
 
 
 def _colors(names: Sequence[str], baseline: str | None) -> dict[str, Any]:
-    """One colour per variant, the same in every figure of a summary: the paired baseline black, the others
-    ``tab10`` in order (``tab20`` beyond ten, so no two bars of a group share a colour)."""
+    """One colour per variant of one figure: the paired baseline black, the others ``tab10`` in order (``tab20``
+    beyond ten, so no two bars of a group share a colour)."""
     import matplotlib.pyplot as plt
 
     others = [n for n in names if n != baseline]
