@@ -39,7 +39,7 @@ from typing import Any, NamedTuple
 
 import draccus
 
-from sr_imitation.experiments.archive import check_archive, run_plan
+from sr_imitation.experiments.archive import check_archive, has_started, run_plan
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
@@ -130,7 +130,7 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
         train.policy = dataclasses.replace(train.policy, **spec.policy)
     train.seed = seed
     train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
-    train.resume = (train.output_dir / "progress.json").exists()
+    train.resume = has_started(train.output_dir)
     return train
 
 

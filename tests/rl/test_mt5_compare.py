@@ -40,6 +40,12 @@ def test_every_variant_parses_to_its_method_and_settings(tmp_path, tiny_preset):
         baseline = run.method not in ("sr", "componet")  # CompoNet's actor has no excitable layers at all
         assert run.excitability.enabled == (not baseline and variant != "sr_no_exc"), variant
     assert parse(run_args(cfg, "wake_only", 0)).sleep.enabled is False
+    # a run killed before its first phase completed holds only its fingerprint (and config): it resumes, because a
+    # fresh start would refuse the existing directory
+    assert "--resume=true" not in run_args(cfg, "der", 0)
+    (tmp_path / "c" / "der_seed0").mkdir(parents=True)
+    (tmp_path / "c" / "der_seed0" / "settings_fingerprint.json").write_text("{}")
+    assert "--resume=true" in run_args(cfg, "der", 0)
     assert parse(run_args(cfg, "sr_mean_grad", 0)).sleep.aggregator == "mean_grad"
     assert parse(run_args(cfg, "sr_mt8", 0)).stream.extend_from == tmp_path / "c" / "sr_seed0"
     with pytest.raises(ValueError, match="list sr before it"):
