@@ -44,13 +44,6 @@ ARCHIVED_FILES = ("results.json", "results.md", "progress.json", "settings_finge
 """The files of a run directory the archive keeps (those present): what the summaries and docs/RESULTS.md read."""
 
 
-def has_started(run: Path) -> bool:
-    """Whether ``run`` holds a started run to continue with ``--resume`` rather than a fresh start: its settings
-    fingerprint (written before anything else) or, for runs from before fingerprints, its progress file. A run
-    killed before its first phase completed has the fingerprint only."""
-    return (Path(run) / FINGERPRINT_FILE).is_file() or (Path(run) / "progress.json").is_file()
-
-
 def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerprint) -> Path | None:
     """``archive / name`` if it holds a finished run with ``fingerprint``'s settings, else ``None``.
 

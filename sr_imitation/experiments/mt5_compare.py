@@ -33,9 +33,10 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.experiments.archive import check_archive, has_started, run_plan
+from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
+from sr_imitation.stream.rundir import RunDirectory
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
@@ -115,7 +116,7 @@ def run_args(cfg: MT5CompareConfig, variant: str, seed: int) -> list[str]:
     args = [f"--config_path={cfg.preset}", f"--seed={seed}", f"--output_dir={out}", *VARIANTS[variant], *cfg.extra]
     if variant == "sr_mt8":
         args.append(f"--stream.extend_from={cfg.output_root / f'sr_seed{seed}'}")
-    if has_started(out):
+    if RunDirectory.occupied(out):
         args.append("--resume=true")
     return args
 

@@ -39,12 +39,13 @@ from typing import Any, NamedTuple
 
 import draccus
 
-from sr_imitation.experiments.archive import check_archive, has_started, run_plan
+from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
+from sr_imitation.stream.rundir import RunDirectory
 from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
@@ -130,7 +131,7 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
         train.policy = dataclasses.replace(train.policy, **spec.policy)
     train.seed = seed
     train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
-    train.resume = has_started(train.output_dir)
+    train.resume = RunDirectory.occupied(train.output_dir)
     return train
 
 

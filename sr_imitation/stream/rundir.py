@@ -60,13 +60,21 @@ class RunDirectory:
         self.progress: dict[str, Any] = {"version": PROGRESS_VERSION, "completed": {}}
 
     # -- set-up -------------------------------------------------------------------------------------------
+    @staticmethod
+    def occupied(path: Path) -> bool:
+        """Whether ``path`` holds anything: :meth:`prepare` then continues it (``resume``) or replaces it
+        (``overwrite``) and refuses a fresh start. Experiment drivers resume exactly these directories (a run killed
+        before its first phase completed holds only its fingerprint and config)."""
+        path = Path(path)
+        return path.exists() and any(path.iterdir())
+
     def starts_fresh(self) -> bool:
         """Whether :meth:`prepare` will start a new run (nothing there yet, or ``overwrite``)."""
-        return self.overwrite or not (self.path.exists() and any(self.path.iterdir()))
+        return self.overwrite or not self.occupied(self.path)
 
     def prepare(self) -> None:
         """Create a fresh run or check a resumed one (see the module docstring)."""
-        exists = self.path.exists() and any(self.path.iterdir())
+        exists = self.occupied(self.path)
         if exists and self.overwrite:
             logger.warning("--overwrite: removing %s", self.path)
             shutil.rmtree(self.path)
