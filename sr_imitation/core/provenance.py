@@ -8,6 +8,7 @@ record the commit that wrote them). Substrate-free: the standard library only.
 from __future__ import annotations
 
 import functools
+import logging
 import subprocess
 from pathlib import Path
 from typing import Any
@@ -41,6 +42,15 @@ def process_code_version() -> dict[str, Any]:
     """:func:`code_version` of this package, taken once per process: the stream engine asks at the start of a run,
     so results name the code the process imported even if the checkout moves on while it runs."""
     return code_version()
+
+
+def log_code_version(logger: logging.Logger) -> dict[str, Any]:
+    """Take :func:`process_code_version` at the start of a run (so results.json names the code this process
+    imported, not a later checkout) and log it; every runner calls this before its first phase."""
+    code = process_code_version()
+    logger.info("code: commit %s%s", code["commit"] or "unknown (not a git checkout)",
+                " with uncommitted changes" if code["dirty"] else "")
+    return code
 
 
 def _git(root: Path, *args: str) -> str:

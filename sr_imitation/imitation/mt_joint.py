@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerprint
-from sr_imitation.core.provenance import process_code_version
+from sr_imitation.core.provenance import log_code_version
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
 from sr_imitation.imitation.report import pair_list
@@ -91,7 +91,7 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
     run = RunDirectory(cfg.output_dir, joint_fingerprint(cfg), "train_config.json", stored, cfg.resume,
                        cfg.overwrite)
     run.prepare()
-    process_code_version()  # the code this process imported (results.json "code")
+    log_code_version(logger)
     substrate = JointSubstrate(cfg, make_env)
     substrate.setup()
     skills = substrate.skills

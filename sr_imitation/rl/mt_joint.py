@@ -27,7 +27,7 @@ import torch
 
 from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.core.io import load_checked_safetensors, save_checked_safetensors
-from sr_imitation.core.provenance import process_code_version
+from sr_imitation.core.provenance import log_code_version
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
 from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
 from sr_imitation.rl.evaluate import evaluate_policy, evaluation_configurations
@@ -102,7 +102,7 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
     run = RunDirectory(out, settings_fingerprint(stored, RESUME_ALLOW_LIST), "config.json", stored, cfg.resume,
                        cfg.overwrite)
     run.prepare()
-    process_code_version()  # the code this process imported (results.json "code")
+    log_code_version(logger)
     torch.set_num_threads(cfg.torch_threads)
     torch.manual_seed(stage_seed(cfg.seed, len(cfg.stream_skills), 1))
     agent = SACAgent(cfg.sac, cfg.excitability, device=cfg.device)

@@ -34,7 +34,7 @@ from sr_imitation.core.fingerprint import (
 )
 from sr_imitation.core.io import read_checked_json
 from sr_imitation.core.memory import Memory
-from sr_imitation.core.provenance import process_code_version
+from sr_imitation.core.provenance import log_code_version
 from sr_imitation.core.runlog import RunLog, WandbConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.stream.methods import ContinualMethod
@@ -102,9 +102,7 @@ class StreamEngine:
         last = len(self.skills) if stop_after is None else stop_after
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
-        code = process_code_version()  # the code this process imported, recorded in results.json
-        logger.info("code: commit %s%s", code["commit"] or "unknown (not a git checkout)",
-                    " with uncommitted changes" if code["dirty"] else "")
+        log_code_version(logger)
         fresh = self.run_dir.starts_fresh()
         source = self._check_extension() if self.extend_from is not None and fresh else None  # before writing
         self.run_dir.prepare()

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+import logging
 import subprocess
 
 import pytest
 
-from sr_imitation.core.provenance import PACKAGE_ROOT, code_version, process_code_version
+from sr_imitation.core.provenance import PACKAGE_ROOT, code_version, log_code_version, process_code_version
 
 
 def _git(root, *args):
@@ -42,3 +43,11 @@ def test_the_package_root_holds_the_package():
 def test_the_process_takes_its_code_version_once():
     assert process_code_version() is process_code_version()
     assert process_code_version() == code_version()  # nothing changed the checkout during the test
+
+
+def test_a_run_logs_the_code_version_it_records(caplog):
+    logger = logging.getLogger("sr_imitation.test_provenance")
+    with caplog.at_level(logging.INFO, logger=logger.name):
+        code = log_code_version(logger)
+    assert code is process_code_version()
+    assert f"code: commit {code['commit'] or 'unknown'}" in caplog.text

@@ -112,8 +112,8 @@ def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
     old = {**_results(seed=0), "code": {"commit": "0123456789abcdef" * 2 + "01234567", "dirty": True}}
     md = render_markdown_summary(summarize(group_runs([_write_run(tmp_path, "old", {
         k: v for k, v in _results(seed=1).items() if k != "code"}), _write_run(tmp_path, "dirty", old)])))
-    rows = {line.split(" | ")[1]: line for line in md.splitlines() if line.startswith("| sr | ") and "/old" in line
-            or "/dirty" in line}
+    rows = {line.split(" | ")[1]: line for line in md.splitlines() if line.startswith("| sr | ")
+            and ("/old" in line or "/dirty" in line)}
     assert rows["0"].endswith(" | 0123456 (dirty) |") and rows["1"].endswith(" | - | - |")  # time, commit
     # NAME=DIR names a variant (ablations share their method's label); a duplicate variant/seed is refused
     named = group_runs([f"no_anchor={runs[0]}", runs[1]])
