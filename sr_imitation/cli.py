@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.core.cli_errors import check_config_file, run_cli, split_config_path
 from sr_imitation.stream.config import renamed_flag_hint, renamed_key_hint
 
 SUBSTRATE_COMMANDS: dict[str, tuple[str, str, str]] = {
@@ -74,6 +74,7 @@ def _function(args: list[str], which: int) -> Callable[[list[str]], Any]:
     if hint is not None:
         raise ValueError(hint)
     config_path, _ = split_config_path(args)
+    check_config_file(config_path)
     config = None if config_path is None else _read_config(config_path)
     hint = renamed_key_hint(config)
     if hint is not None:

@@ -8,11 +8,13 @@ from pathlib import Path
 
 import pytest
 
+from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation import cli
+from sr_imitation.core.fingerprint import settings_fingerprint
 from sr_imitation.core.sleep import SleepConfig
-from sr_imitation.imitation.stream import TrainStreamConfig
+from sr_imitation.imitation.stream import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict
 from sr_imitation.rl.config import RLTrainConfig
-from sr_imitation.stream.config import RENAMED_FLAGS
+from sr_imitation.stream.config import POLICY_ALIASES, RENAMED_FLAGS, renamed_flag_hint, renamed_key_hint
 from tests.test_cli_errors import _one_line_error
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"
@@ -116,3 +118,98 @@ def test_help_shows_the_substrate_s_flags_only(args, shows, hides, capsys):
     out = capsys.readouterr().out
     assert all(s in out for s in shows), [s for s in shows if s not in out]
     assert not any(h in out for h in hides), [h for h in hides if h in out]
+
+
+# --policy.sleep (the design card's name) is --sleep.enabled on sr-train: one setting (issue 27, item 1). -------------
+
+@pytest.mark.parametrize("args, enabled, buffer_size", [
+    (["--policy.sleep=true"], True, 1024),
+    (["--policy.sleep=false"], False, 1024),
+    (["--policy.sleep", "false"], False, 1024),
+    (["--policy.type=act_sr", "--policy.sleep=false", "--policy.dim_model=64"], False, 1024),
+    (["--policy.sleep=false", "--sleep.enabled=false"], False, 1024),  # both, agreeing
+    (["--policy.sleep=null"], True, 1024),  # not given
+    (["--policy.sleep_memory_size=16"], True, 16),  # likewise --memory.buffer_size
+    (["--substrate=sac", "--policy.sleep=false"], False, 1000),  # SAC has no policy section: the same mapping
+    (["--substrate=sac", "--policy.sleep=true"], True, 1000),
+])
+def test_policy_sleep_is_the_sleep_switch(args, enabled, buffer_size):
+    cfg = cli.parse_args(args)
+    assert (cfg.sleep.enabled, cfg.memory.buffer_size) == (enabled, buffer_size)
+    if isinstance(cfg, TrainStreamConfig):  # the parsed and stored config hold one value: sleep.enabled
+        assert cfg.policy.sleep is None and cfg.policy.sleep_memory_size is None
+        assert stored_config_dict(cfg)["policy"]["sleep"] is None
+
+
+def test_policy_sleep_overrides_a_config_file_like_any_flag(tmp_path):
+    preset = json.loads((CONFIGS / "needle_cpu.json").read_text())
+    preset["train"]["sleep"]["enabled"] = False
+    path = tmp_path / "off.json"
+    path.write_text(json.dumps(preset))
+    assert not cli.parse_args([f"--config_path={path}"]).sleep.enabled
+    assert cli.parse_args([f"--config_path={path}", "--policy.sleep=true"]).sleep.enabled
+    assert not cli.parse_args([f"--config_path={CONFIGS / 'needle_cpu.json'}", "--policy.sleep=false"]).sleep.enabled
+    # a file may use the policy's name too: folded the same way, and the command line still overrides it
+    run = {"policy": {"type": "act_sr", "sleep": False}, "output_dir": str(tmp_path / "run")}
+    path.write_text(json.dumps(run))
+    cfg = cli.parse_args([f"--config_path={path}"])
+    assert not cfg.sleep.enabled and cfg.policy.sleep is None
+    assert cli.parse_args([f"--config_path={path}", "--sleep.enabled=true"]).sleep.enabled
+    assert cli.parse_args([f"--config_path={path}", "--policy.sleep=true"]).sleep.enabled
+
+
+def _write(tmp_path: Path, tree: dict) -> str:
+    path = tmp_path / "both.json"
+    path.write_text(json.dumps(tree))
+    return f"--config_path={path}"
+
+
+@pytest.mark.parametrize("args, names", [
+    (["--policy.sleep=true", "--sleep.enabled=false"], ["--policy.sleep=true", "--sleep.enabled=false"]),
+    (["--sleep.enabled=true", "--policy.sleep=false"], ["--policy.sleep=false", "--sleep.enabled=true"]),
+    ([f"--config_path={CONFIGS / 'needle_cpu.json'}", "--policy.sleep=false", "--sleep.enabled=true"],
+     ["--policy.sleep=false", "--sleep.enabled=true"]),
+    (["--policy.sleep_memory_size=16", "--memory.buffer_size=32"],
+     ["--policy.sleep_memory_size=16", "--memory.buffer_size=32"]),
+    (["--substrate=sac", "--policy.sleep=true", "--sleep.enabled=false"], ["--policy.sleep", "--sleep.enabled"]),
+    ([{"policy": {"type": "act_sr", "sleep": False}, "sleep": {"enabled": True}}],
+     ["policy.sleep=false", "sleep.enabled=true", "both.json"]),
+    (["--policy.sleep=maybe"], ["--policy.sleep", "true or false", "maybe"]),
+    (["--policy.sleep"], ["--policy.sleep", "true or false"]),
+])
+def test_policy_sleep_and_sleep_enabled_that_disagree_are_one_line_naming_both(args, names, tmp_path, capsys):
+    args = [_write(tmp_path, a) if isinstance(a, dict) else a for a in args]
+    out = tmp_path / "run"
+    line = _one_line_error("sr-train", cli.train_main, [*args, f"--output_dir={out}"], capsys)
+    assert all(n in line for n in names), line
+    assert "renamed" not in line and not out.exists()
+
+
+def test_policy_sleep_is_no_longer_answered_as_a_renamed_flag():
+    assert "--policy.sleep" not in RENAMED_FLAGS and "--policy.sleep_memory_size" not in RENAMED_FLAGS
+    assert renamed_flag_hint(["--policy.sleep=true"]) is None
+    assert renamed_key_hint({"policy": {"sleep": True}}) is None
+    assert set(POLICY_ALIASES) == {"policy.sleep", "policy.sleep_memory_size"}
+
+
+def test_a_config_built_in_python_folds_policy_sleep_or_refuses_a_disagreement():
+    cfg = TrainStreamConfig(policy=ACTSRConfig(device="cpu", sleep=True, sleep_memory_size=1024))
+    assert cfg.sleep.enabled and cfg.policy.sleep is None and cfg.policy.sleep_memory_size is None
+    with pytest.raises(ValueError, match=r"policy\.sleep=false and sleep\.enabled=true disagree"):
+        TrainStreamConfig(policy=ACTSRConfig(device="cpu", sleep=False))
+
+
+def test_runs_made_before_policy_sleep_existed_keep_their_fingerprint(tmp_path):
+    """A run's settings_fingerprint.json from before these settings existed has no policy.sleep keys: they are
+    allow-listed (always null once folded), so the fingerprint of the same settings is unchanged and it resumes."""
+    cfg = cli.parse_args([f"--config_path={CONFIGS / 'needle_cpu.json'}", f"--output_dir={tmp_path / 'run'}"])
+    tree = stored_config_dict(cfg)
+    old = json.loads(json.dumps(tree))
+    del old["policy"]["sleep"], old["policy"]["sleep_memory_size"]
+    new_fp, old_fp = (settings_fingerprint(t, RESUME_ALLOW_LIST) for t in (tree, old))
+    assert new_fp.sha256 == old_fp.sha256 and not any(k.startswith("policy.sleep") for k in new_fp.settings)
+    (tmp_path / "run").mkdir()
+    (tmp_path / "run" / "train_config.json").write_text(json.dumps(old))  # an older run's stored config
+    again = cli.parse_args([f"--config_path={tmp_path / 'run' / 'train_config.json'}"])
+    assert again.policy.sleep is None and again.sleep.enabled == cfg.sleep.enabled
+    assert settings_fingerprint(stored_config_dict(again), RESUME_ALLOW_LIST).sha256 == old_fp.sha256

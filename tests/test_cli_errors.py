@@ -108,3 +108,21 @@ def test_needle_presets_are_runnable_by_sr_train_and_sr_main(preset):
     train = imitation_cli.parse_train_config(preset, ["--seed=5"])
     assert train.seed == 5 and train.stream.dataset_root == main.record.root
     assert train.policy.dim_model == main.train.policy.dim_model and train.wake == main.train.wake
+
+
+@pytest.mark.parametrize("text, expected", [
+    ('{"seed": 1,', r"sr-train: error: .*bad.json: not valid JSON \(Expecting"),  # names the file
+    ('{"seed": "abc"}', r"sr-train: error: seed: invalid literal for int\(\)"),  # names the key
+])
+def test_a_malformed_config_file_names_the_file_or_the_key(tmp_path, capsys, text, expected):
+    import re
+
+    from sr_imitation.cli import train_main
+
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(SystemExit):
+        run_cli("sr-train", train_main, [f"--config_path={path}", f"--output_dir={tmp_path / 'out'}"])
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and re.match(expected, err), err
+    assert not (tmp_path / "out").exists()

@@ -14,13 +14,18 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
-from sr_imitation.core.io import CorruptFileError
+from sr_imitation.core.io import CorruptFileError, WriteError
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, PermissionError,
-                                                IsADirectoryError, NotADirectoryError, CorruptFileError)
+                                                IsADirectoryError, NotADirectoryError, CorruptFileError, WriteError)
 """What counts as a user error (``ValueError`` includes settings mismatches, invalid values, dataset mismatches)."""
 
 T = TypeVar("T")
+
+
+def _next(exc: BaseException) -> BaseException | None:
+    """The exception ``exc`` was raised from (``raise ... from None`` ends the chain)."""
+    return exc.__cause__ or (None if exc.__suppress_context__ else exc.__context__)
 
 
 def _user_error(exc: BaseException) -> BaseException | None:
@@ -31,8 +36,38 @@ def _user_error(exc: BaseException) -> BaseException | None:
         seen.add(id(exc))
         if isinstance(exc, USER_ERRORS) or type(exc).__module__.startswith("draccus"):
             found = exc
-        exc = exc.__cause__ or exc.__context__
+        exc = _next(exc)
     return found
+
+
+def _decoding_key(exc: BaseException | None) -> str | None:
+    """The dotted key of the deepest draccus ``DecodingError`` in ``exc``'s chain (the setting being decoded)."""
+    key, seen = None, set()
+    while exc is not None and id(exc) not in seen:
+        seen.add(id(exc))
+        path = getattr(exc, "key_path", None)
+        if type(exc).__module__.startswith("draccus") and path:
+            key = ".".join(str(p) for p in path)
+        exc = _next(exc)
+    return key
+
+
+def check_config_file(config_path: str | None) -> None:
+    """A ``--config_path`` file that is missing or not valid JSON, as one line naming the file (draccus names
+    neither file nor key)."""
+    if config_path is None:
+        return
+    import json  # noqa: PLC0415
+
+    try:
+        with open(config_path, encoding="utf-8") as f:  # noqa: PTH123
+            text = f.read()
+    except OSError as exc:
+        raise FileNotFoundError(f"{config_path}: cannot read the config file ({exc.strerror or exc})") from None
+    try:
+        json.loads(text)
+    except json.JSONDecodeError as exc:
+        raise ValueError(f"{config_path}: not valid JSON ({exc})") from None
 
 
 def split_config_path(args: Sequence[str]) -> tuple[str | None, list[str]]:
@@ -72,5 +107,8 @@ def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | Non
         if user is None or debug:
             raise
         message = " ".join(str(user).split())  # one line
+        key = _decoding_key(exc)
+        if key and not message.startswith(("`", key)):
+            message = f"{key}: {message}"  # draccus knew which setting it was decoding
         sys.stderr.write(f"{prog}: error: {message} (--debug shows the traceback)\n")
         raise SystemExit(2) from None

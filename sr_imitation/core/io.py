@@ -37,20 +37,53 @@ class CorruptFileError(RuntimeError):
         super().__init__(f"{self.path}: {problem}")
 
 
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
-    """Write ``data`` to ``path`` atomically (temp file + fsync + rename); returns the path."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+class WriteError(OSError):
+    """Writing a file failed (a full disk, a read-only or vanished directory): one line naming the file, saying that
+    nothing half-written was left and that a run can resume once the cause is fixed."""
+
+    def __init__(self, path: str | os.PathLike[str], exc: OSError) -> None:
+        self.path = Path(path)
+        reason = exc.strerror or str(exc)
+        super().__init__(exc.errno, f"{self.path}: cannot write ({reason}); nothing half-written was left - fix the "
+                                    "cause and continue with --resume=true")
+
+    def __str__(self) -> str:
+        return str(self.strerror)
+
+
+def fsync_directory(directory: str | os.PathLike[str]) -> None:
+    """Make a rename inside ``directory`` durable (the directory entry itself is flushed; POSIX only)."""
     try:
+        fd = os.open(directory, os.O_RDONLY)
+    except OSError:
+        return  # platforms without directory descriptors
+    try:
+        os.fsync(fd)
+    except OSError:
+        pass  # file systems that cannot fsync a directory
+    finally:
+        os.close(fd)
+
+
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> Path:
+    """Write ``data`` to ``path`` atomically (temp file + fsync + rename + fsync of the directory); returns the path.
+    An ``OSError`` becomes a :class:`WriteError` naming ``path`` (the old file, if any, is untouched)."""
+    path = Path(path)
+    tmp = None
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
+        fsync_directory(path.parent)
+    except BaseException as exc:
+        if tmp is not None and os.path.exists(tmp):
             os.unlink(tmp)
+        if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+            raise WriteError(path, exc) from exc
         raise
     return path
 
@@ -77,20 +110,17 @@ def write_checked_json(path: str | os.PathLike[str], obj: Mapping[str, Any]) -> 
     return atomic_write_json(path, {**body, JSON_CHECKSUM: header_digest(body)})
 
 
-def read_checked_json(path: str | os.PathLike[str], *, unsealed_ok: bool = False) -> dict[str, Any]:
+def read_checked_json(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The object written by :func:`write_checked_json` (without its ``sha256`` entry).
 
-    ``CorruptFileError`` naming the file if it is not valid JSON, not an object, or does not match its sha256;
-    also if it has no sha256 at all, unless ``unsealed_ok`` (files of versions that wrote no checksum, read for
-    reports of committed raw outputs; such a file is returned as it is). A missing file raises
-    ``FileNotFoundError``.
+    ``CorruptFileError`` naming the file if it is not valid JSON, not an object, has no sha256 or does not match
+    it. A missing file raises ``FileNotFoundError``. (Readers of files from versions that wrote no seal decide by
+    the file's recorded schema version, e.g. :func:`sr_imitation.stream.results.load_results`.)
     """
     data = read_json(path)
     if not isinstance(data, dict):
         raise CorruptFileError(path, "not a JSON object")
     if JSON_CHECKSUM not in data:
-        if unsealed_ok:
-            return data
         raise CorruptFileError(path, f"has no {JSON_CHECKSUM} entry (written by a version before checksums, or "
                                      "edited by hand)")
     body = {k: v for k, v in data.items() if k != JSON_CHECKSUM}

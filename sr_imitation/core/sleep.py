@@ -82,21 +82,22 @@ class SleepConfig:
     cores, docs/BENCHMARKS.md)."""
 
     def __post_init__(self) -> None:
-        checks = {
-            "lr": self.lr > 0,
-            "max_iterations": self.max_iterations >= 1,
-            "batch_size": self.batch_size >= 1,
-            "fw_iterations": self.fw_iterations >= 1,
-            "eps": self.eps > 0,
-            "early_stop_tol": self.early_stop_tol >= 0,
-            "early_stop_window": self.early_stop_window >= 1,
-            "anchor_strength": self.anchor_strength >= 0,
-            "anchor_tau": self.anchor_tau is None or self.anchor_tau > 0,
-            "max_nonfinite_steps": self.max_nonfinite_steps >= 1,
+        checks = {  # rule text, holds
+            "lr": ("> 0", self.lr > 0),
+            "max_iterations": (">= 1", self.max_iterations >= 1),
+            "batch_size": (">= 1", self.batch_size >= 1),
+            "fw_iterations": (">= 1", self.fw_iterations >= 1),
+            "eps": ("> 0", self.eps > 0),
+            "early_stop_tol": (">= 0", self.early_stop_tol >= 0),
+            "early_stop_window": (">= 1", self.early_stop_window >= 1),
+            "anchor_strength": (">= 0", self.anchor_strength >= 0),
+            "anchor_tau": ("> 0 or null", self.anchor_tau is None or self.anchor_tau > 0),
+            "max_nonfinite_steps": (">= 1", self.max_nonfinite_steps >= 1),
         }
-        bad = [f"{k}={getattr(self, k)!r}" for k, ok in checks.items() if not ok]
+        # the key as the command line names it (--sleep.<key>): every stream config holds it under ``sleep``
+        bad = [f"sleep.{k} must be {rule}, got {getattr(self, k)!r}" for k, (rule, ok) in checks.items() if not ok]
         if bad:
-            raise ValueError(f"invalid SleepConfig values: {', '.join(bad)}")
+            raise ValueError("; ".join(bad))
         from sr_imitation.core.aggregation import AGGREGATORS
 
         if self.aggregator not in AGGREGATORS:

@@ -7,7 +7,9 @@
 Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper's baselines ``sequential_bc``,
 ``ewc``, ``lwf``, ``m2distill``, with grids over the weights the paper does not give for ACT (EWC's lambda: ``ewc`` =
 1, ``ewc_lam100``, ``ewc_lam10000``, ``ewc_lam1000000``; the distillation weights: ``lwf`` = 1, ``lwf_w0.1``,
-``lwf_w0.01``, ``m2distill`` = 1, ``m2distill_w0.1``, ``m2distill_w0.01``); the SR
+``lwf_w0.01``, ``m2distill`` = 1, ``m2distill_w0.1``, ``m2distill_w0.01``); ``replay``, LIBERO's experience replay
+(:mod:`sr_imitation.stream.methods.replay`: behaviour cloning on ``--memory.buffer_size`` stored demonstration frames
+per earlier skill, as many as SR's memories hold, mixed into every wake batch; no sleep); the SR
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
 ``sr_mean_normalized`` (mean of normalized gradients), ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
 iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamma_k = 0, so every wake is sequential
@@ -69,6 +71,7 @@ VARIANTS: dict[str, Variant] = {
     "ewc": Variant("ewc", _OFF),
     "lwf": Variant("lwf", _OFF),
     "m2distill": Variant("m2distill", _OFF),
+    "replay": Variant("replay", _OFF),  # LIBERO's ER: --memory.buffer_size demonstration frames per earlier skill
     "mt_joint": Variant("sequential_bc", _OFF),  # the oracle: run by imitation.mt_joint, not the stream
     # EWC's lambda grid on ACT (ewc above: lambda 1, the paper's MT5 choice); our grid, wider than the paper's MT5
     # {1, 100, 500}: the unit-Frobenius Fisher spreads over ACT's 678k deployed parameters, ~9x the SAC actor's

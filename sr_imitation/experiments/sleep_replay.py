@@ -25,11 +25,13 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.io import atomic_write_json, read_checked_json, write_checked_json
+from sr_imitation.core.fingerprint import FINGERPRINT_FILE, write_fingerprint
+from sr_imitation.core.io import atomic_write_json, write_checked_json
 from sr_imitation.imitation.cli import parse_config
-from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, stored_config_dict
+from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.rundir import read_progress
 
 logger = logging.getLogger(__name__)
 
@@ -45,7 +47,7 @@ class SleepReplayConfig:
 
 def _read_json(path: Path) -> dict[str, Any]:
     try:
-        return read_checked_json(path, unsealed_ok=True)  # source runs of versions before JSON checksums too
+        return read_progress(path)  # source runs of the first progress version may lack the seal
     except FileNotFoundError as exc:
         raise FileNotFoundError(f"{path}: not found (is {path.parent} an sr-train output directory?)") from exc
 
@@ -88,6 +90,7 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
     write_checked_json(out / "progress.json", {**progress, "completed": keep})
     atomic_write_json(out / "train_config.json", {**stored_config_dict(train), "output_dir": str(out)})
     train.output_dir, train.resume, train.progress = out, True, cfg.progress
+    write_fingerprint(out / FINGERPRINT_FILE, resume_fingerprint(train))  # the replay's own settings, its data too
     return train
 
 

@@ -1,7 +1,7 @@
 """Command-line entry points ``sr-train`` and ``sr-eval`` (draccus, LeRobot's flag style).
 
     sr-train --config_path=configs/needle_cpu.json
-    sr-train --policy.type=act_sr --sleep.enabled=true --stream.skills=[approach,place,insert] \\
+    sr-train --policy.type=act_sr --policy.sleep=true --stream.skills=[approach,place,insert] \\
              --stream.dataset_root=datasets/needle --output_dir=outputs/run1
     sr-train --config_path=outputs/run1/train_config.json --resume=true   # resumes outputs/run1, wherever it is
     sr-eval --policy.path=outputs/run1/skill_5_pullout/sleep/pretrained_model --skills=[approach,pullout]
@@ -30,6 +30,7 @@ from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.config import fold_alias_flags
 
 
 @contextlib.contextmanager
@@ -66,8 +67,13 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     """The ``sr-train`` config of a command line. ``--config_path`` may name a run's ``train_config.json`` (its
     ``output_dir`` "." is the run directory, wherever it was copied) or an ``sr-main`` preset such as
     ``configs/needle_cpu.json``, whose ``train`` section is used with the datasets at ``record.root`` (flags then
-    address that section as usual: ``--seed=1``)."""
-    if config_path is not None and _is_main_job_preset(config_path):
+    address that section as usual: ``--seed=1``). The ACT-SR policy's names of shared settings
+    (``--policy.sleep`` for ``--sleep.enabled``, ``--policy.sleep_memory_size`` for ``--memory.buffer_size``) are
+    folded into them (:func:`~sr_imitation.stream.config.fold_alias_flags`)."""
+    data = {} if config_path is None else _read_json(config_path)
+    preset = _is_main_job_preset(data)
+    args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
+    if preset:
         from sr_imitation.main_job import MainJobConfig  # noqa: PLC0415 (main_job imports this module)
 
         prefixed = [f"--train.{a[2:]}" if a.startswith("--") else a for a in args]
@@ -85,12 +91,18 @@ def parse_train_args(args: list[str]) -> TrainStreamConfig:
     return parse_train_config(config_path, rest)
 
 
-def _is_main_job_preset(config_path: str) -> bool:
+def _read_json(config_path: str) -> dict:
+    """A config file's JSON object; ``{}`` if it is unreadable or not an object (draccus reports it)."""
     try:
         data = json.loads(Path(config_path).read_text())
     except (OSError, json.JSONDecodeError):
-        return False  # draccus reports it
-    return isinstance(data, dict) and "train" in data and "record" in data
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def _is_main_job_preset(data: dict) -> bool:
+    """Whether a config file's JSON is an ``sr-main`` preset (``record`` and ``train`` sections)."""
+    return "train" in data and "record" in data
 
 
 def train_main(args: list[str] | None = None) -> None:

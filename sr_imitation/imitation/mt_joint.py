@@ -35,8 +35,9 @@ from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerpr
 from sr_imitation.core.provenance import log_code_version
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
+from sr_imitation.imitation.dataset_identity import check_inputs
 from sr_imitation.imitation.report import pair_list
-from sr_imitation.imitation.stream import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict
+from sr_imitation.imitation.stream import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict, stream_inputs
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.wake import wake_train
 from sr_imitation.stream.results import build_results, write_results
@@ -79,17 +80,22 @@ def joint_stored_config(cfg: TrainStreamConfig) -> dict[str, Any]:
     return {**stored_config_dict(cfg), "mt_joint": True}
 
 
-def joint_fingerprint(cfg: TrainStreamConfig) -> SettingsFingerprint:
-    """The settings an oracle run is fingerprinted with (checked on resume and by the drivers' archive)."""
-    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST)
+def joint_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = None) -> SettingsFingerprint:
+    """The settings an oracle run is fingerprinted with (checked on resume and by the drivers' archive), with the
+    datasets' content digests (``inputs.datasets.<skill>``, computed unless given)."""
+    inputs = stream_inputs(cfg) if inputs is None else inputs
+    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST, {"inputs": {"datasets": inputs}})
 
 
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
     """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
     check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before anything is written
     stored = joint_stored_config(cfg)
-    run = RunDirectory(cfg.output_dir, joint_fingerprint(cfg), "train_config.json", stored, cfg.resume,
-                       cfg.overwrite)
+    inputs = stream_inputs(cfg)
+    paths = {s: cfg.stream.dataset_path(i) for i, s in enumerate(cfg.stream.skills)}
+    run = RunDirectory(cfg.output_dir, joint_fingerprint(cfg, inputs), "train_config.json", stored, cfg.resume,
+                       cfg.overwrite, check_inputs=lambda path, old: check_inputs(
+                           path, old, inputs, paths, cfg.allow_unhashed_inputs))
     run.prepare()
     log_code_version(logger)
     substrate = JointSubstrate(cfg, make_env)

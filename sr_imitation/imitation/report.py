@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import read_checked_json
+from sr_imitation.core.io import load_checked_safetensors, read_checked_json
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import all_pairs, policy_motion, spi_at_stage
 from sr_imitation.envs.needle.skills import PRS_PAIRS as SURGICAI_PAIRS
@@ -53,11 +53,21 @@ def _load_eval(phase_dir: Path) -> dict[str, Any]:
     return read_checked_json(phase_dir / "eval.json")
 
 
+TRAJECTORIES_FILE = "trajectories.safetensors"
+"""An evaluation's SPI trajectories (checked safetensors, one tensor ``<skill>__<episode>`` each); runs written
+before they were sealed have ``trajectories.npz`` with the same names (still read)."""
+
+
 def _load_trajectories(phase_dir: Path) -> dict[str, list[np.ndarray]]:
     out: dict[str, list[np.ndarray]] = {}
-    with np.load(phase_dir / "trajectories.npz") as data:
-        for key in sorted(data.files, key=lambda k: (k.split("__")[0], int(k.split("__")[1]))):
-            out.setdefault(key.split("__")[0], []).append(data[key])
+    if (phase_dir / TRAJECTORIES_FILE).is_file():
+        tensors, _ = load_checked_safetensors(phase_dir / TRAJECTORIES_FILE)
+        arrays = {key: t.numpy() for key, t in tensors.items()}
+    else:
+        with np.load(phase_dir / "trajectories.npz") as data:
+            arrays = {key: data[key] for key in data.files}
+    for key in sorted(arrays, key=lambda k: (k.split("__")[0], int(k.split("__")[1]))):
+        out.setdefault(key.split("__")[0], []).append(arrays[key])
     return out
 
 

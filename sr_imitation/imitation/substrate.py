@@ -34,8 +34,12 @@ from safetensors.torch import load_file
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.core.io import (
     CorruptFileError,
+    WriteError,
     atomic_write_json,
+    fsync_directory,
     read_checked_json,
+    read_json,
+    save_checked_safetensors,
     verify_manifest,
     write_checked_json,
     write_manifest,
@@ -52,7 +56,7 @@ from sr_imitation.imitation.data import (
     stream_stats,
 )
 from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, needle_env_factory
-from sr_imitation.imitation.report import write_report
+from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
 from sr_imitation.imitation.wake import wake_train
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem
 
@@ -78,7 +82,7 @@ class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = "act"
-    wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_loss", "adjust_gradients"})  # imitation.wake.hooked_update
+    wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})  # hooked_update
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.extend_from")
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
@@ -96,6 +100,8 @@ class ACTSubstrate:
 
     # -- set-up ------------------------------------------------------------------------------------------
     def setup(self) -> None:
+        if self.cfg.torch_threads is not None:
+            torch.set_num_threads(self.cfg.torch_threads)
         first_meta = load_metadata(self.cfg.stream.dataset_path(0), self.cfg.stream.repo_id(0))
         inputs, outputs = policy_features(first_meta, self.policy_cfg.use_images)
         self.policy_cfg.input_features, self.policy_cfg.output_features = inputs, outputs
@@ -163,8 +169,11 @@ class ACTSubstrate:
             if final.exists():  # left by a run killed after the rename but before progress.json was written
                 shutil.rmtree(final)
             os.replace(tmp, final)
-        except BaseException:
+            fsync_directory(final.parent)
+        except BaseException as exc:
             shutil.rmtree(tmp, ignore_errors=True)
+            if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+                raise WriteError(final, exc) from exc
             raise
 
     def _checked_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
@@ -224,6 +233,25 @@ class ACTSubstrate:
         picks = rng.choice(pool, size=n, replace=len(pool) < n)
         return [self.preprocessor({key: v.unsqueeze(0) if isinstance(v, torch.Tensor) else [v]
                                    for key, v in data.dataset[int(i)].items()}) for i in picks]
+
+    def demonstration_frames(self, k: int, n: int | None = None) -> dict[str, torch.Tensor]:
+        """``n`` (default ``--memory.buffer_size``) demonstration frames of skill k as a wake batch holds them
+        (preprocessed: the normalized policy inputs, the normalized action chunk and its ``action_is_pad`` mask),
+        stacked on the CPU: the frames SR's memory M_k buffers (:func:`~sr_imitation.imitation.data.
+        sample_observation_buffer`'s draw with the same seed: uniform over all the skill's demonstration frames,
+        without replacement unless it has fewer than ``n``). Experience replay's buffer."""
+        n = self.cfg.memory.buffer_size if n is None else n
+        data = self._skill_data(k)
+        pool = data.train_indices + data.val_indices
+        picks = np.random.default_rng(self.phase_seed(k, "memory")).choice(pool, size=n, replace=len(pool) < n)
+        parts, keys = [], None
+        for start in range(0, n, 256):  # preprocessing is per frame; chunks bound the float images' memory
+            items = [data.dataset[int(i)] for i in picks[start : start + 256]]
+            if keys is None:  # the dataset's policy inputs (ACT derives its environment state from the state)
+                keys = [*(k for k in self.policy_cfg.input_features if k in items[0]), "action", "action_is_pad"]
+            raw = {key: torch.stack([item[key] for item in items]) for key in keys}
+            parts.append({key: v.detach().cpu() for key, v in self.preprocessor(raw).items() if key in keys})
+        return {key: torch.cat([p[key] for p in parts]) for key in keys or []}
 
     def log_likelihood(self, batch: dict[str, torch.Tensor], generator: torch.Generator) -> torch.Tensor:
         """Minus the L1 behaviour-cloning loss of the deployed action chunk (zero latent, no dropout: what acts at
@@ -305,10 +333,10 @@ class ACTSubstrate:
             for skill, e in evals.items()
         }
         phase_dir = self.checkpoint_dir(k, step)
-        trajectories = {f"{skill}/{i}": t for skill, e in evals.items() for i, t in enumerate(e.trajectories)}
-        tmp = phase_dir / ".trajectories.tmp.npz"
-        np.savez_compressed(tmp, **{key.replace("/", "__"): v for key, v in trajectories.items()})
-        os.replace(tmp, phase_dir / "trajectories.npz")
+        trajectories = {f"{skill}__{i}": torch.from_numpy(np.ascontiguousarray(t))
+                        for skill, e in evals.items() for i, t in enumerate(e.trajectories)}
+        save_checked_safetensors(phase_dir / TRAJECTORIES_FILE, trajectories,
+                                 {"format": "sr_imitation.act.trajectories", "stage": k + 1, "phase": phase})
         write_checked_json(phase_dir / "eval.json", record)
         logger.info("stage %d %s: %s", k + 1, phase, {s: round(r["success"], 3) for s, r in record.items()})
         return {"seconds": time.perf_counter() - t0, "success": {s: r["success"] for s, r in record.items()}}
@@ -340,7 +368,11 @@ class ACTSubstrate:
         from sr_imitation.imitation.stream import stored_config_dict
 
         n = len(self.skills)  # the stored config: no absolute run location in results.json
-        return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, stored_config_dict(self.cfg),
+        # the configuration the run started with (train_config.json, written once at its start), not this
+        # invocation's: a resume may change allow-listed settings only, and results say what held from the start
+        stored = self.out / "train_config.json"
+        config = read_json(stored) if stored.is_file() else stored_config_dict(self.cfg)
+        return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, config,
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
                             [self.checkpoint_dir(i, "wake") for i in range(n)], memories)
 
@@ -358,6 +390,12 @@ class _ACTHooks:
         self.updates = 0
         self._make_step = WakeStep
         self._step: Any = None
+
+    def batch(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        """The batch this update trains on: the method's :meth:`wake_batch` of the current skill's ``batch``."""
+        step = self._make_step(self.k, self.updates, self.parameters, self.substrate.chunk_policy, batch,
+                               self.generator)
+        return dict(self.method.wake_batch(step))
 
     def loss(self, loss: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         self._step = self._make_step(self.k, self.updates, self.parameters, self.substrate.chunk_policy,

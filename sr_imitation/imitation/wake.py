@@ -114,11 +114,13 @@ def _loader(data: SkillData, indices: list[int], batch_size: int, shuffle: bool,
 def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
                   grad_clip_norm: float, hooks: Any) -> tuple[MetricsTracker, dict]:
     """LeRobot's ``update_policy`` step (forward, backward, gradient clipping, optimizer step) with a continual
-    method's hooks between: ``hooks.loss(loss, batch)`` replaces the loss before the backward pass and
-    ``hooks.adjust()`` may change the gradients before clipping. Used only when the method has hooks (CPU, no mixed
-    precision: LeRobot's accelerator calls reduce to these); other methods keep ``update_policy`` itself."""
+    method's hooks between: ``hooks.batch(batch)`` gives the batch the update trains on (experience replay mixes in
+    stored frames), ``hooks.loss(loss, batch)`` replaces the loss before the backward pass and ``hooks.adjust()`` may
+    change the gradients before clipping. Used only when the method has hooks (CPU, no mixed precision: LeRobot's
+    accelerator calls reduce to these); other methods keep ``update_policy`` itself."""
     start = time.perf_counter()
     policy.train()
+    batch = hooks.batch(batch)
     loss, output = policy.forward(batch)
     loss = hooks.loss(loss, batch)
     loss.backward()

@@ -8,6 +8,10 @@ LeRobot-style flags through draccus, the same names as the imitation substrate's
     sr-train --config_path=outputs/sac_cpu_s1/config.json --resume=true   # resumes that run, wherever it is
     sr-train --config_path=configs/sac_mt5_cpu.json --sleep.enabled=false   # SR wake-only ablation
     sr-train --config_path=configs/sac_mt5_cpu.json --stream.name=mt8 --stream.extend_from=outputs/sac_cpu_s1
+
+SAC has no ``--policy`` section; the ACT-SR policy's names of shared settings are accepted as on the ACT substrate
+(``--policy.sleep`` is ``--sleep.enabled``, ``--policy.sleep_memory_size`` is ``--memory.buffer_size``;
+:data:`~sr_imitation.stream.config.POLICY_ALIASES`).
 """
 
 
@@ -20,6 +24,7 @@ import draccus
 from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
+from sr_imitation.stream.config import fold_alias_flags
 
 logger = logging.getLogger(__name__)
 
@@ -37,6 +42,7 @@ def parse(args: list[str]) -> RLTrainConfig:
     """The config ``args`` describe; a run's own ``config.json`` stores output_dir "." (the run directory itself),
     resolved to the file's directory unless ``--output_dir`` is given."""
     config_path, rest = split_config_path(args)
+    rest = fold_alias_flags(rest)  # the flags only: a config file has no policy section here
     cfg = draccus.parse(RLTrainConfig, config_path=config_path, args=rest)
     cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
     return cfg

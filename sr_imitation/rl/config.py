@@ -64,23 +64,24 @@ class SACConfig:
     """Running mean/std observation normalizer (the paper's normalizer nu; snapshot stored with each memory)."""
 
     def __post_init__(self) -> None:
-        checks = {
-            "hidden_dim": self.hidden_dim >= 1,
-            "actor_lr": self.actor_lr > 0,
-            "critic_lr": self.critic_lr > 0,
-            "alpha_lr": self.alpha_lr > 0,
-            "log_alpha range": self.log_alpha_min < self.log_alpha_max,
-            "log_std range": self.log_std_min < self.log_std_max,
-            "buffer_size": self.buffer_size >= self.batch_size >= 1,
-            "utd_ratio": self.utd_ratio > 0,
-            "gamma": 0 <= self.gamma < 1,
-            "tau": 0 < self.tau <= 1,
-            "warmup_steps": self.warmup_steps >= 0,
-            "reward_scale": self.reward_scale > 0,
+        checks = {  # rule text, holds
+            "hidden_dim": (">= 1", self.hidden_dim >= 1),
+            "actor_lr": ("> 0", self.actor_lr > 0),
+            "critic_lr": ("> 0", self.critic_lr > 0),
+            "alpha_lr": ("> 0", self.alpha_lr > 0),
+            "log_alpha_min": ("< log_alpha_max", self.log_alpha_min < self.log_alpha_max),
+            "log_std_min": ("< log_std_max", self.log_std_min < self.log_std_max),
+            "buffer_size": (">= batch_size >= 1", self.buffer_size >= self.batch_size >= 1),
+            "utd_ratio": ("> 0", self.utd_ratio > 0),
+            "gamma": ("in [0, 1)", 0 <= self.gamma < 1),
+            "tau": ("in (0, 1]", 0 < self.tau <= 1),
+            "warmup_steps": (">= 0", self.warmup_steps >= 0),
+            "reward_scale": ("> 0", self.reward_scale > 0),
         }
-        bad = [k for k, ok in checks.items() if not ok]
+        # the key as the command line names it (--sac.<key>)
+        bad = [f"sac.{k} must be {rule}, got {getattr(self, k)!r}" for k, (rule, ok) in checks.items() if not ok]
         if bad:
-            raise ValueError(f"invalid SACConfig values: {bad}")
+            raise ValueError("; ".join(bad))
 
 
 @dataclass

@@ -49,6 +49,17 @@ def prs_pairs(skills: list[str]) -> tuple[tuple[str, str], ...]:
     return present or all_pairs(names)
 
 
+def check_skill_names(skills: list[str]) -> None:
+    """Every skill is a Meta-World v3 environment: ``ValueError`` naming ``stream.skills`` and the unknown names
+    (before: a typo in the third skill surfaced after two stages had trained)."""
+    import metaworld  # noqa: PLC0415 (only the SAC substrate needs Meta-World)
+
+    unknown = [s for s in skills if s not in metaworld.MT1.ENV_NAMES]
+    if unknown:
+        raise ValueError(f"stream.skills: {unknown} are not Meta-World v3 environments (use '-v3' names, e.g. "
+                         "'reach-v3')")
+
+
 class StreamTrainer:
     """Runs (or resumes) one seed of the stream described by ``cfg`` on the stream engine.
 
@@ -60,6 +71,7 @@ class StreamTrainer:
                  after_phase: Callable[[int, str], None] | None = None) -> None:
         self.cfg = cfg
         self.skills = cfg.stream_skills
+        check_skill_names(self.skills)  # before the run directory is touched and the first gradient
         self.out = Path(cfg.output_dir)
         self.substrate = SACSubstrate(cfg)
         self.method = make_method(cfg.method, SACSubstrate.name, self.substrate.method_settings())

@@ -8,12 +8,14 @@ Both substrates' run configurations (:class:`sr_imitation.imitation.stream.Train
     --stream.*         the skills (--stream.skills), --stream.extend_from
     --sleep.*          the core's SleepConfig: --sleep.enabled, --sleep.lr, --sleep.aggregator, --sleep.anchor_*
     --memory.*         how skill memories are built: --memory.buffer_size
+    --policy.sleep     the ACT-SR policy's name of --sleep.enabled (--policy.sleep_memory_size: --memory.buffer_size)
     --eval.*           evaluation: --eval.episodes, --eval.videos_per_skill, ...
     --wake.*           the wake budget and early stopping
     --seed --output_dir --resume --overwrite --progress --wandb.*
 
 :func:`check_shared_settings` validates what they share; :data:`RENAMED_FLAGS` turns the flags of earlier versions
-into a one-line hint.
+into a one-line hint; :data:`POLICY_ALIASES` are the ACT-SR policy's own names (stock ``lerobot-train``'s, the
+design card's ``--policy.sleep=true``) of shared settings, folded into them (:func:`fold_alias_flags`).
 """
 
 from __future__ import annotations
@@ -21,8 +23,11 @@ from __future__ import annotations
 from collections.abc import Iterable, Sequence
 from typing import Any
 
+import draccus
+from draccus.cfgparsing import parse_string
+from draccus.utils import DecodingError
+
 RENAMED_FLAGS: dict[str, str] = {
-    "--policy.sleep": "--sleep.enabled",
     "--policy.sleep_lr": "--sleep.lr",
     "--policy.sleep_max_iterations": "--sleep.max_iterations",
     "--policy.sleep_batch_size": "--sleep.batch_size",
@@ -42,6 +47,105 @@ RENAMED_FLAGS: dict[str, str] = {
 }
 """Flags of earlier versions -> their name now (``sr-train`` answers an old flag with this hint instead of
 draccus' generic error)."""
+
+
+POLICY_ALIASES: dict[str, tuple[str, type]] = {
+    "policy.sleep": ("sleep.enabled", bool),
+    "policy.sleep_memory_size": ("memory.buffer_size", int),
+}
+"""ACT-SR policy settings that stock ``lerobot-train`` acts on (``lerobot_policy_act_sr.ACTSRConfig``) -> the
+``sr-train`` setting they are another name of, and its type. On ``sr-train`` each pair is one setting, never two
+that can disagree: the alias sets the shared setting, giving both with different values is a one-line error
+naming both, and the alias is ``None`` in the parsed (and stored, fingerprinted) configuration."""
+
+
+def _flag_value(args: list[str], key: str) -> tuple[list[int], str | None]:
+    """Where ``--key=V`` / ``--key V`` occur in ``args`` (token indices) and the last raw value (argparse's rule)."""
+    where, raw = [], None
+    for i, arg in enumerate(args):
+        if arg.startswith(f"--{key}="):
+            where, raw = [*where, i], arg.split("=", 1)[1]
+        elif arg == f"--{key}":
+            has_value = i + 1 < len(args) and not args[i + 1].startswith("--")
+            where = [*where, i, i + 1] if has_value else [*where, i]
+            raw = args[i + 1] if has_value else ""
+    return where, raw
+
+
+def _decode(key: str, value: Any, typ: type, source: str) -> Any:
+    """``value`` (a command-line string, or a config file's JSON value) as draccus decodes ``key``; ``None`` for
+    null. ``ValueError`` naming ``key`` for a value that is not of ``typ``."""
+    if isinstance(value, str) and source == "command line" and not value.strip():
+        raise ValueError(f"{key}: expected {'true or false' if typ is bool else 'an integer'}, got no value")
+    raw = parse_string(value) if isinstance(value, str) and source == "command line" else value
+    try:
+        return draccus.decode(typ | None, raw)
+    except DecodingError:  # answered below, outside this block, so that the one-line error is ours
+        pass
+    where = "" if source == "command line" else f" ({source})"
+    raise ValueError(f"{key}: expected {'true or false' if typ is bool else 'an integer'}{where}, got {value!r}")
+
+
+def _file_value(config: Any, key: str) -> Any:
+    for part in key.split("."):
+        config = config.get(part) if isinstance(config, dict) else None
+    return config
+
+
+def fold_alias_flags(args: list[str], config: Any = None, source: str = "config file") -> list[str]:
+    """``args`` with every :data:`POLICY_ALIASES` flag replaced by its shared setting's flag.
+
+    ``--policy.sleep=true`` becomes ``--sleep.enabled=true``. ``config`` is the ``--config_path`` file's JSON (an
+    ``sr-main`` preset's ``train`` section), named ``source`` in errors: the command line overrides the file, as
+    for any flag; a file's alias is folded the same way (and passed on as ``null``, so the parsed configuration
+    holds the shared setting only). Raises ``ValueError`` (one line, naming both keys) when the command line, or
+    the file, gives an alias and its shared setting with different values.
+    """
+    out = list(args)
+    drop: set[int] = set()
+    extra: list[str] = []
+    for alias, (target, typ) in POLICY_ALIASES.items():
+        where, raw = _flag_value(out, alias)
+        drop.update(where)
+        a_cli = None if raw is None else _decode(f"--{alias}", raw, typ, "command line")
+        t_where, t_raw = _flag_value(out, target)
+        t_cli = None if t_raw is None else _decode(f"--{target}", t_raw, typ, "command line")
+        a_file = _decode(alias, _file_value(config, alias), typ, source)
+        t_file = _decode(target, _file_value(config, target), typ, source)
+        if a_cli is not None and t_cli is not None and a_cli != t_cli:
+            raise ValueError(f"--{alias}={_show(a_cli)} and --{target}={_show(t_cli)} disagree: --{alias} is "
+                             f"another name of --{target}; give one of them")
+        if a_file is not None and t_file is not None and a_file != t_file:
+            raise ValueError(f"{source}: {alias}={_show(a_file)} and {target}={_show(t_file)} disagree: {alias} is "
+                             f"another name of {target}; give one of them")
+        value = a_cli if a_cli is not None else (a_file if not t_where else None)
+        if value is not None:
+            extra.append(f"--{target}={_show(value)}")
+        if a_file is not None:
+            extra.append(f"--{alias}=null")
+    return [arg for i, arg in enumerate(out) if i not in drop] + extra
+
+
+def fold_alias_settings(cfg: Any) -> None:
+    """The :data:`POLICY_ALIASES` rule on a parsed configuration (one built in Python, or by ``sr-main``): an alias
+    given (not ``None``) must equal its shared setting, and is then set to ``None``. ``ValueError`` naming both keys
+    otherwise. ``sr-train`` folds the flags before parsing (:func:`fold_alias_flags`)."""
+    for alias, (target, _) in POLICY_ALIASES.items():
+        section, name = alias.split(".")
+        holder = getattr(cfg, section, None)
+        value = getattr(holder, name, None)
+        if value is None:
+            continue
+        t_section, t_name = target.split(".")
+        shared = getattr(getattr(cfg, t_section), t_name)
+        if value != shared:
+            raise ValueError(f"{alias}={_show(value)} and {target}={_show(shared)} disagree: {alias} is another "
+                             f"name of {target}; give one of them")
+        setattr(holder, name, None)
+
+
+def _show(value: Any) -> str:
+    return str(value).lower() if isinstance(value, bool) else str(value)
 
 
 def renamed_flag_hint(args: list[str]) -> str | None:

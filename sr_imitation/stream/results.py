@@ -38,12 +38,17 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
+from sr_imitation.core.io import JSON_CHECKSUM, atomic_write_bytes, read_checked_json, read_json, write_checked_json
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
 from sr_imitation.core.provenance import process_code_version
 
-RESULTS_VERSION = 4
-"""4: one schema for both substrates (before: ACT 2 with ``final_mean`` dictionaries, SAC 3 with bare floats)."""
+RESULTS_VERSION = 5
+"""5: the schema of 4, and a file without its ``sha256`` seal is refused (4: one schema for both substrates; before:
+ACT 2 with ``final_mean`` dictionaries, SAC 3 with bare floats)."""
+SEALED_SINCE = 5
+"""The first ``results_version`` whose files must carry their seal. Older files (committed raw outputs of earlier
+versions, some written before JSON checksums) are read without one and reported as unsealed; whether a file may lack
+its seal is decided by its recorded version, never by the missing key alone."""
 
 METRICS = ("afsr", "prs", "bwt", "bwt_wake", "spi")
 LABELS = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT (ref. after stage i)",
@@ -245,8 +250,8 @@ def upgrade_results(results: Mapping[str, Any]) -> dict[str, Any]:
     without ``bwt_wake`` has it equal to ``bwt`` (its after-wake and after-stage policies are the same), and an ACT run
     without it has it computed from its after-wake matrix. Raises ``ValueError`` for unknown versions."""
     version = results.get("results_version")
-    if version == RESULTS_VERSION:
-        return dict(results)
+    if version in (4, RESULTS_VERSION):  # 5 = 4 + mandatory seal
+        return {**results, "results_version": RESULTS_VERSION}
     if version in (None, 1, 2) and "success_matrix_per_seed" in results:  # ACT
         def metric(m: Mapping[str, Any] | None) -> dict[str, Any]:
             if m is None:
@@ -290,11 +295,21 @@ def upgrade_results(results: Mapping[str, Any]) -> dict[str, Any]:
 
 
 def load_results(run: Path) -> dict[str, Any]:
-    """``<run>/results.json`` (checked JSON) in the current schema; a missing file is named."""
+    """``<run>/results.json`` in the current schema, its seal checked; a missing file is named. A file without a
+    seal is read only if its ``results_version`` predates :data:`SEALED_SINCE`; it is then marked
+    ``"unsealed": true`` (reports list such runs)."""
     path = Path(run) / "results.json"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no results (unfinished run?)")
+    data = read_json(path)
+    unsealed = isinstance(data, dict) and JSON_CHECKSUM not in data and _version_number(data) < SEALED_SINCE
     try:
-        return upgrade_results(read_checked_json(path, unsealed_ok=True))  # committed raw files of older versions
+        results = upgrade_results(data if unsealed else read_checked_json(path))
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
+    return {**results, "unsealed": unsealed}
+
+
+def _version_number(data: Mapping[str, Any]) -> int:
+    version = data.get("results_version")
+    return version if isinstance(version, int) and not isinstance(version, bool) else 0  # absent: the first schema

@@ -24,15 +24,36 @@ from sr_imitation.core.fingerprint import (
     read_fingerprint,
     write_fingerprint,
 )
-from sr_imitation.core.io import CorruptFileError, atomic_write_json, read_checked_json, read_json, write_checked_json
+from sr_imitation.core.io import (
+    JSON_CHECKSUM,
+    CorruptFileError,
+    atomic_write_json,
+    read_checked_json,
+    read_json,
+    write_checked_json,
+)
+from sr_imitation.stream.verify import verify_run_files
 
 logger = logging.getLogger(__name__)
 
 PROGRESS_FILE = "progress.json"
-PROGRESS_VERSION = 1
+PROGRESS_VERSION = 2
+"""2: always sealed (1: the first version; some of its committed files carry no seal, read by reports only)."""
+REGENERATED_FILES = ("results.json",)
+"""Files a run rewrites from its recorded phases at its end (not inputs of a resume, so not verified before it)."""
 TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")
 """Names of what an interrupted atomic write leaves (temp files of ``atomic_write_bytes``, staging directories of
 checkpoints): removed on resume, never read."""
+
+
+def read_progress(path: Path) -> dict[str, Any]:
+    """A ``progress.json`` for reading (reports, sleep replays of committed runs): checked against its seal, except
+    that files of the first progress version may lack one (some committed raw outputs were written before seals;
+    decided by the recorded version, never by the missing key alone). A resume always requires the seal."""
+    data = read_json(path)
+    if isinstance(data, dict) and data.get("version") == 1 and JSON_CHECKSUM not in data:
+        return data
+    return read_checked_json(path)
 
 
 class RunDirectory:
@@ -42,21 +63,26 @@ class RunDirectory:
         path: the directory.
         fingerprint: the requested settings (the whole config minus its documented allow-list).
         config_file: the stored config's file name (``train_config.json``); ``stored_config`` is its content.
-        legacy_settings: for runs written before fingerprints, the flat settings to compare with, read from the
-            stored config (``None``: such a run is refused as unreadable).
         resume, overwrite: the per-invocation flags.
+        check_inputs: ``check_inputs(fingerprint_file, stored_settings)`` is called on resume before the settings
+            are compared, to refuse other input data with its own message (the ACT substrate's datasets:
+            :func:`sr_imitation.imitation.dataset_identity.check_inputs`).
+
+    A directory without ``settings_fingerprint.json`` is never resumed: the fingerprint is written first, before
+    anything else, so its absence means the run was not made by this code or the file was deleted (one line naming
+    it; its settings are never re-created from the stored config, which is not sealed).
     """
 
     def __init__(self, path: Path, fingerprint: SettingsFingerprint, config_file: str, stored_config: Mapping[str, Any],
                  resume: bool, overwrite: bool,
-                 legacy_settings: Callable[[Any], Mapping[str, Any]] | None = None) -> None:
+                 check_inputs: Callable[[Path, Mapping[str, Any]], None] | None = None) -> None:
         self.path = Path(path)
         self.fingerprint = fingerprint
         self.config_file = config_file
         self.stored_config = dict(stored_config)
         self.resume = resume
         self.overwrite = overwrite
-        self.legacy_settings = legacy_settings
+        self.check_inputs = check_inputs
         self.progress: dict[str, Any] = {"version": PROGRESS_VERSION, "completed": {}}
 
     # -- set-up -------------------------------------------------------------------------------------------
@@ -85,36 +111,33 @@ class RunDirectory:
         elif not exists and self.resume:
             raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume")
         if exists:
-            legacy = self._check_settings()
+            self._check_settings()
             progress_path = self.path / PROGRESS_FILE
             if progress_path.exists():
                 self.progress = read_checked_json(progress_path)
                 if not isinstance(self.progress.get("completed"), dict):
                     raise CorruptFileError(progress_path, "cannot resume: no 'completed' phases recorded")
+            # every sealed file, before anything is written (the fingerprint: checked above by read_fingerprint)
+            verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, FINGERPRINT_FILE))
             self._remove_leftovers()
-            if legacy:  # a run from before fingerprints: store the checked settings once
-                write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
             return
         self.path.mkdir(parents=True, exist_ok=True)
         write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
         atomic_write_json(self.path / self.config_file, self.stored_config)
 
-    def _check_settings(self) -> bool:
-        """Compare with the stored fingerprint (runs without one: their stored config); raise
-        :class:`~sr_imitation.core.fingerprint.SettingsMismatchError` naming every differing key. Returns whether
-        the run had no fingerprint file."""
+    def _check_settings(self) -> None:
+        """Compare with the stored fingerprint: its inputs first (:attr:`check_inputs`), then every setting; raise
+        :class:`~sr_imitation.core.fingerprint.SettingsMismatchError` naming every differing key."""
         path = self.path / FINGERPRINT_FILE
-        if path.is_file():
-            check_settings(path, read_fingerprint(path), self.fingerprint)
-            return False
-        path = self.path / self.config_file
         if not path.is_file():
-            raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume (no {FINGERPRINT_FILE} "
-                                    f"or {self.config_file})")
-        if self.legacy_settings is None:
-            raise CorruptFileError(path, f"cannot resume: no {FINGERPRINT_FILE}")
-        check_settings(path, self.legacy_settings(read_json(path)), self.fingerprint)
-        return True
+            if not (self.path / self.config_file).is_file() and not (self.path / PROGRESS_FILE).is_file():
+                raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume (no {FINGERPRINT_FILE})")
+            raise CorruptFileError(path, "missing: cannot resume a run without its settings fingerprint (deleted, or "
+                                         "not written by this code); start a new run in another output_dir")
+        stored = read_fingerprint(path)
+        if self.check_inputs is not None:
+            self.check_inputs(path, stored)
+        check_settings(path, stored, self.fingerprint)
 
     def _remove_leftovers(self) -> None:
         for pattern in TEMPORARY_PATTERNS:

@@ -23,10 +23,11 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
+from sr_imitation.core.io import atomic_write_bytes, write_checked_json
 from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.rundir import read_progress
 
 SHORT = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
 DEFAULT_BASELINE = "wake_only"
@@ -77,7 +78,7 @@ def phase_seconds(run: str | Path) -> float | None:
     path = Path(run) / "progress.json"
     if not path.is_file():
         return None
-    completed = read_checked_json(path, unsealed_ok=True).get("completed") or {}  # committed older raw files
+    completed = read_progress(path).get("completed") or {}
     return float(sum(rec["seconds"] for rec in completed.values()
                      if isinstance(rec, Mapping) and isinstance(rec.get("seconds"), (int, float))))
 
@@ -102,6 +103,7 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "runs": {seed: r.get("run") for seed, r in per_seed.items()},
             "phase_seconds": {seed: r.get("phase_seconds") for seed, r in per_seed.items()},
             "code": {seed: r.get("code") for seed, r in per_seed.items()},
+            "unsealed": {seed: bool(r.get("unsealed")) for seed, r in per_seed.items()},
             "substrate": runs[0]["substrate"],
             **{m: mean_sem_dict(list(finals[variant][m].values())) for m in METRICS},
             "skills": list(own),
@@ -192,6 +194,11 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
     lines += ["", f"Time: the sum of each run's completed phases (progress.json; wake, sleep, evaluation). All runs "
                   f"above: {total / 3600:.2f} h. Commit: the code that wrote the run's results (results.json "
                   "`code`; dirty: with uncommitted changes; -: written before it was recorded)."]
+    unsealed = [f"{v} seed {seed}" for v, row in variants.items() for seed in row["seeds"]
+                if (row.get("unsealed") or {}).get(seed)]
+    if unsealed:
+        lines += ["", f"Unsealed: {', '.join(unsealed)} (results.json of a schema before seals; read as written, "
+                      "without a checksum to verify it)."]
     mixed = any(row["skills"] != skills for row in variants.values())
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):

@@ -126,17 +126,39 @@ def test_no_byte_flip_or_truncation_of_a_checked_json_file_changes_what_is_read(
             read_checked_json(path)
 
 
-def test_a_checked_json_file_needs_its_checksum_unless_told(tmp_path):
+def test_a_checked_json_file_always_needs_its_checksum(tmp_path):
     path = tmp_path / "results.json"
     path.write_text(json.dumps({"a": 1}))
     with pytest.raises(CorruptFileError, match=r"results.json: has no sha256"):
-        read_checked_json(path)
-    assert read_checked_json(path, unsealed_ok=True) == {"a": 1}  # committed files of older versions
+        read_checked_json(path)  # older files are read by their schema version (stream.results.load_results)
     path.write_text(json.dumps({"a": 1, "sha256": "0" * 64}))
     with pytest.raises(CorruptFileError, match="do not match"):
-        read_checked_json(path, unsealed_ok=True)  # a file with a checksum is always checked
+        read_checked_json(path)
     path.write_text("[1, 2]")
     with pytest.raises(CorruptFileError, match="not a JSON object"):
         read_checked_json(path)
     with pytest.raises(ValueError, match="own 'sha256'"):
         write_checked_json(path, {"sha256": "x"})
+
+
+def test_a_failed_write_names_the_file_and_leaves_the_old_one(tmp_path, monkeypatch):
+    """A full disk (any OSError) while writing: one line naming the file and saying the run can resume; the old
+    file is untouched and no temporary file is left."""
+    import errno
+    import os as _os
+
+    from sr_imitation.core.cli_errors import run_cli
+    from sr_imitation.core.io import WriteError, atomic_write_bytes
+
+    path = tmp_path / "progress.json"
+    path.write_bytes(b"old")
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(_os, "fsync", full)
+    with pytest.raises(WriteError, match=r"progress.json: cannot write \(No space left on device\).*--resume=true"):
+        atomic_write_bytes(path, b"new")
+    assert path.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["progress.json"]
+    with pytest.raises(SystemExit, match="2"):
+        run_cli("sr-train", lambda args: atomic_write_bytes(path, b"new"), [])

@@ -219,7 +219,7 @@ def test_same_seed_same_result_and_callback_runs_each_step(stream):
 
 
 def test_invalid_configs_are_rejected():
-    with pytest.raises(ValueError, match="lr=0"):
+    with pytest.raises(ValueError, match=r"sleep.lr must be > 0, got 0"):
         SleepConfig(lr=0)
     with pytest.raises(ValueError, match="unknown aggregator"):
         SleepConfig(aggregator="sum")

@@ -3,6 +3,7 @@ is written: a bad later dataset fails at once with one message naming the file, 
 
 from __future__ import annotations
 
+import re
 import shutil
 
 import pytest
@@ -65,3 +66,41 @@ def test_other_fps_is_refused(state_datasets, tmp_path, monkeypatch):
     info.write_text(json.dumps(data))
     _fails_before_writing(root, tmp_path / "out", r"place/meta/info.json: fps 30 differs from the first skill's 10",
                           monkeypatch)
+
+
+def test_a_skill_without_an_evaluation_environment_is_refused_before_training(state_datasets, tmp_path, monkeypatch):
+    """Issue 26: a dataset for ``suture`` but no needle environment trained two stages, wrote 27 files, then died
+    with a 49-line traceback. Now: one line naming ``stream.skills``, nothing written."""
+    root = _copy(state_datasets, tmp_path / "d")
+    shutil.copytree(root / "insert", root / "suture")
+    out = tmp_path / "out"
+    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    with pytest.raises(ValueError, match=r"stream.skills: \['suture'\] have no evaluation environment") as info:
+        train_stream(tiny_stream_config(root, out, ["approach", "suture"], use_images=False))  # the needle env
+    assert "\n" not in str(info.value) and not out.exists()
+
+
+@pytest.mark.parametrize("key, value, message", [
+    ("optimizer_lr", -3e-4, "policy.optimizer_lr must be > 0, got -0.0003"),
+    ("optimizer_weight_decay", -1.0, "policy.optimizer_weight_decay must be >= 0"),
+    ("dropout", 1.5, "policy.dropout must be in [0, 1)"),
+])
+def test_out_of_range_policy_numbers_are_refused_at_parse_time_with_their_prefix(tmp_path, key, value, message):
+    """``--policy.optimizer_lr=-3e-4`` was refused by torch after four files were written; the corrected command
+    then met "already exists". Now it is refused when the config is built, before any directory exists."""
+    from tests.imitation.helpers import tiny_policy
+
+    with pytest.raises(ValueError, match=re.escape(message)):
+        tiny_stream_config(tmp_path, tmp_path / "out", SKILLS, use_images=False, **{key: value})
+    assert not (tmp_path / "out").exists()
+    assert tiny_policy(**{key: value}) is not None  # the policy alone stays LeRobot's (stock lerobot-train)
+
+
+def test_sleep_and_sac_range_errors_name_the_key_with_its_prefix():
+    from sr_imitation.core.sleep import SleepConfig
+    from sr_imitation.rl.config import SACConfig
+
+    with pytest.raises(ValueError, match=r"^sleep.anchor_strength must be >= 0, got nan$"):
+        SleepConfig(anchor_strength=float("nan"))
+    with pytest.raises(ValueError, match=r"^sac.actor_lr must be > 0, got -1.0$"):
+        SACConfig(actor_lr=-1.0)

@@ -184,7 +184,9 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     config = json.loads(next(out.rglob("pretrained_model/config.json")).read_text())
-    assert config["type"] == "act_sr" and "sleep" not in config  # sleep settings are the stream's, not the policy's
+    # --policy.sleep not given: the policy keeps no reservoir and writes no memory (test_policy_sleep.py gives it)
+    assert config["type"] == "act_sr" and config["sleep"] is None
+    assert not list(out.rglob("memory.safetensors"))
     shutil.rmtree(out)
 
 

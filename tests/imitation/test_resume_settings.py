@@ -109,6 +109,11 @@ ALLOWED_CHANGES: dict[str, Any] = {
     "wake.num_workers": 1,
     "policy.input_features": {"observation.state": {"type": "STATE", "shape": [6]}},
     "policy.output_features": {"action": {"type": "ACTION", "shape": [7]}},
+    "policy.sleep": True,  # another name of sleep.enabled (true in the stored run): folded into it
+    "policy.sleep_memory_size": 16,  # another name of memory.buffer_size (16 in the stored run)
+    "allow_unhashed_inputs": True,
+    "stream.dataset_root": "<moved>",  # the same datasets copied elsewhere (resolved in the test)
+    "stream.dataset_paths": "<moved paths>",
 }
 
 
@@ -136,10 +141,10 @@ def test_decode_is_what_parse_gives_for_a_config_file(stored, tmp_path):
 
 
 @pytest.fixture(scope="module")
-def stored(tmp_path_factory) -> tuple[Path, dict[str, Any]]:
+def stored(state_datasets, tmp_path_factory) -> tuple[Path, dict[str, Any]]:
     """A run directory as a fresh run leaves it before its first step: fingerprint + train_config.json."""
     out = tmp_path_factory.mktemp("stored") / "run"
-    StreamTrainer(tiny_stream_config(Path("/datasets/needle"), out, STREAM, use_images=False))._prepare_output_dir()
+    StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False))._prepare_output_dir()
     return out, json.loads((out / "train_config.json").read_text())
 
 
@@ -171,7 +176,9 @@ def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
     assert str(out) not in (out / FINGERPRINT_FILE).read_text() + (out / "train_config.json").read_text()
     assert not any(is_allowed(k, RESUME_ALLOW_LIST) for k in settings)
     expected = {".".join(p) for p, _ in leaves(saved) if not is_allowed(".".join(p), RESUME_ALLOW_LIST)}
-    assert set(settings) == expected | {"method_config"}  # + the method's own settings with defaults (sr: none)
+    inputs = {f"inputs.datasets.{skill}" for skill in STREAM}  # each dataset's content digest
+    assert set(settings) == expected | {"method_config"} | inputs  # + the method's own settings (sr: none)
+    assert all(len(settings[k]) == 64 for k in inputs)
     assert settings["method_config"] == {}
     assert {"sleep.batch_size", "policy.n_action_steps", "sleep.anchor_tau", "policy.dim_feedforward",
             "policy.optimizer_lr", "sleep.fw_iterations", "policy.distill_batch_size", "sleep.enabled",
@@ -218,15 +225,20 @@ def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stor
             pytest.fail(f"{key} = {value!r}: no valid changed value ({tried}); add one to CHOICES or a reasoned SKIP")
     # every fingerprinted setting was visited; method_config is derived from --method and the method's defaults
     # (tests/rl/test_baselines.py::test_a_methods_own_defaults_are_fingerprinted)
-    assert covered | {"method_config"} == set(stored_settings)
+    inputs = {k for k in stored_settings if k.startswith("inputs.datasets.")}  # test_inputs.py changes them
+    assert covered | {"method_config"} | inputs == set(stored_settings) and len(inputs) == len(STREAM)
     assert set(SKIP) <= covered and len(refused) == len(covered) - len(SKIP) >= 60
 
 
-def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, tmp_path):
+def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, state_datasets, tmp_path):
     out, saved = stored
     assert set(ALLOWED_CHANGES) == set(RESUME_ALLOW_LIST)
+    moved = tmp_path / "moved"  # datasets are identified by content: the same bytes elsewhere resume
+    shutil.copytree(state_datasets, moved)
+    resolved = {"<moved>": str(moved), "<moved paths>": [str(moved / s) for s in STREAM]}
     everything = saved
     for key, new in ALLOWED_CHANGES.items():
+        new = resolved.get(new, new) if isinstance(new, str) else new
         path = tuple(key.split("."))
         cfg = _parse(with_leaf(saved, path, new), tmp_path, out)
         StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))  # no error
@@ -292,6 +304,8 @@ def test_a_copied_run_resumes_where_it_is_with_allow_listed_changes(after_stage_
     progress = json.loads((copy / "progress.json").read_text())["completed"]
     assert {"2.wake", "2.memory", "2.wake.eval", "2.sleep", "2.sleep.eval"} <= set(progress)
     assert (copy / "results.json").is_file() and not (original / "results.json").exists()
+    # results show the settings the run started with, not the resumed invocation's (videos were 1, resumed with 0)
+    assert json.loads((copy / "results.json").read_text())["config"]["eval"]["videos_per_skill"] == 1
     ref_out, ref_results = reference
     assert json.loads((copy / "results.json").read_text())["metrics"] == ref_results["metrics"]
     for phase in ("skill_2_place/wake", "skill_2_place/sleep"):
@@ -302,22 +316,17 @@ def test_a_copied_run_resumes_where_it_is_with_allow_listed_changes(after_stage_
         assert str(original) not in text and str(copy) not in text, path
 
 
-def test_a_run_without_fingerprint_is_checked_against_its_train_config(stored, tmp_path):
-    """Runs written before fingerprints (and sleep replays) hold only train_config.json: resuming compares with
-    it, refuses naming that file, and stores the fingerprint once when the settings agree."""
+def test_a_run_without_fingerprint_is_refused_naming_the_file(stored, tmp_path):
+    """The fingerprint is the first file a run writes: a run directory without it is never resumed, and its settings
+    are never re-created from train_config.json (not sealed: an edited copy would become the run's settings)."""
     out, saved = stored
     run = tmp_path / "old"
     shutil.copytree(out, run)
     (run / FINGERPRINT_FILE).unlink()
-    old_style = {**saved, "output_dir": str(tmp_path / "old")}  # the old absolute output_dir is allow-listed
-    (run / "train_config.json").write_text(json.dumps(old_style))
-    changed = _parse(with_leaf(saved, ("sleep", "lr"), 2e-5), tmp_path, run)
     before = tree_state(run)
-    err = assert_refused_naming(lambda: StreamTrainer(changed)._prepare_output_dir(), "sleep.lr")
-    assert "train_config.json: cannot resume" in str(err) and tree_state(run) == before
-    StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
-    assert read_fingerprint(run / FINGERPRINT_FILE) == read_fingerprint(out / FINGERPRINT_FILE)
-    (run / FINGERPRINT_FILE).unlink()
+    with pytest.raises(CorruptFileError, match=f"{FINGERPRINT_FILE}: missing: cannot resume"):
+        StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
+    assert tree_state(run) == before and not (run / FINGERPRINT_FILE).exists()
     (run / "train_config.json").unlink()
     with pytest.raises(FileNotFoundError, match="holds no run to resume"):
         StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()

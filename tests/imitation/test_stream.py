@@ -38,7 +38,7 @@ def test_a_stream_writes_every_stage_memory_and_report(finished_run):
     for k, skill in enumerate(SKILLS, start=1):
         stage = out / f"skill_{k}_{skill}"
         assert (stage / "wake" / "pretrained_model" / "config.json").is_file()
-        assert (stage / "wake" / "eval.json").is_file() and (stage / "wake" / "trajectories.npz").is_file()
+        assert (stage / "wake" / "eval.json").is_file() and (stage / "wake" / "trajectories.safetensors").is_file()
         assert (stage / "sleep").is_dir() == (k >= 2)
         memory = load_memory(out / "memories" / f"skill_{k}_{skill}.safetensors", skill=skill)
         assert memory.size == 16 and memory.config["snapshot"] == f"skill_{k}_{skill}/wake"

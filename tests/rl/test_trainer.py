@@ -4,6 +4,8 @@ paired evaluation (the same configurations for a skill at every stage and right 
 from __future__ import annotations
 
 import json
+import re
+import shutil
 from pathlib import Path
 
 import draccus
@@ -66,7 +68,7 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
     s_final, w = full["success_matrix"], full["success_after_own_wake"]
     assert full["metrics"]["bwt_wake"]["final"] == pytest.approx(s_final[1][0] - w[0])
     assert full["metrics"]["bwt"]["final"] == pytest.approx(s_final[1][0] - s_final[0][0])
-    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == RESULTS_VERSION == 4
+    assert full["spi_features"] == [0, 1, 2, 3] and full["results_version"] == RESULTS_VERSION == 5
     assert len(full["stages"][1]["sleep"]["frozen_critic_value_change"]) == 2
     assert (tmp_path / "full" / "success_matrix.png").is_file() and (tmp_path / "full" / "metrics.png").is_file()
     assert "BWT_wake" in (tmp_path / "full" / "results.md").read_text()
@@ -225,3 +227,40 @@ def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
                                   sac=SACConfig(hidden_dim=16, batch_size=16, utd_ratio=0.5, warmup_steps=40,
                                                 buffer_size=5000), **cfg)).run()
     assert not (tmp_path / "bad").exists()
+
+
+def test_an_unknown_skill_is_refused_before_the_first_gradient(tmp_path):
+    """Issue 26: ``--stream.skills=[reach-v3,door-open-v3,fooo-v3]`` failed after two stages (hours at the real
+    preset). Now the trainer refuses it when built, naming ``stream.skills``, with nothing written."""
+    out = tmp_path / "run"
+    with pytest.raises(ValueError, match=r"^stream.skills: \['fooo-v3'\] are not Meta-World v3 environments"):
+        StreamTrainer(tiny_config(out, skills=["reach-v3", "fooo-v3"]))
+    assert not out.exists()
+
+
+def test_every_sealed_file_is_verified_before_a_resume_writes(tmp_path, uninterrupted):
+    """Issue 26: a flipped byte in a completed phase's file (the last stage's trajectories and sleep diagnostics
+    were read only at the report) is refused naming the file before the resume writes anything."""
+    from tests.core.test_fingerprint import tree_state
+
+    cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
+    stopped = tmp_path / "stopped"
+
+    def kill(k, phase):
+        if (k, phase) == (1, "sleep"):
+            raise SimulatedKillError
+
+    with pytest.raises(SimulatedKillError):
+        StreamTrainer(tiny_config(stopped, **cfg), after_phase=kill).run()
+    files = ["stages/01_reach/trajectories.safetensors", "stages/02_door-open/sleep/sleep_diagnostics.json",
+             "stages/02_door-open/memory.safetensors", "stages/01_reach/wake/agent.safetensors", "progress.json"]
+    for name in files:
+        run = tmp_path / name.replace("/", "_")
+        shutil.copytree(stopped, run)
+        data = bytearray((run / name).read_bytes())
+        data[len(data) // 2] ^= 0x01
+        (run / name).write_bytes(bytes(data))
+        before = tree_state(run)
+        with pytest.raises(CorruptFileError, match=re.escape(name)):
+            StreamTrainer(tiny_config(run, resume=True, **cfg)).run()
+        assert tree_state(run) == before, name

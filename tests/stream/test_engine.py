@@ -181,11 +181,12 @@ def _raise() -> None:
 
 def test_registry_names_choices_and_refuses_other_substrates():
     assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
-    assert methods_for("act") == ["ewc", "lwf", "m2distill", "sequential_bc", "sr", "wake_only"]
+    assert methods_for("act") == ["ewc", "lwf", "m2distill", "replay", "sequential_bc", "sr", "wake_only"]
     assert methods_for("sac") == ["agem", "clear", "componet", "der", "ewc", "nash_mtl", "pcgrad",
                                   "progress_compress", "reset_distill", "sequential_bc", "sr", "wake_only"]
     with pytest.raises(ValueError, match=r"unknown method 'der' on the act substrate; choose from "
-                                         r"\['ewc', 'lwf', 'm2distill', 'sequential_bc', 'sr', 'wake_only'\]"):
+                                         r"\['ewc', 'lwf', 'm2distill', 'replay', 'sequential_bc', 'sr', "
+                                         r"'wake_only'\]"):
         make_method("der", "act", ToySubstrate(Path("."), SKILLS).method_settings())
     with pytest.raises(ValueError, match=r"unknown method 'lwf' on the sac substrate; choose from"):
         make_method("lwf", "sac", ToySubstrate(Path("."), SKILLS).method_settings())
@@ -232,7 +233,7 @@ def test_a_method_needing_a_wake_hook_the_substrate_does_not_call_is_refused(tmp
     try:
         assert BatchMixer(ToySubstrate(tmp_path, SKILLS).method_settings()).wake_hooks_used() == {"wake_batch"}
         make_engine(tmp_path / "ok", "batch_mixer")  # the toy substrate calls wake_batch
-        monkeypatch.setattr(ToySubstrate, "wake_hooks", frozenset({"wake_loss", "adjust_gradients"}))  # as ACT
+        monkeypatch.setattr(ToySubstrate, "wake_hooks", frozenset({"wake_loss", "adjust_gradients"}))  # no batch hook
         with pytest.raises(ValueError, match=r"needs the wake hooks \['wake_batch'\]; the toy substrate's wake"):
             make_engine(tmp_path / "refused", "batch_mixer")
     finally:

@@ -9,10 +9,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sr_imitation.core.io import read_checked_json, write_checked_json
+from sr_imitation.core.cli_errors import run_cli
+from sr_imitation.core.io import CorruptFileError, read_checked_json, write_checked_json
 from sr_imitation.core.provenance import process_code_version
 from sr_imitation.stream.results import (
     RESULTS_VERSION,
+    SEALED_SINCE,
     build_results,
     load_results,
     render_markdown,
@@ -87,7 +89,7 @@ def test_written_files_agree(tmp_path):
 def _write_run(root: Path, name: str, results: dict) -> Path:
     run = root / name
     run.mkdir()
-    (run / "results.json").write_text(json.dumps(results))
+    write_checked_json(run / "results.json", results)
     return run
 
 
@@ -168,6 +170,28 @@ def test_summary_reports_each_runs_phase_time(tmp_path):
     assert f"| {timed} | " in md and " | 2.0 |" in md and " | - |" in md and "All runs above: 0.03 h." in md
     # the experiment drivers' path (load_groups) names the run and times it too
     assert summarize(load_groups({"sr": {"0": timed}}))["variants"]["sr"]["runs"] == {"0": str(timed)}
+
+
+def test_a_results_file_without_its_seal_is_refused_unless_its_schema_predates_seals(tmp_path):
+    """Issue 26: renaming the ``sha256`` key and editing AFSR was read as the run's result. Whether a file may lack
+    its seal is decided by its recorded schema version, never by the missing key; such runs are marked unsealed."""
+    run = _write_run(tmp_path, "run", _results())
+    data = json.loads((run / "results.json").read_text())
+    assert data["results_version"] == RESULTS_VERSION >= SEALED_SINCE and not load_results(run)["unsealed"]
+    data["sha_256"] = data.pop("sha256")
+    data["metrics"]["afsr"]["final"] = 0.999
+    (run / "results.json").write_text(json.dumps(data))
+    with pytest.raises(CorruptFileError, match=r"run/results.json: has no sha256"):
+        load_results(run)
+    with pytest.raises(SystemExit, match="2"):  # the command: one line naming the file, exit status 2
+        run_cli("sr_imitation.stream.summary", main, [str(run), f"--output={tmp_path / 'summary'}"])
+    old = {k: v for k, v in data.items() if k != "sha_256"} | {"results_version": 4}  # written before seals
+    (run / "results.json").write_text(json.dumps(old))
+    assert load_results(run)["unsealed"]
+    summary = summarize(load_groups({"sr": {"0": run}}))
+    assert summary["variants"]["sr"]["unsealed"] == {"0": True}
+    write_summary(tmp_path / "s", summary)
+    assert "Unsealed: sr seed 0" in (tmp_path / "s" / "summary.md").read_text()
 
 
 def test_unknown_versions_and_missing_files_are_named(tmp_path):

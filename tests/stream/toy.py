@@ -11,7 +11,7 @@ from typing import Any, ClassVar
 
 import torch
 
-from sr_imitation.core.io import atomic_write_json, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.core.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
 from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.stream import MethodSettings, SleepProblem
@@ -132,7 +132,7 @@ class ToySubstrate:
                    for i in skills}
         record = {"success": {s: float((e < 1.0).float().mean()) for s, e in err.items()},
                   "error": {s: float(e.mean()) for s, e in err.items()}}
-        atomic_write_json(self.out / f"stage{k}" / f"{phase}.json", record)
+        write_checked_json(self.out / f"stage{k}" / f"{phase}.json", record)
         return record
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
@@ -151,7 +151,7 @@ class ToySubstrate:
     def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
         save_checked_safetensors(self._path(k, phase), dict(self.policy.state_dict()), {"stage": k, "phase": phase})
         for name, obj in files.items():
-            atomic_write_json(self.out / f"stage{k}" / f"{phase}.{name}", obj)
+            write_checked_json(self.out / f"stage{k}" / f"{phase}.{name}", obj)
 
     def load_policy(self, k: int, phase: str) -> None:
         tensors, _ = load_checked_safetensors(self._path(k, phase))

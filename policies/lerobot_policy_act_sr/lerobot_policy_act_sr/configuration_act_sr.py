@@ -6,6 +6,13 @@ gamma_2 = 1.0 and gamma_k = 0.5 for k >= 3). The policy holds what its own train
 the wake-time distillation from attached memories). The stream's settings live in ``sr-train``'s sections, with
 the same flag names on both substrates: ``--sleep.*`` (the table "Sleep-consolidation hyperparameters", core
 :class:`~sr_imitation.core.sleep.SleepConfig`), ``--memory.buffer_size`` (1024 observations per skill).
+
+``--policy.sleep`` (the design card's "a lerobot-style train command with ``--policy.sleep=true``") is the one sleep
+setting the policy holds. On ``sr-train`` it is the same switch as ``--sleep.enabled`` and
+``--policy.sleep_memory_size`` the same setting as ``--memory.buffer_size`` (folded into them at parse time,
+:func:`sr_imitation.stream.config.fold_policy_aliases`). On stock ``lerobot-train`` ``--policy.sleep=true`` makes
+the policy keep a reservoir of the observations it trains on and write the skill's frozen actor memory
+(``memory.safetensors``) next to every checkpoint, for a later sleep (:mod:`lerobot_policy_act_sr.modeling_act_sr`).
 """
 
 from __future__ import annotations
@@ -17,6 +24,11 @@ from lerobot.policies.act.configuration_act import ACTConfig
 
 BACKBONE_NORMS = ("auto", "frozen_batch", "group")
 """Choices of :attr:`ACTSRConfig.backbone_norm`."""
+
+DEFAULT_SLEEP_MEMORY_SIZE = 1024
+"""Observations in the memory stock ``lerobot-train --policy.sleep=true`` writes when ``sleep_memory_size`` is not
+given: the paper's |B_k| (SurgicAI table "Sleep-consolidation hyperparameters": 1024 buffered observations per
+skill), the same as ``sr-train``'s ``--memory.buffer_size`` default."""
 
 
 @PreTrainedConfig.register_subclass("act_sr")
@@ -41,7 +53,12 @@ class ACTSRConfig(ACTConfig):
             preset its features reached an RMS of 95,000 after 1800 wake steps (the robot-state token's: 0.6),
             the image tokens drowned the state and approach was never learned (success 0.00; docs/RESULTS.md).
 
-    The sleep and memory-buffer settings are the stream's (``sr-train --sleep.* --memory.*``), not the policy's.
+    The design card's switch ``sleep`` (``--policy.sleep=true``; ``None`` when not given): on stock ``lerobot-train``,
+    true keeps a uniform reservoir of the observations trained on and writes the skill's frozen actor memory
+    ``memory.safetensors`` beside each checkpoint's ``model.safetensors`` (``sleep_memory_size`` observations,
+    ``None`` meaning :data:`DEFAULT_SLEEP_MEMORY_SIZE`); false or ``None`` change nothing. On ``sr-train`` they are
+    ``--sleep.enabled`` and ``--memory.buffer_size`` (folded into them; giving both with different values is an
+    error). The other sleep and memory-buffer settings are the stream's (``sr-train --sleep.* --memory.*``).
     """
 
     # ACT as in the paper.
@@ -64,6 +81,13 @@ class ACTSRConfig(ACTConfig):
     use_images: bool = True
     backbone_norm: str = "auto"
 
+    sleep: bool | None = None
+    """Sleep switch (the design card's --policy.sleep=true). Stock lerobot-train - keep a reservoir of the trained-on
+    observations and write the skill's frozen actor memory (memory.safetensors) beside each checkpoint. sr-train -
+    the same switch as --sleep.enabled."""
+    sleep_memory_size: int | None = None
+    """Observations in that memory (default 1024, the paper's |B_k|); on sr-train the same as --memory.buffer_size."""
+
     def __post_init__(self) -> None:
         super().__post_init__()
         bad = [] if self.distill_batch_size > 0 else [f"distill_batch_size={self.distill_batch_size}"]
@@ -76,6 +100,13 @@ class ACTSRConfig(ACTConfig):
             raise ValueError(f"distill_reduction must be 'mean' or 'sum', got {self.distill_reduction!r}")
         if self.backbone_norm not in BACKBONE_NORMS:
             raise ValueError(f"backbone_norm must be one of {', '.join(BACKBONE_NORMS)}, got {self.backbone_norm!r}")
+        if self.sleep_memory_size is not None and not self.sleep_memory_size >= 1:
+            raise ValueError(f"policy.sleep_memory_size must be >= 1, got {self.sleep_memory_size}")
+
+    @property
+    def resolved_sleep_memory_size(self) -> int:
+        """``sleep_memory_size`` with ``None`` resolved to :data:`DEFAULT_SLEEP_MEMORY_SIZE`."""
+        return DEFAULT_SLEEP_MEMORY_SIZE if self.sleep_memory_size is None else self.sleep_memory_size
 
     @property
     def resolved_backbone_norm(self) -> str:

@@ -8,21 +8,34 @@ dropout) in the stream's fixed normalized action space. Memories are attached by
 
 Memories are kept in a plain list, outside the ``nn.Module`` tree: they are not saved in ``model.safetensors``,
 not moved by ``.to()`` and never trained; they have their own files (``memories/skill_k.safetensors``).
+
+``--policy.sleep=true`` on stock ``lerobot-train`` (the design card's command): the policy keeps a uniform reservoir
+(:class:`ObservationReservoir`) of the observations it trains on and every ``save_pretrained`` writes the skill's
+frozen actor memory M_k^pi = (pi_{theta_k^wake}, B_k) (Section 3) beside ``model.safetensors`` as
+:data:`MEMORY_FILE`, in the stream's format (:class:`~sr_imitation.imitation.actor_memory.ActorMemory`, loaded by
+:func:`sr_imitation.core.memory.load_memory`), so a skill trained with stock ``lerobot-train`` can later be
+consolidated in a sleep. With ``sleep`` false or not given nothing of this exists and training is ACT-SR's as before.
 """
 
 from __future__ import annotations
 
+import logging
 from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
 from typing import Any
 
 import torch
 from lerobot.policies.act.modeling_act import ACTPolicy
+from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor
 from torchvision.ops.misc import FrozenBatchNorm2d
 
 from lerobot_policy_act_sr.configuration_act_sr import ACTSRConfig
 from sr_imitation.core.memory import Memory, summed_objective
+from sr_imitation.imitation.actor_memory import ActorMemory, images_to_uint8
+
+logger = logging.getLogger(__name__)
 
 ObservationNormalizer = Callable[[Mapping[str, Tensor]], dict[str, Tensor]]
 
@@ -61,6 +74,64 @@ def group_norm_backbone(backbone: torch.nn.Module) -> int:
     return replaced
 
 
+MEMORY_FILE = "memory.safetensors"
+"""The frozen actor memory ``--policy.sleep=true`` writes beside a checkpoint's ``model.safetensors``."""
+
+RESERVOIR_SEED = 0
+"""Seed of the reservoir's draws (our choice). The draws depend only on how many observations came before, not on
+their values, so runs with the same batch sizes keep the same positions of the observation stream."""
+
+MEMORY_SNAPSHOT = "."
+"""``config["snapshot"]`` of a memory written beside its checkpoint: the snapshot's weights are the directory that
+holds the memory file (the stream's memories name their stage checkpoint relative to the run instead)."""
+
+
+class ObservationReservoir:
+    """A uniform sample of at most ``size`` observations from a stream of batches (reservoir sampling, Vitter's
+    Algorithm R): after n observations each of them is held with probability min(1, size / n).
+
+    Tensors are kept on the CPU with the dtype they arrive in; the first batch fixes the keys and shapes.
+    """
+
+    def __init__(self, size: int, seed: int = RESERVOIR_SEED) -> None:
+        if size < 1:
+            raise ValueError(f"reservoir size must be >= 1, got {size}")
+        self.size = int(size)
+        self.seen = 0
+        self._buffers: dict[str, Tensor] = {}
+        self._generator = torch.Generator().manual_seed(seed)
+
+    def __len__(self) -> int:
+        return min(self.seen, self.size)
+
+    def add(self, batch: Mapping[str, Tensor]) -> None:
+        """Offer every row of ``batch`` (tensors sharing their first dimension) to the reservoir, in order."""
+        if not batch:
+            return
+        if not self._buffers:
+            self._buffers = {k: torch.zeros((self.size, *v.shape[1:]), dtype=v.dtype) for k, v in batch.items()}
+        elif set(batch) != set(self._buffers):
+            raise ValueError(f"reservoir holds {sorted(self._buffers)}, got a batch of {sorted(batch)}")
+        slots: dict[int, int] = {}  # slot -> row; a later row for the same slot replaces an earlier one
+        for row in range(int(next(iter(batch.values())).shape[0])):
+            self.seen += 1
+            if self.seen <= self.size:
+                slots[self.seen - 1] = row
+                continue
+            slot = int(torch.randint(self.seen, (1,), generator=self._generator))
+            if slot < self.size:
+                slots[slot] = row
+        if slots:
+            where = torch.tensor(list(slots))
+            rows = torch.tensor(list(slots.values()))
+            for key, buffer in self._buffers.items():
+                buffer[where] = batch[key].detach()[rows.to(batch[key].device)].to("cpu", buffer.dtype)
+
+    def observations(self) -> dict[str, Tensor]:
+        """The held observations (copies), ``len(self)`` rows each."""
+        return {k: v[: len(self)].clone() for k, v in self._buffers.items()}
+
+
 class ACTSRPolicy(ACTPolicy):
     """ACT + Sleeping Robots (the policy class LeRobot's factory finds for ``act_sr``)."""
 
@@ -76,6 +147,15 @@ class ACTSRPolicy(ACTPolicy):
         self._distill_weight = 0.0
         self._normalize_observation: ObservationNormalizer | None = None
         self._memory_generator = torch.Generator()
+        # --policy.sleep=true (stock lerobot-train): the reservoir and what turns its observations back to raw.
+        if config.sleep_memory_size is not None and not config.sleep:
+            # Checked here, not in ACTSRConfig: sr-train folds both into its own settings after building the config.
+            raise ValueError("policy.sleep_memory_size sizes the memory that policy.sleep=true writes; give "
+                             "--policy.sleep=true with it")
+        self._reservoir = ObservationReservoir(config.resolved_sleep_memory_size) if config.sleep else None
+        self._dataset_stats = kwargs.get("dataset_stats")
+        self._normalizers: tuple[NormalizerProcessorStep, UnnormalizerProcessorStep] | None = None
+        self._memory_skill = str(getattr(kwargs.get("dataset_meta"), "repo_id", "") or "skill")
 
     def deployed_named_parameters(self) -> list[tuple[str, torch.nn.Parameter]]:
         """The trainable parameters of the deployed policy (inference forward), in module order: everything but
@@ -163,6 +243,66 @@ class ACTSRPolicy(ACTPolicy):
             raise RuntimeError("no observation normalizer set; call set_observation_normalizer() first")
         return self.action_chunk(self._normalize_observation(raw_observations))
 
+    # -- --policy.sleep=true: the skill's frozen memory -------------------------------------------------
+    @property
+    def reservoir(self) -> ObservationReservoir | None:
+        """The observations kept for the skill's memory (``None`` unless ``config.sleep``)."""
+        return self._reservoir
+
+    def _normalizer_steps(self) -> tuple[NormalizerProcessorStep, UnnormalizerProcessorStep]:
+        """LeRobot's observation normalizer and its inverse with the dataset statistics the policy was built with
+        (``make_policy`` passes the same ``dataset.meta.stats`` that ``lerobot-train``'s preprocessor uses)."""
+        if not self._dataset_stats:
+            raise ValueError("policy.sleep=true keeps the raw observations it trains on and needs the dataset "
+                             "statistics for that: build the policy with make_policy(cfg, ds_meta=...) as "
+                             "lerobot-train does")
+        if self._normalizers is None:
+            args = {"features": dict(self.config.input_features), "norm_map": self.config.normalization_mapping,
+                    "stats": self._dataset_stats}
+            self._normalizers = NormalizerProcessorStep(**args), UnnormalizerProcessorStep(**args)
+        return self._normalizers
+
+    def _remember(self, batch: Mapping[str, Tensor]) -> None:
+        """Offer the batch's observations, turned back into the dataset's raw values (images as uint8), to the
+        reservoir: the memory stores raw observations, as the stream's memories do."""
+        keys = [k for k in self.config.input_features if k in batch]
+        with torch.no_grad():
+            raw = self._normalizer_steps()[1]._normalize_observation({k: batch[k].detach() for k in keys},
+                                                                      inverse=True)
+        images = set(self.config.image_features)
+        self._reservoir.add({k: images_to_uint8(raw[k]) if k in images else raw[k].float() for k in keys})
+
+    def frozen_memory(self, batch_size: int = 64) -> ActorMemory | None:
+        """M_k^pi = (pi_theta, B_k) of this policy now: the reservoir's observations and this policy's action chunks
+        on them (normalized as the training batches were), in the stream's actor-memory format with
+        ``reduction = config.distill_reduction``. ``None`` before any training observation."""
+        if self._reservoir is None or len(self._reservoir) == 0:
+            return None
+        normalize = self._normalizer_steps()[0]
+        device = next(self.parameters()).device
+
+        def chunk(raw: Mapping[str, Tensor]) -> Tensor:
+            obs = {k: (v.float() / 255.0 if v.dtype == torch.uint8 else v).to(device) for k, v in raw.items()}
+            return self.action_chunk(normalize._normalize_observation(obs, inverse=False))
+
+        return ActorMemory.from_observations(self._memory_skill, chunk, self._reservoir.observations(),
+                                             snapshot=MEMORY_SNAPSHOT, batch_size=batch_size,
+                                             reduction=self.config.distill_reduction)
+
+    def _save_pretrained(self, save_directory: Path) -> None:
+        """LeRobot's checkpoint, plus :data:`MEMORY_FILE` when ``config.sleep`` (see :meth:`frozen_memory`)."""
+        super()._save_pretrained(save_directory)
+        if self._reservoir is None:
+            return
+        memory = self.frozen_memory()
+        if memory is None:
+            logger.warning("policy.sleep=true: no training observations yet, so %s has no %s", save_directory,
+                           MEMORY_FILE)
+            return
+        memory.save(Path(save_directory) / MEMORY_FILE)
+        logger.info("policy.sleep=true: wrote the frozen actor memory of %r (%d of %d observations seen) to %s",
+                    memory.skill, memory.size, self._reservoir.seen, Path(save_directory) / MEMORY_FILE)
+
     # -- LeRobot API -------------------------------------------------------------------------------
     @torch.no_grad()
     def predict_action_chunk(self, batch: dict[str, Tensor]) -> Tensor:
@@ -170,7 +310,10 @@ class ACTSRPolicy(ACTPolicy):
         return self.model(self._model_batch(batch))[0]
 
     def forward(self, batch: dict[str, Tensor]) -> tuple[Tensor, dict]:
-        """ACT's loss plus gamma_k times the summed distillation losses of the attached memories."""
+        """ACT's loss plus gamma_k times the summed distillation losses of the attached memories. With
+        ``config.sleep``, training batches' observations are also offered to the reservoir."""
+        if self._reservoir is not None and self.training:
+            self._remember(batch)
         batch = dict(batch)
         if self.config.env_state_feature and OBS_ENV_STATE not in batch and OBS_STATE in batch:
             batch[OBS_ENV_STATE] = batch[OBS_STATE]

@@ -15,6 +15,7 @@ from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
     nash_mtl,
     pcgrad,
     progress_compress,
+    replay,
     reset_distill,
     sequential_bc,
     sleeping_robots,
