@@ -1,0 +1,107 @@
+"""The pre-registered tests of a comparison, computed from its archived raw results (docs/RESULTS.md, issue 28).
+
+    python -m sr_imitation.experiments.hypotheses --archive=docs/results/needle_cpu_m16_compare \\
+        --tests=[sr>wake_only,sr!=replay] --metric=afsr --output=docs/results/needle_cpu_m16_compare/hypotheses
+
+A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0, ``A!=B`` the two-sided one
+(:func:`sr_imitation.stream.stats.paired_test`), over the training seeds both variants have in the archive
+(``<variant>_seed<S>/results.json``, read and checked by :func:`sr_imitation.stream.results.load_results`); each
+seed's value is the run's final metric (its mean over evaluation units). Written: ``hypotheses.md`` and
+``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference, t, p, bootstrap 95% CI).
+"""
+
+from __future__ import annotations
+
+import logging
+import re
+import sys
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import draccus
+
+from sr_imitation.core.io import atomic_write_bytes, write_checked_json
+from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.stats import paired_test
+
+logger = logging.getLogger(__name__)
+
+_TEST = re.compile(r"^([\w.]+)(>|<|!=)([\w.]+)$")
+_ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
+
+
+@dataclass
+class HypothesesConfig:
+    archive: Path = Path("docs/results/needle_cpu_m16_compare")
+    """A folder of finished runs, ``<variant>_seed<S>/`` each (a comparison's archive)."""
+    tests: list[str] = field(default_factory=lambda: ["sr>wake_only", "sr!=replay"])
+    """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided)."""
+    metric: str = "afsr"
+    """The final metric compared (afsr, prs, bwt, bwt_wake, spi)."""
+    alpha: float = 0.05
+    """The significance level stated before the runs."""
+    output: Path | None = None
+    """Where hypotheses.md / .json go (none: print only)."""
+
+    def __post_init__(self) -> None:
+        bad = [t for t in self.tests if not _TEST.match(t)]
+        if bad:
+            raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B")
+        if self.metric not in METRICS:
+            raise ValueError(f"metric: {self.metric!r} is not one of {list(METRICS)}")
+        if not 0 < self.alpha < 1:
+            raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
+
+
+def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float]:
+    """``{training seed: final metric}`` of every finished run of ``variant`` in ``archive``."""
+    out = {}
+    for run in sorted(Path(archive).glob(f"{variant}_seed*")):
+        suffix = run.name[len(variant) + len("_seed"):]
+        if suffix.isdigit() and (run / "results.json").is_file():
+            value = load_results(run)["metrics"][metric]["final"]
+            if value is not None:
+                out[int(suffix)] = float(value)
+    return out
+
+
+def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
+    rows = []
+    for test in cfg.tests:
+        a, op, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked in __post_init__)
+        va, vb = archived_values(cfg.archive, a, cfg.metric), archived_values(cfg.archive, b, cfg.metric)
+        seeds = sorted(set(va) & set(vb))
+        result = paired_test([va[s] for s in seeds], [vb[s] for s in seeds], _ALTERNATIVE[op])
+        rows.append({"test": test, "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
+                     "a_values": [va[s] for s in seeds], "b_values": [vb[s] for s in seeds], **result.to_dict(),
+                     "alpha": cfg.alpha, "significant": bool(result.p < cfg.alpha)})
+    return rows
+
+
+def render(rows: list[dict[str, Any]], archive: Path) -> str:
+    lines = [f"Pre-registered paired tests over training seeds ({archive}):", "",
+             "| test | metric | seeds | mean diff +- SE | 95% bootstrap CI | t | p | at alpha |", "|---" * 8 + "|"]
+    for r in rows:
+        verdict = "-" if r["n"] < 2 else ("reject H0" if r["significant"] else "not significant")
+        lines.append(f"| {r['test']} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
+                     f"{r['mean']:+.3f} +- {r['sem']:.3f} | [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}] | "
+                     f"{r['t']:.2f} | {r['p']:.4f} | {verdict} ({r['alpha']}) |")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: list[str] | None = None) -> None:
+    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    cfg = draccus.parse(HypothesesConfig, args=list(sys.argv[1:] if args is None else args))
+    rows = run_tests(cfg)
+    text = render(rows, cfg.archive)
+    if cfg.output is not None:
+        write_checked_json(cfg.output / "hypotheses.json", {"archive": str(cfg.archive), "tests": rows})
+        atomic_write_bytes(cfg.output / "hypotheses.md", text.encode())
+    print(text)  # noqa: T201 (command output)
+
+
+if __name__ == "__main__":
+    from sr_imitation.core.cli_errors import run_cli
+
+    run_cli("sr_imitation.experiments.hypotheses", main)

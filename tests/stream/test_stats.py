@@ -1,0 +1,81 @@
+"""The pre-registered paired tests (sr_imitation.stream.stats) against SciPy, over families of inputs."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy import special
+from scipy import stats as scipy_stats
+
+from sr_imitation.stream.stats import betainc, paired_test, t_sf
+
+
+@pytest.mark.parametrize("a, b", [(0.5, 0.5), (2.0, 0.5), (0.5, 3.0), (10.0, 0.5), (1.5, 1.5)])
+def test_betainc_matches_scipy_over_x(a, b):
+    for x in np.linspace(0, 1, 41):
+        assert betainc(a, b, float(x)) == pytest.approx(special.betainc(a, b, x), rel=1e-10, abs=1e-13)
+
+
+@pytest.mark.parametrize("df", [1, 2, 4, 9, 30])
+def test_t_survival_function_matches_scipy(df):
+    for t in [-50, -3.2, -1, -0.1, 0, 0.1, 0.7, 1, 2.776, 5, 50]:
+        assert t_sf(t, df) == pytest.approx(scipy_stats.t.sf(t, df), rel=1e-9, abs=1e-14)
+    assert t_sf(math.inf, df) == 0 and t_sf(-math.inf, df) == 1
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_paired_test_matches_scipy_ttest_rel_and_is_invariant(seed):
+    rng = np.random.default_rng(seed)
+    n = int(rng.integers(3, 9))
+    a, b = rng.uniform(0, 1, n), rng.uniform(0, 1, n)
+    for alternative in ("greater", "less", "two-sided"):
+        ours = paired_test(a, b, alternative)
+        ref = scipy_stats.ttest_rel(a, b, alternative=alternative)
+        assert ours.t == pytest.approx(ref.statistic, rel=1e-12)
+        assert ours.p == pytest.approx(ref.pvalue, rel=1e-9)
+        assert ours.ci_low <= ours.mean <= ours.ci_high
+    # adding the same value to both methods changes nothing; scaling both scales mean and CI, not t or p
+    assert paired_test(a + 3, b + 3).p == pytest.approx(paired_test(a, b).p)
+    scaled, base = paired_test(2 * a, 2 * b), paired_test(a, b)
+    assert scaled.t == pytest.approx(base.t) and scaled.mean == pytest.approx(2 * base.mean)
+    assert scaled.ci_high == pytest.approx(2 * base.ci_high)
+
+
+def test_edge_cases():
+    same = paired_test([0.5, 0.7, 0.9], [0.5, 0.7, 0.9], "greater")
+    assert math.isnan(same.t) and same.p == 1.0 and same.mean == 0.0
+    constant = paired_test([0.6, 0.8, 1.0], [0.5, 0.7, 0.9], "greater")  # every seed +0.1
+    assert constant.t == math.inf and constant.p == 0.0
+    assert paired_test([0.6, 0.8, 1.0], [0.5, 0.7, 0.9], "less").p == 1.0
+    assert math.isnan(paired_test([1.0], [0.0]).p)
+    with pytest.raises(ValueError, match="equal lengths"):
+        paired_test([1.0, 2.0], [1.0])
+    with pytest.raises(ValueError, match="alternative"):
+        paired_test([1.0, 2.0], [1.0, 0.0], "bigger")
+
+
+def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
+    import json
+
+    from scipy import stats as st
+
+    from sr_imitation.core.io import write_checked_json
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, main
+    from tests.stream.test_results import _results
+
+    shifts = {"sr": [0.0, -0.05, -0.02, -0.03], "wake_only": [-0.1, -0.06, -0.14]}  # wake_only has no seed 3
+    for variant, values in shifts.items():
+        for seed, shift in enumerate(values):
+            run = tmp_path / f"{variant}_seed{seed}"
+            run.mkdir()
+            write_checked_json(run / "results.json", _results(seed=seed, shift=shift, sleep=variant == "sr"))
+    main([f"--archive={tmp_path}", "--tests=[sr>wake_only]", f"--output={tmp_path / 'h'}"])
+    row = json.loads((tmp_path / "h" / "hypotheses.json").read_text())["tests"][0]
+    assert row["seeds"] == [0, 1, 2] and row["alternative"] == "greater"
+    ref = st.ttest_rel(row["a_values"], row["b_values"], alternative="greater")
+    assert row["p"] == pytest.approx(ref.pvalue) and row["mean"] == pytest.approx(np.mean([0.1, 0.01, 0.12]))
+    assert "sr>wake_only (greater)" in capsys.readouterr().out
+    with pytest.raises(ValueError, match="not of the form"):
+        HypothesesConfig(tests=["sr=wake_only"])
