@@ -31,8 +31,11 @@ class MainJobConfig:
     """Recording settings and the stream's settings; ``record.root`` is where the stream reads its datasets."""
 
     record: RecordConfig = field(default_factory=RecordConfig)
+    """Recording of the scripted-expert demonstrations (sr-record's flags under --record.)."""
     train: TrainStreamConfig = field(default_factory=TrainStreamConfig)
+    """The wake-sleep stream (sr-train's flags under --train.)."""
     expert_video: bool = True
+    """Also write a full-suture video of the scripted expert (expert_suture.mp4) to train.output_dir."""
 
     def __post_init__(self) -> None:
         self.train.stream.dataset_root = self.record.root
@@ -42,7 +45,7 @@ class MainJobConfig:
 def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:
     """An sr-main preset with ``sr-train`` flags applied to its train section (``--seed=1``), its datasets recorded
     if missing and checked if present (the experiment drivers' start)."""
-    cfg = parse_config(MainJobConfig, preset, [f"--train.{a[2:]}" if a.startswith("--") else a for a in train_flags])
+    cfg = parse_config(MainJobConfig, preset, train_flags, prefix="train.")
     ensure_recorded(cfg.record)
     return cfg
 
@@ -66,7 +69,7 @@ def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = parse_config(MainJobConfig, config_path, rest)
+    cfg = parse_config(MainJobConfig, config_path, rest, prog="sr-main")
     results = run_main_job(cfg)
     out = Path(cfg.train.output_dir)
     m = results["metrics"]

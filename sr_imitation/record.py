@@ -16,15 +16,16 @@ import contextlib
 import logging
 import os
 import shutil
+import sys
 import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import draccus
 import numpy as np
 from tqdm import tqdm
 
 from sr_imitation.core.cli_errors import run_cli
+from sr_imitation.core.cli_parsing import parse_command
 from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
 from sr_imitation.envs.needle.expert import ExpertSettings, NeedleExpert
@@ -39,50 +40,46 @@ VIDEO_CODECS = ("h264", "hevc", "libsvtav1")
 
 @dataclass
 class RecordConfig:
-    """Options of ``sr-record``.
-
-    Args:
-        skills: skills to record, in stream order by default.
-        num_episodes: successful episodes per skill (failed expert episodes are discarded).
-        root: parent folder; each skill's dataset goes to ``<root>/<skill>``.
-        repo_id_prefix: LeRobot ``repo_id`` is ``<prefix>_<skill>`` (local only; nothing is pushed).
-        image_size: wrist image height, and width unless ``image_width`` is set (96 is the CPU default).
-        image_width: wrist image width when not square, e.g. ``--image_size=480 --image_width=640`` for the
-            paper's 640x480.
-        video: store wrist images as mp4 (decode with ``video_backend="pyav"``) instead of PNG in parquet.
-        vcodec: video codec when ``video`` is true.
-        thresholds: success preset, ``learnable`` or ``surgicai``.
-        seed: base seed; episode ``k`` of skill ``i`` uses env seed ``seed * 1_000_000 + i * 10_000 + k``.
-        fps: dataset frame rate.
-        overwrite: replace existing datasets at the targets.
-        episode_videos: also write one scene-camera mp4 per episode to ``<root>/<skill>_episode_videos``.
-        max_failures: give up on a skill after this many failed expert episodes.
-        demo_threshold_scale: a demo ends when the expert is inside this fraction of the success thresholds
-            (position and rotation), not on their boundary. 1 reproduces SurgicAI's demos, which stop the step
-            success is first reached; place and insert demos then end at a mean 9.7 deg rotation error against
-            the 10 deg threshold, and a policy that imitates them stalls just outside (docs/RESULTS.md, "why the
-            base learner failed"). Our choice; evaluation always uses the full thresholds.
-        expert_jaw_close_mm: the expert starts closing the jaw (approach, regrasp) once its position error is
-            below this (SurgicAI's demos: 1.5 mm, spec §4.2). A policy closes about 1 mm early, and with the 2 mm
-            regrasp threshold a demo that closes at 1.5 mm leaves it no room. Our choice.
-    """
+    """Options of ``sr-record`` (one LeRobot dataset per skill at ``<root>/<skill>``)."""
 
     skills: list[str] = field(default_factory=lambda: list(SKILL_NAMES))
+    """Skills to record, in stream order by default."""
     num_episodes: int = 100
+    """Successful episodes per skill (failed expert episodes are discarded)."""
     root: Path = Path("datasets/needle")
+    """Parent folder; each skill's dataset goes to <root>/<skill>."""
     repo_id_prefix: str = "local/sr_needle"
+    """LeRobot repo_id of each dataset is <prefix>_<skill> (local only; nothing is pushed)."""
     image_size: int = 96
+    """Wrist image height, and width unless image_width is set (96 is the CPU default)."""
     image_width: int | None = None
+    """Wrist image width when not square, e.g. --image_size=480 --image_width=640 for the paper's 640x480."""
     video: bool = False
+    """Store wrist images as mp4 (decode with video_backend=pyav) instead of PNG in parquet."""
     vcodec: str = "h264"
+    """Video codec when video is true - h264, hevc or libsvtav1."""
     thresholds: str = "learnable"
+    """Success-threshold preset of the expert's episodes - learnable or surgicai."""
     seed: int = 0
+    """Base seed; episode k of skill i uses env seed seed * 1_000_000 + i * 10_000 + k."""
     fps: int = 30
+    """Dataset frame rate."""
     overwrite: bool = False
+    """Replace existing datasets at the targets."""
     episode_videos: bool = False
+    """Also write one scene-camera mp4 per episode to <root>/<skill>_episode_videos."""
     max_failures: int = 50
+    """Give up on a skill after this many failed expert episodes."""
     demo_threshold_scale: float = 1.0
+    """A demo ends when the expert is inside this fraction of the success thresholds (position and rotation), not
+    on their boundary. 1 reproduces SurgicAI's demos, which stop the step success is first reached; place and insert
+    demos then end at a mean 9.7 deg rotation error against the 10 deg threshold, and a policy that imitates them
+    stalls just outside (docs/RESULTS.md, "why the base learner failed"). Our choice; evaluation always uses the
+    full thresholds."""
     expert_jaw_close_mm: float = 1.5
+    """The expert starts closing the jaw (approach, regrasp) once its position error is below this many mm
+    (SurgicAI's demos 1.5 mm, spec section 4.2). A policy closes about 1 mm early, and with the 2 mm regrasp
+    threshold a demo that closes at 1.5 mm leaves it no room. Our choice."""
 
     def __post_init__(self) -> None:
         if not self.skills:
@@ -301,7 +298,7 @@ def record(cfg: RecordConfig) -> list[Path]:
 def main(args: list[str] | None = None) -> None:
     """Console entry point ``sr-record`` (draccus flags, LeRobot style)."""
     setup_offscreen_rendering()
-    cfg = draccus.parse(RecordConfig, args=args)
+    cfg = parse_command(RecordConfig, sys.argv[1:] if args is None else args, prog="sr-record")
     logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
     try:
         paths = record(cfg)

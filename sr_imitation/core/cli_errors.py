@@ -4,7 +4,9 @@ A user error (a bad flag value, a missing or damaged file, a refused resume, a d
 reported as ``<prog>: error: <message>`` on stderr with exit status 2, without a traceback; ``--debug`` (or
 ``SR_DEBUG=1``) re-raises it with the full traceback. Errors raised while draccus builds the config arrive wrapped
 (``ParsingError: Couldn't instantiate class ...``); the message shown is the innermost one, which names the key.
-Anything else (a bug) keeps its traceback.
+Anything else (a bug) keeps its traceback. A :class:`UsageError` (a flag the command does not know, a choice outside
+its list: :mod:`sr_imitation.core.cli_parsing`) is one line with a pointer to ``--help`` instead of argparse's usage
+dump.
 """
 
 from __future__ import annotations
@@ -21,6 +23,11 @@ USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, Fil
 """What counts as a user error (``ValueError`` includes settings mismatches, invalid values, dataset mismatches)."""
 
 T = TypeVar("T")
+
+
+class UsageError(ValueError):
+    """A command line the parser refuses (unknown flag, choice outside its list, flag without its value): printed as
+    one line and a pointer to ``--help``."""
 
 
 def _next(exc: BaseException) -> BaseException | None:
@@ -110,5 +117,8 @@ def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | Non
         key = _decoding_key(exc)
         if key and not message.startswith(("`", key)):
             message = f"{key}: {message}"  # draccus knew which setting it was decoding
-        sys.stderr.write(f"{prog}: error: {message} (--debug shows the traceback)\n")
+        if isinstance(user, UsageError):
+            sys.stderr.write(f"{prog}: error: {message} ({prog} --help lists every flag)\n")
+        else:
+            sys.stderr.write(f"{prog}: error: {message} (--debug shows the traceback)\n")
         raise SystemExit(2) from None

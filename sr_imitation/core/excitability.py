@@ -24,31 +24,30 @@ from torch import Tensor, nn
 
 @dataclass
 class ExcitabilityConfig:
-    """Paper Table "Homeostatic excitability hyperparameters for MT5".
-
-    Attributes:
-        e_min, e_max: gain bounds [0.1, 5.0].
-        target: alpha_target, target activity 0.10.
-        beta: activity EMA factor 0.01.
-        wake_rate: eta_e during wake, 1e-3.
-        sleep_rate: eta_e during sleep, 1e-2.
-        novelty_rate: rate for the first ``novelty_episodes`` episodes of the first skill, 5e-3.
-        novelty_episodes: 500.
-        enabled: False gives the "No exc." ablation (gains stay at 1, no updates).
-        wake_enabled / sleep_enabled: the "Wake-exc off" / "Sleep-exc off" ablations.
-    """
+    """Paper Table "Homeostatic excitability hyperparameters for MT5"."""
 
     e_min: float = 0.1
+    """Lower bound of the per-neuron gains e (paper 0.1)."""
     e_max: float = 5.0
+    """Upper bound of the per-neuron gains e (paper 5.0)."""
     target: float = 0.10
+    """alpha_target, the target activity of each neuron (paper 0.10)."""
     beta: float = 0.01
+    """EMA factor of the activity estimate (paper 0.01)."""
     wake_rate: float = 1e-3
+    """eta_e, the gain update rate during wake (paper 1e-3)."""
     sleep_rate: float = 1e-2
+    """eta_e during sleep (paper 1e-2)."""
     novelty_rate: float = 5e-3
+    """Gain update rate for the first novelty_episodes episodes of the first skill (paper 5e-3)."""
     novelty_episodes: int = 500
+    """Length of that novelty period in episodes (paper 500; scaled by --wake.budget_scale)."""
     enabled: bool = True
+    """Excitability at all - false is the "No exc." ablation (gains stay at 1, no updates)."""
     wake_enabled: bool = True
+    """Gain updates during wake - false is the "Wake-exc off" ablation."""
     sleep_enabled: bool = True
+    """Gain updates during sleep - false is the "Sleep-exc off" ablation."""
 
     def __post_init__(self) -> None:
         if not 0 < self.e_min <= 1.0 <= self.e_max:

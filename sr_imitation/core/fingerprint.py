@@ -164,16 +164,21 @@ class SettingsFingerprint:
     """Top-level keys computed from the configuration by the code rather than set in it (``method_config``: the
     method's settings with their defaults). A stored fingerprint without such a key predates it and counts as equal
     there (:func:`check_settings`); one that has it must match."""
+    added: Mapping[str, Any] = dataclasses.field(default_factory=dict)
+    """Settings added to the code after runs were first fingerprinted, with the value (JSON) every run that predates
+    them had: a stored fingerprint without such a key counts as holding that value (:func:`check_settings`), so an
+    older run resumes with it and is refused with another. Not written to the file."""
 
     def to_json(self) -> dict[str, Any]:
         return {"format": FINGERPRINT_FORMAT, "version": FINGERPRINT_VERSION, "sha256": self.sha256,
                 "allow_list": list(self.allow), "derived": list(self.derived), "settings": self.settings}
 
 
-def settings_fingerprint(cfg: Any, allow: Iterable[str] = (), derived: Mapping[str, Any] | None = None
-                         ) -> SettingsFingerprint:
+def settings_fingerprint(cfg: Any, allow: Iterable[str] = (), derived: Mapping[str, Any] | None = None,
+                         added: Mapping[str, Any] | None = None) -> SettingsFingerprint:
     """Flatten ``cfg`` (:func:`flatten_settings`) and ``derived`` (see :attr:`SettingsFingerprint.derived`; a key
-    of both is refused), drop the keys ``allow`` covers, hash the rest."""
+    of both is refused), drop the keys ``allow`` covers, hash the rest. ``added``: see
+    :attr:`SettingsFingerprint.added`."""
     allow, derived = tuple(allow), dict(derived or {})
     flat = flatten_settings(cfg)
     clash = sorted(set(derived) & {k.split(".")[0] for k in flat})
@@ -181,7 +186,7 @@ def settings_fingerprint(cfg: Any, allow: Iterable[str] = (), derived: Mapping[s
         raise ValueError(f"derived settings {clash} are also settings of the configuration")
     flat.update(flatten_settings(derived))
     flat = {k: v for k, v in sorted(flat.items()) if not is_allowed(k, allow)}
-    return SettingsFingerprint(flat, settings_digest(flat), allow, tuple(derived))
+    return SettingsFingerprint(flat, settings_digest(flat), allow, tuple(derived), dict(added or {}))
 
 
 def diff_settings(stored: Mapping[str, Any], current: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
@@ -226,10 +231,12 @@ def check_settings(path: str | os.PathLike[str], stored: Mapping[str, Any], curr
 
     ``stored`` is filtered with ``current.allow`` first, so a key allow-listed since the run started (or an older
     run's stored config, see :func:`settings_from_config`) is not counted; a key under one of ``current.derived``
-    that ``stored`` lacks is taken as equal (the run predates it: its code did not record it)."""
+    that ``stored`` lacks is taken as equal (the run predates it: its code did not record it), and a key of
+    ``current.added`` that ``stored`` lacks as holding its value there."""
     stored = {k: v for k, v in stored.items() if not is_allowed(k, current.allow)}
     predates = {k: v for k, v in current.settings.items() if k not in stored and is_allowed(k, current.derived)}
-    stored = {**stored, **predates}
+    older = {k: v for k, v in current.added.items() if k not in stored and not is_allowed(k, current.allow)}
+    stored = {**stored, **predates, **older}
     diffs = diff_settings(stored, current.settings)
     if diffs:
         raise SettingsMismatchError(path, diffs)

@@ -14,11 +14,13 @@ the checked copy of its settings is ``settings_fingerprint.json``), reports, plo
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import os
+import shutil
 import tempfile
-from collections.abc import Mapping
+from collections.abc import Iterator, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -41,11 +43,13 @@ class WriteError(OSError):
     """Writing a file failed (a full disk, a read-only or vanished directory): one line naming the file, saying that
     nothing half-written was left and that a run can resume once the cause is fixed."""
 
-    def __init__(self, path: str | os.PathLike[str], exc: OSError) -> None:
+    RESUME_ADVICE = "nothing half-written was left - fix the cause and continue with --resume=true"
+    """What to do next, for a resumable run (the default)."""
+
+    def __init__(self, path: str | os.PathLike[str], exc: OSError, advice: str = RESUME_ADVICE) -> None:
         self.path = Path(path)
-        reason = exc.strerror or str(exc)
-        super().__init__(exc.errno, f"{self.path}: cannot write ({reason}); nothing half-written was left - fix the "
-                                    "cause and continue with --resume=true")
+        self.reason = getattr(exc, "reason", None) or exc.strerror or str(exc)
+        super().__init__(exc.errno, f"{self.path}: cannot write ({self.reason}); {advice}")
 
     def __str__(self) -> str:
         return str(self.strerror)
@@ -195,6 +199,36 @@ def write_manifest(directory: str | os.PathLike[str]) -> Path:
              if p.is_file() and p.name != MANIFEST}
     body = {"format": MANIFEST_FORMAT, "files": files}
     return atomic_write_json(directory / MANIFEST, {**body, "sha256": header_digest(body)})
+
+
+@contextlib.contextmanager
+def staged_directory(final: str | os.PathLike[str]) -> Iterator[Path]:
+    """Build a directory of files (a checkpoint) in a staging directory beside ``final``, then seal and publish it.
+
+    Yields the staging directory; when the block ends without an error, ``checksums.json`` is written over its files
+    (:func:`write_manifest`), an existing ``final`` (e.g. left by a run killed after the rename but before its
+    progress was recorded, or a directory the caller decided to replace) is removed, and the staging directory is
+    renamed to ``final``. On any error the staging directory is removed and ``final`` is untouched; an ``OSError``
+    becomes a :class:`WriteError` naming ``final``.
+    """
+    final = Path(final)
+    try:
+        final.parent.mkdir(parents=True, exist_ok=True)
+        tmp = Path(tempfile.mkdtemp(prefix=f".{final.name}.", dir=final.parent))
+    except OSError as exc:
+        raise WriteError(final, exc) from exc
+    try:
+        yield tmp
+        write_manifest(tmp)  # sha256 of every file: LeRobot's safetensors carry no checksum of their own
+        if final.exists():
+            shutil.rmtree(final)
+        os.replace(tmp, final)
+        fsync_directory(final.parent)
+    except BaseException as exc:
+        shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(exc, OSError) and not isinstance(exc, WriteError):
+            raise WriteError(final, exc) from exc
+        raise
 
 
 def verify_manifest(directory: str | os.PathLike[str]) -> None:

@@ -1,10 +1,11 @@
-"""Command-line entry points ``sr-train`` and ``sr-eval`` (draccus, LeRobot's flag style).
+"""Command-line entry points ``sr-train``, ``sr-eval`` and ``sr-sleep`` (draccus, LeRobot's flag style).
 
     sr-train --config_path=configs/needle_cpu.json
     sr-train --policy.type=act_sr --policy.sleep=true --stream.skills=[approach,place,insert] \\
              --stream.dataset_root=datasets/needle --output_dir=outputs/run1
     sr-train --config_path=outputs/run1/train_config.json --resume=true   # resumes outputs/run1, wherever it is
     sr-eval --policy.path=outputs/run1/skill_5_pullout/sleep/pretrained_model --skills=[approach,pullout]
+    sr-sleep --policy.path=<pretrained_model> --memories=[a.safetensors,b.safetensors] --output_dir=outputs/slept
 """
 
 from __future__ import annotations
@@ -19,18 +20,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TypeVar
 
-import draccus
 from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
 from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.core.cli_parsing import parse_command, wants_help
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.core.io import write_checked_json
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
-from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, needle_env_factory
+from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.stream.config import fold_alias_flags
+from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 
 
 @contextlib.contextmanager
@@ -52,10 +53,13 @@ def act_sr_choices_only() -> Iterator[None]:
 T = TypeVar("T")
 
 
-def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str]) -> T:
-    """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`)."""
+def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str], *,
+                 prog: str = "sr-train", prefix: str = "", names: dict[str, str] | None = None,
+                 notes: dict[str, str] | None = None) -> T:
+    """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`), with the teaching
+    command line of :func:`~sr_imitation.core.cli_parsing.parse_command` (``prefix``, ``names``, ``notes`` there)."""
     with act_sr_choices_only():
-        return draccus.parse(cls, config_path=None if config_path is None else str(config_path), args=args)
+        return parse_command(cls, args, prog=prog, config_path=config_path, prefix=prefix, names=names, notes=notes)
 
 
 def _setup_logging() -> None:
@@ -72,15 +76,17 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     folded into them (:func:`~sr_imitation.stream.config.fold_alias_flags`)."""
     data = {} if config_path is None else _read_json(config_path)
     preset = _is_main_job_preset(data)
+    if preset and wants_help(args):
+        parse_config(TrainStreamConfig, None, ["--help"])  # the flags that address the preset's train section; exits
     args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
+    lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
         from sr_imitation.main_job import MainJobConfig  # noqa: PLC0415 (main_job imports this module)
 
-        prefixed = [f"--train.{a[2:]}" if a.startswith("--") else a for a in args]
-        cfg = parse_config(MainJobConfig, config_path, prefixed).train
+        cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **lerobot).train
         cfg.output_dir = Path(cfg.output_dir)
         return cfg
-    cfg = parse_config(TrainStreamConfig, config_path, args)
+    cfg = parse_config(TrainStreamConfig, config_path, args, **lerobot)
     cfg.output_dir = output_dir_for(config_path, args, cfg.output_dir)
     return cfg
 
@@ -111,6 +117,14 @@ def train_main(args: list[str] | None = None) -> None:
     cfg = parse_train_args(list(sys.argv[1:] if args is None else args))
     results = train_stream(cfg)
     m = results["metrics"]
+    if results.get("evaluation") == "none":
+        losses = results["losses"]
+        print(f"results: {cfg.output_dir / 'results.json'}, {cfg.output_dir / 'results.md'} (evaluation: none - "
+              "no success measured; AFSR, PRS, BWT and SPI are null)")
+        print("final memory losses " + ", ".join(f"{s}={'-' if v is None else f'{v:.4f}'}" for s, v in zip(
+            results["skills"], losses["memory_loss"][-1], strict=True)) + "; validation l1 " + ", ".join(
+            f"{s}={v:.4f}" for s, v in zip(results["skills"], losses["validation_l1"][-1], strict=True)))
+        return
     print(f"results: {cfg.output_dir / 'results.json'} (plots: metrics.png, success_matrix.png; videos: videos/)")
     names = ("afsr", "prs", "bwt", "bwt_wake", "spi")
     print("final " + ", ".join(f"{k.upper()}={m[k]['final']:.3f}" for k in names
@@ -120,29 +134,47 @@ def train_main(args: list[str] | None = None) -> None:
 
 @dataclass
 class PolicyPath:
+    """The checkpoint to load."""
+
     path: Path = Path("")
+    """A LeRobot pretrained_model directory (config.json and model.safetensors), e.g.
+    outputs/run1/skill_5_pullout/sleep/pretrained_model."""
 
 
 @dataclass
 class EvalCommandConfig:
-    """``sr-eval`` configuration."""
+    """``sr-eval`` configuration (``--eval.env`` as for ``sr-train``: needle, gym or lerobot; one entry of
+    ``--eval.gym_ids`` / ``--eval.env_tasks`` per skill)."""
 
     policy: PolicyPath = field(default_factory=PolicyPath)
+    """The checkpoint to evaluate (--policy.path)."""
     skills: list[str] = field(default_factory=lambda: list(SURGICAI_SKILLS))
+    """Skills to evaluate, in the policy's stream order (default - the five needle skills)."""
     eval: EvalConfig = field(default_factory=EvalConfig)
+    """Where and how each skill is evaluated (the same settings as sr-train's --eval.*)."""
     output_dir: Path = Path("outputs/eval")
+    """Where eval.json and the videos are written."""
     device: str = "cpu"
+    """Torch device of the policy (cpu, cuda or mps)."""
     progress: bool = True
+    """Console progress bars."""
+
+    def __post_init__(self) -> None:
+        if self.eval.env == "none":
+            raise ValueError("eval.env: sr-eval evaluates in an environment; --eval.env=none leaves nothing to do")
+        self.eval.check_skills(self.skills)
 
 
 def eval_main(args: list[str] | None = None) -> None:
-    """``sr-eval``: evaluate any ACT-SR (or ACT) checkpoint on a set of needle skills, with videos."""
+    """``sr-eval``: evaluate any ACT-SR (or ACT) checkpoint on a set of skills (needle skills by default, or the
+    environments ``--eval.env`` names), with videos."""
     _setup_logging()
     from lerobot.configs.policies import PreTrainedConfig
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = draccus.parse(EvalCommandConfig, config_path=config_path, args=rest)
+    cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=config_path,
+                        names=LEROBOT_EVAL_FLAGS)
     path = Path(cfg.policy.path)
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
@@ -157,13 +189,28 @@ def eval_main(args: list[str] | None = None) -> None:
         size = (int(shape[1]), int(shape[2]))
     results = evaluate_skills(policy, pre, post, cfg.skills, [SURGICAI_SKILLS.index(s) if s in SURGICAI_SKILLS
                                                               else i for i, s in enumerate(cfg.skills)],
-                              needle_env_factory(size, cfg.eval), cfg.eval, cfg.output_dir / "videos",
+                              make_env_factory(cfg.eval, cfg.skills, size), cfg.eval, cfg.output_dir / "videos",
                               cfg.progress)
     record = {s: {"success": r.success, "success_per_seed": r.success_per_seed, "videos": r.videos}
               for s, r in results.items()}
     write_checked_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})
     print(json.dumps({s: r["success"] for s, r in record.items()}, indent=2))
     print(f"written: {cfg.output_dir / 'eval.json'}, videos in {cfg.output_dir / 'videos'}")
+
+
+def sleep_main(args: list[str] | None = None) -> dict:
+    """``sr-sleep``: consolidate a deployed ACT-SR policy offline from saved memory files
+    (:mod:`sr_imitation.imitation.offline_sleep`); prints the before/after table and where it was written."""
+    from sr_imitation.imitation.offline_sleep import REPORT_FILE, OfflineSleepConfig, report_markdown, run_offline_sleep
+
+    _setup_logging()
+    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(OfflineSleepConfig, rest, prog="sr-sleep", config_path=config_path)
+    record = run_offline_sleep(cfg)
+    print(report_markdown(record), end="")
+    print(f"written: {cfg.output_dir / 'pretrained_model'} (lerobot-eval --policy.path=...), "
+          f"{cfg.output_dir / REPORT_FILE}, {cfg.output_dir / 'sleep.json'}")
+    return record
 
 
 def train_entry() -> None:
@@ -174,6 +221,11 @@ def train_entry() -> None:
 def eval_entry() -> None:
     """Console script ``sr-eval``."""
     run_cli("sr-eval", eval_main)
+
+
+def sleep_entry() -> None:
+    """Console script ``sr-sleep`` (one-line user errors; ``--debug`` for tracebacks)."""
+    run_cli("sr-sleep", sleep_main)
 
 
 if __name__ == "__main__":

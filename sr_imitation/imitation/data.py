@@ -1,7 +1,8 @@
 """Skill datasets of a stream: loading, feature checks, the fixed stream statistics, splits and memory buffers.
 
 A stream is a list of LeRobot datasets, one per skill (``<dataset_root>/<skill>`` by default, as ``sr-record``
-writes them), so users can run it on their own recordings.
+writes them; or listed paths; or repo_ids resolved in the local Hugging Face cache as ``LeRobotDataset`` resolves
+them, :func:`lerobot_cache_path`), so users can run it on their own recordings.
 
 Statistics policy. LeRobot re-fits normalization statistics per dataset; a snapshot's outputs and the current
 policy's would then live in different action spaces. The stream fixes one set for its whole length
@@ -46,6 +47,26 @@ class DatasetMismatchError(ValueError):
 
 def dataset_info_path(root: Path) -> Path:
     return Path(root) / "meta" / "info.json"
+
+
+def lerobot_cache_path(repo_id: str) -> Path:
+    """Where ``LeRobotDataset(repo_id)`` without a ``root`` keeps the dataset: ``$HF_LEROBOT_HOME/<repo_id>``
+    (default ``~/.cache/huggingface/lerobot/<repo_id>``), read from LeRobot's own constant at call time."""
+    from lerobot.datasets import lerobot_dataset
+
+    return Path(lerobot_dataset.HF_LEROBOT_HOME) / repo_id
+
+
+def cached_dataset_path(repo_id: str, key: str) -> Path:
+    """:func:`lerobot_cache_path` of a dataset that must already be there (offline: nothing is downloaded);
+    :class:`DatasetMismatchError` naming ``key``, the repo_id and the path looked at otherwise."""
+    path = lerobot_cache_path(repo_id)
+    if not dataset_info_path(path).is_file():
+        raise DatasetMismatchError(
+            f"{key}: {repo_id!r} is not in the local LeRobot cache (looked at {path}, no meta/info.json; nothing is "
+            "downloaded: fetch it first, e.g. huggingface-cli download --repo-type dataset "
+            f"{repo_id} --local-dir {path}, or set HF_LEROBOT_HOME)")
+    return path
 
 
 def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:

@@ -37,7 +37,14 @@ from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
 from sr_imitation.imitation.dataset_identity import check_inputs
 from sr_imitation.imitation.report import pair_list
-from sr_imitation.imitation.stream import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict, stream_inputs
+from sr_imitation.imitation.stream import (
+    RESUME_ALLOW_LIST,
+    SETTINGS_ADDED,
+    TrainStreamConfig,
+    check_evaluation_envs,
+    stored_config_dict,
+    stream_inputs,
+)
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.wake import wake_train
 from sr_imitation.stream.results import build_results, write_results
@@ -84,12 +91,17 @@ def joint_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = No
     """The settings an oracle run is fingerprinted with (checked on resume and by the drivers' archive), with the
     datasets' content digests (``inputs.datasets.<skill>``, computed unless given)."""
     inputs = stream_inputs(cfg) if inputs is None else inputs
-    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST, {"inputs": {"datasets": inputs}})
+    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST, {"inputs": {"datasets": inputs}},
+                                added=SETTINGS_ADDED)
 
 
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
     """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
-    check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before anything is written
+    if cfg.eval.env == "none":
+        raise ValueError("eval.env: the MT-Joint oracle is reported by its success; --eval.env=none leaves nothing to "
+                         "compare")
+    _, input_features, output_features = check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before writing
+    check_evaluation_envs(cfg, input_features, output_features, custom_env=make_env is not None)
     stored = joint_stored_config(cfg)
     inputs = stream_inputs(cfg)
     paths = {s: cfg.stream.dataset_path(i) for i, s in enumerate(cfg.stream.skills)}
@@ -127,7 +139,8 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
         spi=np.full((per_seed.shape[0], n), np.nan), spi_features=[], memory_bytes={},
         stages=[{"stage": 0, "skill": JOINT, "wake": run.record(0, "wake"), "wake.eval": run.record(0, "wake.eval")}],
         config=stored, extra={"oracle": "all skills trained jointly; rows repeat the final evaluation",
-                              "episodes_per_skill_per_unit": cfg.eval.episodes})
+                              "episodes_per_skill_per_unit": cfg.eval.episodes},
+        evaluation=None if cfg.eval.env == "needle" else cfg.eval.env)
     write_results(cfg.output_dir, results)
     return results
 

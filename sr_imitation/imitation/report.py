@@ -11,6 +11,10 @@ differences are paired. SPI uses only the tool's own state (``imitation.evaluate
 
 Files (written by :func:`sr_imitation.stream.results.write_results`): ``results.json``, ``results.md``,
 ``metrics.png``, ``success_matrix.png``.
+
+Without an evaluation environment (``--eval.env=none``) there is no success: the results say ``evaluation: none``,
+AFSR, PRS, BWT and SPI are null, and ``losses`` holds what the stream measured instead (:func:`loss_matrices`): each
+stored memory's loss and each skill's validation l1 under the policy after every stage and right after every wake.
 """
 
 from __future__ import annotations
@@ -105,6 +109,31 @@ def _spi_curves(
     return curves, features
 
 
+LOSS_KEYS = ("memory_loss", "validation_l1")
+"""What an evaluation without an environment measures per skill (``eval.json``; ``imitation.substrate``)."""
+
+
+def loss_matrices(final_dirs: Sequence[Path], wake_dirs: Sequence[Path], skills: Sequence[str],
+                  stages: Sequence[dict[str, Any]]) -> dict[str, Any]:
+    """``results.json``'s ``losses`` of a run without evaluation environment: for each of :data:`LOSS_KEYS` the K x K
+    matrix after every stage (row k: the policy after stage k, its sleep when it slept; column i: skill i) and the one
+    right after every wake (null above the diagonal; ``memory_loss`` null where the method stores no actor memory),
+    and ``wake_best_val_l1``: each wake's best validation l1 (the l1 its early stopping saw)."""
+    n = len(skills)
+    out: dict[str, Any] = {}
+    for name, dirs in (("", final_dirs), ("_after_wake", wake_dirs)):
+        matrices = {key: np.full((n, n), np.nan) for key in LOSS_KEYS}
+        for k, phase_dir in enumerate(dirs):
+            record = _load_eval(phase_dir)
+            for i in range(k + 1):
+                for key in LOSS_KEYS:
+                    value = record[skills[i]][key]
+                    matrices[key][k, i] = np.nan if value is None else value
+        out.update({f"{key}{name}": matrices[key].tolist() for key in LOSS_KEYS})
+    out["wake_best_val_l1"] = [stage.get("wake", {}).get("best_val_l1") for stage in stages]
+    return out
+
+
 def write_report(
     out: Path,
     skills: Sequence[str],
@@ -114,30 +143,40 @@ def write_report(
     final_dirs: Sequence[Path],
     wake_dirs: Sequence[Path],
     memories: Sequence[Memory],
+    evaluation: str = "needle",
 ) -> dict[str, Any]:
     """Build results.json, results.md, metrics.png and success_matrix.png in ``out`` (the shared schema of
-    :mod:`sr_imitation.stream.results`; evaluation units are the evaluation seeds)."""
-    n_seeds = len(config["eval"]["seeds"])
+    :mod:`sr_imitation.stream.results`; evaluation units are the evaluation seeds). ``evaluation``: the run's
+    ``--eval.env`` (``none``: no success, :func:`loss_matrices` instead, no plots)."""
     pairs = pair_list(pairs_name, skills)
-    s_final = _matrices(final_dirs, skills, n_seeds)
-    s_wake = _matrices(wake_dirs, skills, n_seeds)
-    spi, features = _spi_curves(final_dirs, skills, n_seeds)
     done = progress["completed"]
     stages = [{"stage": k, "skill": skill, **{phase: done[f"{k + 1}.{phase}"] for phase in PHASES
                                                if f"{k + 1}.{phase}" in done}}
               for k, skill in enumerate(skills)]
+    per_skill, per_kind = memory_budget(memories)
+    if evaluation == "none":
+        results = build_results(
+            substrate="act", method=config["method"], sleep_enabled=config["sleep"]["enabled"], seed=config["seed"],
+            skills=skills, pairs=pairs, success=None, after_wake=None, spi=None, spi_features=[],
+            memory_bytes=per_skill, memory_kinds=per_kind, stages=stages, config=config, evaluation=evaluation,
+            losses=loss_matrices(final_dirs, wake_dirs, skills, stages))
+        write_results(out, results, plots=False)
+        return results
+    n_seeds = len(config["eval"]["seeds"])
+    s_final = _matrices(final_dirs, skills, n_seeds)
+    s_wake = _matrices(wake_dirs, skills, n_seeds)
+    spi, features = _spi_curves(final_dirs, skills, n_seeds)
     wake_curves = metric_curves(s_wake, skills, pairs, None)
     extra = {  # the whole matrix right after each wake, and its metrics (the same run before each sleep)
         "success_matrix_after_wake": unit_mean(s_wake).tolist(),
         "metrics_after_wake": {name: summarize_curve(c) for name, c in wake_curves.items()},
         "episodes_per_skill_per_unit": config["eval"]["episodes"],
     }
-    per_skill, per_kind = memory_budget(memories)
     results = build_results(
         substrate="act", method=config["method"], sleep_enabled=config["sleep"]["enabled"], seed=config["seed"],
         skills=skills, pairs=pairs, success=s_final, after_wake=np.stack([np.diag(m) for m in s_wake]), spi=spi,
         spi_features=features, memory_bytes=per_skill,
         memory_kinds=per_kind, stages=stages, config=config,
-        extra=extra)
+        extra=extra, evaluation=None if evaluation == "needle" else evaluation)
     write_results(out, results)
     return results

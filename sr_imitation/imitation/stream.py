@@ -35,16 +35,25 @@ from sr_imitation.core.fingerprint import (
 from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
-from sr_imitation.imitation.data import STATS_SOURCES, check_stream_datasets
+from sr_imitation.imitation.data import STATS_SOURCES, cached_dataset_path, check_stream_datasets
 from sr_imitation.imitation.dataset_identity import check_inputs, dataset_inputs
-from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig
+from sr_imitation.imitation.evaluate import (
+    EnvFactory,
+    EvalConfig,
+    check_env_features,
+    check_env_renders,
+    make_env_factory,
+    resolve_eval_env,
+)
+from sr_imitation.imitation.hub import check_push, push_policy
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
 from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method, method_config, methods_for
 from sr_imitation.stream.config import check_shared_settings, fold_alias_settings
 
-__all__ = ["RESUME_ALLOW_LIST", "StreamConfig", "StreamTrainer", "TrainStreamConfig", "resume_fingerprint",
-           "seed_everything", "stage_name", "stored_config_dict", "train_stream"]
+__all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "StreamConfig", "StreamTrainer", "TrainStreamConfig",
+           "check_evaluation_envs", "resume_fingerprint", "seed_everything", "stage_name", "stored_config_dict",
+           "train_stream"]
 
 logger = logging.getLogger(__name__)
 
@@ -62,9 +71,13 @@ class StreamConfig:
     dataset_root: Path = Path("datasets/needle")
     """Datasets live at <dataset_root>/<skill>, as sr-record writes them ..."""
     dataset_paths: list[Path] | None = None
-    """... unless listed here, one path per skill."""
+    """... unless listed here, one path per skill ..."""
+    repo_ids: list[str] | None = None
+    """... or here, one LeRobot repo_id per skill (e.g. [user/pick,user/place]), each found where LeRobotDataset
+    keeps it: $HF_LEROBOT_HOME/<repo_id> (default ~/.cache/huggingface/lerobot/<repo_id>). Offline: nothing is
+    downloaded, a repo_id not in the cache is refused. Excludes dataset_paths."""
     repo_id_prefix: str = "local/sr_needle"
-    """LeRobot repo_id label <prefix>_<skill> (local datasets; nothing is downloaded)."""
+    """LeRobot repo_id label <prefix>_<skill> of datasets given by path (local datasets; nothing is downloaded)."""
     video_backend: str = "pyav"
     """Decoder for video datasets (pyav - torchcodec does not load here)."""
     pairs: str = "surgicai"
@@ -87,13 +100,32 @@ class StreamConfig:
             raise ValueError(f"stream.stats must be one of {STATS_SOURCES}, got {self.stats!r}")
         if self.dataset_paths is not None and len(self.dataset_paths) != len(self.skills):
             raise ValueError(f"{len(self.dataset_paths)} dataset_paths for {len(self.skills)} skills")
+        if self.repo_ids is not None:
+            if self.dataset_paths is not None:
+                raise ValueError("stream.repo_ids and stream.dataset_paths both name the datasets; give one of them")
+            if len(self.repo_ids) != len(self.skills):
+                raise ValueError(f"stream.repo_ids: {len(self.repo_ids)} repo_ids for {len(self.skills)} skills "
+                                 f"{self.skills}; give one per skill, in stream order")
+            for i, repo_id in enumerate(self.repo_ids):
+                parts = str(repo_id).split("/")
+                if not str(repo_id).strip() or str(repo_id).startswith("/") or ".." in parts or "" in parts:
+                    raise ValueError(f"stream.repo_ids[{i}]: {repo_id!r} is not a repo_id (<user>/<name>, a path "
+                                     "below $HF_LEROBOT_HOME; local paths go to stream.dataset_paths)")
 
     def dataset_path(self, index: int) -> Path:
+        """Skill ``index``'s dataset directory: listed in ``dataset_paths``, resolved from ``repo_ids`` in the local
+        LeRobot cache (:class:`~sr_imitation.imitation.data.DatasetMismatchError` naming the repo_id and the path
+        looked at when it is not there), or ``<dataset_root>/<skill>``."""
         if self.dataset_paths is not None:
             return Path(self.dataset_paths[index])
+        if self.repo_ids is not None:
+            return cached_dataset_path(self.repo_ids[index], f"stream.repo_ids[{index}]")
         return Path(self.dataset_root) / self.skills[index]
 
     def repo_id(self, index: int) -> str:
+        """The LeRobot repo_id of skill ``index``'s dataset (``repo_ids``, or the label ``<prefix>_<skill>``)."""
+        if self.repo_ids is not None and self.dataset_paths is None:
+            return self.repo_ids[index]
         return f"{self.repo_id_prefix}_{self.skills[index]}"
 
 
@@ -167,6 +199,10 @@ class TrainStreamConfig:
         self.output_dir = Path(self.output_dir)
         check_finite(self)  # every numeric setting (policy, wake, eval), before anything is written
         check_policy_ranges(self.policy)
+        if self.policy.use_amp:  # LeRobot itself refuses it on CPU at parse time; on a GPU it would be ignored
+            raise ValueError("policy.use_amp: mixed precision is not implemented in sr-train's wake and sleep yet "
+                             "(it would be silently ignored); run without it")
+        self.eval.check_skills(self.stream.skills)  # one gym id / LeRobot task per skill
         methods = methods_for(ACTSubstrate.name)
         if self.method not in methods:
             raise ValueError(f"method: unknown method {self.method!r}; choose from {methods}")
@@ -222,6 +258,10 @@ RESUME_ALLOW_LIST: dict[str, str] = {
                            "digest of its files (inputs.datasets.<skill>), so a moved dataset, or the same one given "
                            "as an absolute path, resumes, and other data under the same path is refused",
     "stream.dataset_paths": "as stream.dataset_root",
+    "stream.repo_ids": "as stream.dataset_root: a repo_id only says where in the local LeRobot cache the dataset is "
+                       "($HF_LEROBOT_HOME/<repo_id>, nothing is downloaded) and is LeRobot's label of it, used in no "
+                       "computation; the dataset is identified by its content digest, so the same data under another "
+                       "repo_id, cache or path resumes and other data under the same repo_id is refused",
     "progress": "console progress bars only",
     "wandb": "experiment tracking only (the run log mirrored to Weights & Biases)",
     "eval.videos_per_skill": "which evaluation episodes are also rendered to mp4: the recording env is another "
@@ -247,6 +287,18 @@ with the reason each cannot change results. Every other setting of :class:`Train
 resume; the check runs before anything is written (:meth:`StreamTrainer._prepare_output_dir`)."""
 
 
+SETTINGS_ADDED: dict[str, Any] = {
+    "eval.env": "needle",
+    "eval.gym_ids": None,
+    "eval.env_type": None,
+    "eval.env_tasks": None,
+    "eval.env_options": {},
+}
+"""Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
+(the needle environment, issue 27): a stored fingerprint without one of them resumes with that value and is refused
+with another (:attr:`~sr_imitation.core.fingerprint.SettingsFingerprint.added`)."""
+
+
 def stream_inputs(cfg: TrainStreamConfig) -> dict[str, str]:
     """The content digest of every skill's dataset (:mod:`sr_imitation.imitation.dataset_identity`)."""
     return dataset_inputs(cfg.stream.skills, [cfg.stream.dataset_path(i) for i in range(len(cfg.stream.skills))])
@@ -259,7 +311,7 @@ def resume_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = N
     inputs = stream_inputs(cfg) if inputs is None else inputs
     return settings_fingerprint(_config_dict(cfg), RESUME_ALLOW_LIST,
                                 {"method_config": method_config(cfg.method, cfg.method_options),
-                                 "inputs": {"datasets": inputs}})
+                                 "inputs": {"datasets": inputs}}, added=SETTINGS_ADDED)
 
 
 def stored_config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:
@@ -303,21 +355,63 @@ class StreamTrainer:
     def run(self, stop_after: int | None = None) -> dict[str, Any]:
         """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
         instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``)."""
-        check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)  # before anything is written
-        check_evaluation_envs(self.cfg.stream.skills, custom_env=self.substrate._make_env is not None)
+        # before anything is written
+        _, inputs, outputs = check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)
+        check_evaluation_envs(self.cfg, inputs, outputs, custom_env=self.substrate._make_env is not None)
+        check_push(self.cfg.policy)  # --policy.push_to_hub: reachable, or one line now rather than after training
         engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self.after_phase,
                               wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg),
                               extend_from=self.cfg.stream.extend_from)
-        return engine.run(stop_after)
+        results = engine.run(stop_after)
+        if stop_after is None and self.cfg.policy.push_to_hub:
+            last = len(self.cfg.stream.skills) - 1
+            pretrained = self.substrate.checkpoint_dir(last, engine.final_phase(last)) / "pretrained_model"
+            push_policy(self.substrate.policy, pretrained,
+                        [self.cfg.stream.repo_id(i) for i in range(len(self.cfg.stream.skills))])
+        return results
 
 
-def check_evaluation_envs(skills: list[str], custom_env: bool) -> None:
-    """Every skill resolves to its evaluation environment before the first gradient: with the needle environment
-    (the default), every skill must be a needle skill. ``ValueError`` naming ``stream.skills`` and the valid names."""
-    unknown = [s for s in skills if s not in SURGICAI_SKILLS]
-    if unknown and not custom_env:
-        raise ValueError(f"stream.skills: {unknown} have no evaluation environment (the needle environment has "
-                         f"{list(SURGICAI_SKILLS)}); every skill needs a dataset and an environment")
+def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],
+                          custom_env: bool = False) -> None:
+    """Every skill resolves to its evaluation environment before the first gradient (``--eval.env``).
+
+    ``needle``: every skill must be a needle skill (``ValueError`` naming ``stream.skills`` and the valid names).
+    ``gym`` / ``lerobot``: every gym id must be registered (its namespace module imported if needed), the LeRobot
+    env type known and its config valid for each task; then each environment is built once, its action space and a
+    reset observation must fit the policy's features (``input_features``, ``output_features``: those of the
+    datasets) and, with videos, its recording twin must render ``rgb_array`` frames. ``ValueError`` naming the key
+    (``eval.gym_ids[i]``, ``eval.env_type``, ``eval.env_tasks[i]``). ``none``: nothing to check. A factory given
+    to :class:`StreamTrainer` (``custom_env``, tests) replaces the environment ``--eval.env`` names."""
+    mode, skills = cfg.eval.env, list(cfg.stream.skills)
+    if mode == "none" or custom_env:
+        return
+    if mode == "needle":
+        unknown = [s for s in skills if s not in SURGICAI_SKILLS]
+        if unknown:
+            raise ValueError(f"stream.skills: {unknown} have no evaluation environment (the needle environment has "
+                             f"{list(SURGICAI_SKILLS)}); every skill needs a dataset and an environment: evaluate "
+                             "them with --eval.env=gym|lerobot or switch evaluation off with --eval.env=none")
+        return
+    make_env = make_env_factory(cfg.eval, skills, None)  # only the needle env takes the image size
+    if make_env is None:
+        return
+    for index, skill in enumerate(skills):
+        where = resolve_eval_env(cfg.eval, skills, index)
+        for with_video in (False, True) if cfg.eval.videos_per_skill > 0 else (False,):
+            try:
+                env = make_env(skill, with_video)
+            except ValueError as exc:
+                raise ValueError(f"{where}: {exc}") from None
+            except Exception as exc:  # noqa: BLE001 - whatever the environment's constructor raises
+                first = str(exc).splitlines()[0] if str(exc) else ""
+                raise ValueError(f"{where}: cannot build it ({type(exc).__name__}: {first})") from exc
+            try:
+                if with_video:
+                    check_env_renders(env, where)
+                else:
+                    check_env_features(env, input_features, output_features, where)
+            finally:
+                env.close()
 
 
 def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> dict[str, Any]:

@@ -7,7 +7,10 @@ Per stage k (files under the run directory; every file written atomically, check
   layout, loadable by ``lerobot-eval --policy.path``) and ``wake_history.json``;
 - ``memory``: the frozen actor memory M_k (``memories/skill_k_<name>.safetensors``);
 - ``wake.eval`` / ``sleep.eval``: success on the learned skills (``eval.json``), SPI trajectories
-  (``trajectories.npz``) and a few rollout videos (``videos/``);
+  (``trajectories.safetensors``) and a few rollout videos (``videos/``), in the environment ``--eval.env`` names;
+  with ``--eval.env=none`` instead (``eval.json``, no rollouts): each learned skill's memory loss (the distillation
+  loss of its stored actor memory M_i under the current policy, over the whole buffer) and validation l1 (the wake's
+  l1 on the skill's validation episodes, under the current policy);
 - ``sleep``: checkpoint ``skill_k_<name>/sleep`` and ``sleep_diagnostics.json``.
 
 Seeding: every phase seeds Python, NumPy and torch from ``seed * 1000 + 10 * stage + phase id``.
@@ -17,10 +20,8 @@ from __future__ import annotations
 
 import dataclasses
 import logging
-import os
 import random
 import shutil
-import tempfile
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -34,17 +35,16 @@ from safetensors.torch import load_file
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.core.io import (
     CorruptFileError,
-    WriteError,
     atomic_write_json,
-    fsync_directory,
     read_checked_json,
     read_json,
     save_checked_safetensors,
+    staged_directory,
     verify_manifest,
     write_checked_json,
-    write_manifest,
 )
 from sr_imitation.core.memory import Memory, load_memory
+from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.data import (
     load_metadata,
@@ -55,9 +55,9 @@ from sr_imitation.imitation.data import (
     save_stats,
     stream_stats,
 )
-from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, needle_env_factory
+from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, make_env_factory
 from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
-from sr_imitation.imitation.wake import wake_train
+from sr_imitation.imitation.wake import validation_l1, wake_train
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem
 
 if TYPE_CHECKING:
@@ -66,6 +66,12 @@ if TYPE_CHECKING:
 logger = logging.getLogger(__name__)
 
 PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
+PER_SKILL_EVAL_KEYS = ("eval.gym_ids", "eval.env_tasks")
+"""Evaluation settings with one entry per skill: an extended stream has more; its first entries must equal the run
+it extends (:meth:`ACTSubstrate.source_skills`)."""
+OFFLINE_BATCH = 64
+"""Batch size of the memory losses and validation l1 of ``--eval.env=none`` (no randomness; any size gives the same
+numbers up to float rounding)."""
 
 
 def seed_everything(seed: int) -> None:
@@ -78,12 +84,47 @@ def stage_name(index: int, skill: str) -> str:
     return f"skill_{index + 1}_{skill}"
 
 
+def phase_seed(seed: int, index: int, phase: str) -> int:
+    """The seed of ``phase`` of stage ``index`` (0-based) in a run with ``--seed=seed`` (our choice:
+    ``seed * 1000 + 10 * stage + phase id``); e.g. the ``--sleep.seed`` with which ``sr-sleep`` repeats a run's
+    sleep."""
+    return seed * 1000 + 10 * (index + 1) + PHASE_IDS[phase]
+
+
+def normalize_raw_observations(preprocessor: Any, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+    """The policy's normalized inputs for raw buffered observations (uint8 images become floats in [0, 1], as
+    LeRobot's datasets hold them, then the policy's preprocessor): what memories evaluate the policy on."""
+    obs = {k: (v.float() / 255.0 if v.dtype == torch.uint8 else v) for k, v in raw.items()}
+    return preprocessor(obs)
+
+
+def deployed_parameters(policy: ACTSRPolicy, state: Mapping[str, torch.Tensor]) -> list[torch.Tensor]:
+    """The deployed parameters (:meth:`ACTSRPolicy.deployed_named_parameters` order) of a saved ``state``."""
+    return [state[n] for n, _ in policy.deployed_named_parameters()]
+
+
+def act_sleep_problem(policy: ACTSRPolicy, config: SleepConfig) -> SleepProblem:
+    """The sleep of an ACT-SR policy: theta is the deployed policy's parameters (ACT's training-only VAE encoder
+    excluded, our choice of issue 10) and each memory evaluates the deployed action chunk of its raw observations
+    (:meth:`ACTSRPolicy.memory_chunk`). The stream's sleep and ``sr-sleep`` both use it."""
+    return SleepProblem([p for _, p in policy.deployed_named_parameters()], policy.memory_chunk, config)
+
+
+def save_pretrained_model(directory: Path, policy: ACTSRPolicy, preprocessor: Any, postprocessor: Any) -> None:
+    """A LeRobot ``pretrained_model/`` directory: the policy (config and weights) and its pre/post-processors, what
+    ``lerobot-eval --policy.path`` loads."""
+    policy.save_pretrained(directory)
+    preprocessor.save_pretrained(directory)
+    postprocessor.save_pretrained(directory)
+
+
 class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = "act"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})  # hooked_update
-    extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.extend_from")
+    extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.repo_ids",
+                                                 "stream.extend_from", *PER_SKILL_EVAL_KEYS)
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
         self.cfg = cfg
@@ -121,7 +162,7 @@ class ACTSubstrate:
         if image_keys:
             shape = self.policy_cfg.image_features[image_keys[0]].shape
             size = (int(shape[1]), int(shape[2]))
-        self.make_env = self._make_env or needle_env_factory(size, self.cfg.eval)
+        self.make_env = self._make_env or make_env_factory(self.cfg.eval, self.skills, size)
 
     def stats_metas(self, first_meta: Any) -> list[Any]:
         """The datasets whose statistics normalize the stream (``--stream.stats``: the first, or all)."""
@@ -132,11 +173,10 @@ class ACTSubstrate:
                                for i in range(1, len(self.skills))]
 
     def _normalize_raw(self, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        obs = {k: (v.float() / 255.0 if v.dtype == torch.uint8 else v) for k, v in raw.items()}
-        return self.preprocessor(obs)
+        return normalize_raw_observations(self.preprocessor, raw)
 
     def phase_seed(self, index: int, phase: str) -> int:
-        return self.cfg.seed * 1000 + 10 * (index + 1) + PHASE_IDS[phase]
+        return phase_seed(self.cfg.seed, index, phase)
 
     def begin_phase(self, k: int, phase: str) -> None:
         seed_everything(self.phase_seed(k, phase))
@@ -155,26 +195,11 @@ class ACTSubstrate:
 
     def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
         """Write ``pretrained_model/`` (LeRobot layout) and ``files`` (JSON) to a staging dir, then rename."""
-        final = self.checkpoint_dir(k, phase)
-        final.parent.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=f".{phase}.", dir=final.parent))
-        try:
-            pretrained = tmp / "pretrained_model"
-            self.policy.save_pretrained(pretrained)
-            self.preprocessor.save_pretrained(pretrained)
-            self.postprocessor.save_pretrained(pretrained)
+        # an existing final directory was left by a run killed after the rename but before progress.json was written
+        with staged_directory(self.checkpoint_dir(k, phase)) as tmp:
+            save_pretrained_model(tmp / "pretrained_model", self.policy, self.preprocessor, self.postprocessor)
             for name, obj in files.items():
                 atomic_write_json(tmp / name, obj)
-            write_manifest(tmp)  # sha256 of every file: LeRobot's safetensors carry no checksum of their own
-            if final.exists():  # left by a run killed after the rename but before progress.json was written
-                shutil.rmtree(final)
-            os.replace(tmp, final)
-            fsync_directory(final.parent)
-        except BaseException as exc:
-            shutil.rmtree(tmp, ignore_errors=True)
-            if isinstance(exc, OSError) and not isinstance(exc, WriteError):
-                raise WriteError(final, exc) from exc
-            raise
 
     def _checked_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
         """The checkpoint's weights after checking every file of it against its ``checksums.json``."""
@@ -267,7 +292,7 @@ class ACTSubstrate:
 
     def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
         state = self._checked_state(k, phase)
-        return [state[n] for n, _ in self.policy.deployed_named_parameters()]
+        return deployed_parameters(self.policy, state)
 
     # -- phases --------------------------------------------------------------------------------------------
     def _skill_data(self, index: int) -> Any:
@@ -319,6 +344,8 @@ class ACTSubstrate:
         return list(range(k + 1))  # every learned skill: the after-wake success matrix is reported too
 
     def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        if self.make_env is None:  # --eval.env=none
+            return self._evaluate_offline(k, phase, skills)
         names = [self.skills[i] for i in skills]
         step = phase.split(".")[0]
         video_dir = self.out / "videos" / self.stage_dir_name(k) / step
@@ -341,16 +368,70 @@ class ACTSubstrate:
         logger.info("stage %d %s: %s", k + 1, phase, {s: round(r["success"], 3) for s, r in record.items()})
         return {"seconds": time.perf_counter() - t0, "success": {s: r["success"] for s, r in record.items()}}
 
+    def _evaluate_offline(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        """``--eval.env=none``: what can be computed without an environment, for every learned skill i - the loss of
+        its stored actor memory M_i under the current policy (the sleep's objective L_i over the whole buffer; null
+        when the method stores no actor memory) and the wake's validation l1 on its validation episodes (on its
+        training episodes for a one-episode dataset, as the wake does). Written to ``eval.json``."""
+        t0 = time.perf_counter()
+        record: dict[str, dict[str, float | None]] = {}
+        for i in skills:
+            record[self.skills[i]] = {"memory_loss": self._memory_loss(i),
+                                      "validation_l1": self._validation_l1(i)}
+        write_checked_json(self.checkpoint_dir(k, phase.split(".")[0]) / "eval.json", record)
+        logger.info("stage %d %s (no evaluation environment): %s", k + 1, phase, record)
+        return {"seconds": time.perf_counter() - t0,
+                "memory_loss": {s: r["memory_loss"] for s, r in record.items()},
+                "validation_l1": {s: r["validation_l1"] for s, r in record.items()}}
+
+    def _memory_loss(self, i: int) -> float | None:
+        """L_i(theta) of skill i's stored actor memory over its whole buffer (``None`` if there is none)."""
+        path = self.memory_path(i)
+        if not path.is_file():
+            return None
+        memory = load_memory(path, skill=self.skills[i])
+        if not isinstance(memory, ActorMemory):
+            return None
+        buffers = {key: memory.tensors[key] for key in memory.buffer_keys}
+        total = 0.0
+        with torch.no_grad():
+            for start in range(0, memory.size, OFFLINE_BATCH):
+                batch = {key: v[start : start + OFFLINE_BATCH] for key, v in buffers.items()}
+                n = len(batch["target"])
+                total += float(memory.loss(self.policy.memory_chunk, batch)) * n
+        return total / memory.size
+
+    def _validation_l1(self, i: int) -> float:
+        """The wake's validation l1 (:func:`~sr_imitation.imitation.wake.validation_l1`) on skill i's validation
+        episodes under the current policy."""
+        data = self._skill_data(i)
+        indices = data.val_indices or data.train_indices
+        loader = torch.utils.data.DataLoader(torch.utils.data.Subset(data.dataset, indices), batch_size=OFFLINE_BATCH,
+                                             shuffle=False)
+        return validation_l1(self.policy, self.preprocessor, loader)
+
     def read_eval(self, k: int, phase: str) -> dict[str, Any]:
         """The evaluation record :meth:`evaluate` wrote after stage ``k``'s ``phase`` (checked)."""
         return read_checked_json(self.checkpoint_dir(k, phase.split(".")[0]) / "eval.json")
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
-        return SleepProblem(self.trainable(), self.policy.memory_chunk,
-                            dataclasses.replace(self.cfg.sleep, seed=self.phase_seed(k, "sleep")))
+        return act_sleep_problem(self.policy, dataclasses.replace(self.cfg.sleep, seed=self.phase_seed(k, "sleep")))
 
     def source_skills(self, settings: dict[str, Any]) -> list[str]:
-        return list(settings["stream.skills"])
+        """The skills of the run being extended; its per-skill evaluation entries (:data:`PER_SKILL_EVAL_KEYS`) must be
+        this stream's first ones (``ValueError`` naming the key otherwise)."""
+        skills = list(settings["stream.skills"])
+        n = len(skills)
+        for key in PER_SKILL_EVAL_KEYS:
+            mine = getattr(self.cfg.eval, key.split(".")[1])
+            stored, current = settings.get(key), None if mine is None else list(mine)[:n]
+            if key == "eval.env_tasks":  # null: each skill's name is its task
+                stored = skills if stored is None else stored
+                current = list(self.skills[:n]) if current is None else current
+            if stored != current:
+                raise ValueError(f"{key}: the run being extended evaluated its skills with {stored}, this stream's "
+                                 f"first {n} entries are {current}")
+        return skills
 
     def import_stages(self, source: Path, n: int) -> None:
         """Stages 1..n of a finished run: their checkpoint/evaluation directories, memories and the stream's fixed
@@ -374,7 +455,8 @@ class ACTSubstrate:
         config = read_json(stored) if stored.is_file() else stored_config_dict(self.cfg)
         return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, config,
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
-                            [self.checkpoint_dir(i, "wake") for i in range(n)], memories)
+                            [self.checkpoint_dir(i, "wake") for i in range(n)], memories,
+                            evaluation=self.cfg.eval.env)
 
 
 class _ACTHooks:

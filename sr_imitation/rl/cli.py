@@ -19,9 +19,8 @@ import json
 import logging
 import sys
 
-import draccus
-
 from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.core.cli_parsing import parse_command
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.stream.config import fold_alias_flags
@@ -43,7 +42,7 @@ def parse(args: list[str]) -> RLTrainConfig:
     resolved to the file's directory unless ``--output_dir`` is given."""
     config_path, rest = split_config_path(args)
     rest = fold_alias_flags(rest)  # the flags only: a config file has no policy section here
-    cfg = draccus.parse(RLTrainConfig, config_path=config_path, args=rest)
+    cfg = parse_command(RLTrainConfig, rest, prog="sr-train", config_path=config_path)
     cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
     return cfg
 

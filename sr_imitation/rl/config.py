@@ -39,23 +39,33 @@ class SACConfig:
     log_std_min: float = -5.0
     """Clamp of the actor's log-std (CleanRL default; the paper gives none)."""
     log_std_max: float = 2.0
+    """Upper clamp of the actor's log-std."""
     critic_layer_norm: bool = True
     """Twin Q-networks with LayerNorm."""
     actor_lr: float = 3e-4
+    """Adam learning rate of the actor (paper 3e-4)."""
     critic_lr: float = 3e-4
+    """Adam learning rate of the twin critics (paper 3e-4)."""
     alpha_lr: float = 3e-4
     """Entropy optimizer: Adam 3e-4, alpha automatically tuned."""
     target_entropy: float = -2.0
+    """Entropy target of the automatic temperature tuning (paper -2)."""
     log_alpha_min: float = -10.0
+    """Lower clamp of log alpha."""
     log_alpha_max: float = 4.0
     """log alpha clamp [-10, 4]."""
     initial_log_alpha: float = 0.0
+    """log alpha at the start of every skill (0 - alpha 1)."""
     reward_scale: float = 1.0
+    """Factor on the environment reward in the critic targets."""
     buffer_size: int = 1_000_000
+    """Replay buffer capacity in transitions (paper 1e6)."""
     utd_ratio: float = 5.0
     """Update-to-data ratio: gradient updates per environment step (fractions: one update every 1/utd steps)."""
     batch_size: int = 256
+    """SAC minibatch size (paper 256)."""
     gamma: float = 0.99
+    """Discount factor (paper 0.99)."""
     tau: float = 0.005
     """Target-network Polyak rate."""
     warmup_steps: int = 5000
@@ -89,8 +99,11 @@ class SkillBudget:
     """One row of Table "Wake-phase budgets and early-stopping configuration for MT5" (episodes)."""
 
     max_episodes: int
+    """Episode budget of the skill's wake."""
     min_episodes: int
+    """Episodes before early stopping may trigger."""
     patience: int
+    """Episodes over which the rolling mean reward must improve by more than wake.improvement."""
 
 
 PAPER_BUDGETS: dict[str, SkillBudget] = {
@@ -114,10 +127,16 @@ class WakeConfig:
     """
 
     budget_scale: float = 1.0
+    """Factor on every episode count (max, min, patience, rolling window, excitability novelty period); the CPU
+    preset's budget cut."""
     rolling_window: int = 100
+    """Episodes in the rolling mean reward of the early-stopping rule (paper 100)."""
     improvement: float = 0.02
+    """Relative improvement of the rolling mean reward that counts as progress (paper 2 percent)."""
     early_stopping: bool = True
+    """Stop a wake early by the rule above; false - every skill runs its max_episodes."""
     budgets: dict[str, SkillBudget] = field(default_factory=lambda: dict(PAPER_BUDGETS))
+    """Per-skill budgets {skill - {max_episodes, min_episodes, patience}} (default - the paper's table)."""
     default_budget: SkillBudget = field(default_factory=lambda: SkillBudget(2500, 800, 800))
     """Budget for skills without a table row (the MT8 extension; our choice: the table's median row)."""
 
@@ -157,14 +176,17 @@ class CriticMemoryConfig:
     buffer_size: int = 1000
     """States per memory, sampled uniformly from the final ``late_fraction`` of wake episodes."""
     late_fraction: float = 0.2
+    """Final share of the wake's episodes the memory's states are sampled from (paper 0.2)."""
     holdout_fraction: float = 0.05
     """Share of wake transitions never trained on, used to validate the critic (our choice; unspecified)."""
     holdout_batch: int = 1024
+    """Held-out transitions kept per skill, and checked, for the critic's validation."""
     validation_threshold: float = 0.5
     """Max normalized Bellman residual RMSE(TD) / std(target) before freezing (our choice; unspecified)."""
     validation_chunk: int = 500
     """Extra critic-only updates per failed validation."""
     validation_max_rounds: int = 4
+    """Rounds of extra critic updates at most; a critic still above the threshold is frozen with a warning."""
 
     def __post_init__(self) -> None:
         if self.buffer_size < 1 or not 0 < self.late_fraction <= 1 or not 0 <= self.holdout_fraction < 1:
@@ -179,8 +201,11 @@ class EvalConfig:
     evaluated on the same configurations at every stage (``rl.evaluate.evaluation_configurations``)."""
 
     episodes: int = 100
+    """Evaluation episodes per learned skill after every stage (paper 100)."""
     success_mode: str = "any_step"
+    """An episode succeeds if any step succeeds (any_step) or its last step does (final_step)."""
     stop_on_success: bool = True
+    """End an any_step episode at its first success (same success rate, faster)."""
     deterministic: bool = True
     """Evaluate the Gaussian mean (tanh) action."""
     after_wake: bool = True
@@ -191,8 +216,9 @@ class EvalConfig:
     videos_per_skill: int = 1
     """After every stage, record the first N evaluation episodes of each learned skill as mp4 (0: no videos)."""
     video_height: int = 240
+    """Video frame height in pixels (a multiple of 16)."""
     video_width: int = 320
-    """Frame size in pixels (multiples of 16)."""
+    """Video frame width in pixels (a multiple of 16)."""
     video_camera: str = DEFAULT_CAMERA
     """Meta-World camera of the videos."""
 

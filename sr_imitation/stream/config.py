@@ -15,7 +15,9 @@ Both substrates' run configurations (:class:`sr_imitation.imitation.stream.Train
 
 :func:`check_shared_settings` validates what they share; :data:`RENAMED_FLAGS` turns the flags of earlier versions
 into a one-line hint; :data:`POLICY_ALIASES` are the ACT-SR policy's own names (stock ``lerobot-train``'s, the
-design card's ``--policy.sleep=true``) of shared settings, folded into them (:func:`fold_alias_flags`).
+design card's ``--policy.sleep=true``) of shared settings, folded into them (:func:`fold_alias_flags`);
+:data:`LEROBOT_TRAIN_FLAGS` and :data:`LEROBOT_EVAL_FLAGS` are ``lerobot-train``'s and ``lerobot-eval``'s flags,
+accepted as the flag they map to or answered in one line with the names used here.
 """
 
 from __future__ import annotations
@@ -47,6 +49,76 @@ RENAMED_FLAGS: dict[str, str] = {
 }
 """Flags of earlier versions -> their name now (``sr-train`` answers an old flag with this hint instead of
 draccus' generic error)."""
+
+_CHECKPOINTS = ("sr-train saves the policy after every wake and every sleep "
+                "(<output_dir>/skill_<k>_<skill>/wake|sleep/pretrained_model)")
+_ONE_AT_A_TIME = "sr-train runs evaluation episodes one at a time (--eval.episodes per skill and evaluation seed)"
+
+LEROBOT_TRAIN_FLAGS: dict[str, str] = {
+    # accepted: the sr-train flag that means the same
+    "--batch_size": "--wake.batch_size",
+    "--num_workers": "--wake.num_workers",
+    "--dataset.video_backend": "--stream.video_backend",
+    # answered in one line
+    "--steps": "the budget is per skill and phase - --wake.max_epochs (and --wake.max_steps_per_epoch) for each "
+               "wake, --sleep.max_iterations for each sleep",
+    "--dataset.repo_id": "a stream has one dataset per skill - --stream.repo_ids=[{value},...] with "
+                         "--stream.skills=[...] in the same order (or --stream.dataset_paths, --stream.dataset_root)",
+    "--dataset.root": "a stream has one dataset per skill - --stream.dataset_paths=[{value},...] with "
+                      "--stream.skills=[...] in the same order, or --stream.dataset_root=<folder>/<skill>",
+    "--dataset.episodes": "sr-train trains on every episode of each skill's dataset and holds out "
+                          "--wake.val_fraction of them for validation",
+    "--policy.path": "sr-train trains a stream from scratch; continue a run with "
+                     "--config_path=<run>/train_config.json --resume=true, evaluate a checkpoint with "
+                     "sr-eval --policy.path={value}, consolidate one with sr-sleep --policy.path={value}",
+    "--env.type": "each skill is evaluated in its own environment - --eval.env=lerobot --eval.env_type={value} "
+                  "(one task per skill in --eval.env_tasks=[...])",
+    "--env.task": "one task per skill - --eval.env=lerobot --eval.env_type=<type> --eval.env_tasks=[{value},...]",
+    "--eval_freq": "sr-train evaluates after every wake and every sleep (--eval.episodes, --eval.seeds)",
+    "--eval.batch_size": _ONE_AT_A_TIME,
+    "--eval.use_async_envs": _ONE_AT_A_TIME,
+    "--save_freq": _CHECKPOINTS,
+    "--save_checkpoint": _CHECKPOINTS,
+    "--log_freq": "sr-train logs every phase to <output_dir>/log.jsonl (--progress for progress bars, "
+                  "--wandb.enable=true for wandb)",
+    "--optimizer.lr": "the wake optimizer is ACT's AdamW preset - --policy.optimizer_lr (backbone "
+                      "--policy.optimizer_lr_backbone); the sleep's is --sleep.lr",
+    "--optimizer.weight_decay": "the wake optimizer is ACT's AdamW preset - --policy.optimizer_weight_decay",
+    "--use_policy_training_preset": "sr-train always trains with the policy's preset optimizer "
+                                    "(--policy.optimizer_lr, --policy.optimizer_weight_decay)",
+    "--scheduler.type": "ACT's training preset has no learning-rate schedule, and sr-train none either",
+    "--job_name": "a run is named by --output_dir (on wandb by --wandb.run_name)",
+    "--wandb.entity": "sr-train's wandb flags are --wandb.enable, --wandb.project, --wandb.mode, --wandb.run_name",
+    "--wandb.notes": "sr-train's wandb flags are --wandb.enable, --wandb.project, --wandb.mode, --wandb.run_name",
+}
+"""``lerobot-train``'s flags (LeRobot 0.4) on ``sr-train`` (ACT substrate), for a LeRobot user's habits: a value that
+is one ``--flag`` is that ``sr-train`` flag (accepted as it; giving both is refused), any other value is the one-line
+answer (``{value}``: the value given). A flag ``sr-train`` has itself (``--seed``, ``--output_dir``, ``--resume``,
+``--wandb.enable``, ``--policy.*``) is never looked up here, so a flag added to the config later wins over its entry.
+``--policy.type`` other than ``act_sr`` is answered by :data:`LEROBOT_TRAIN_NOTES`; ``--eval.n_episodes`` by
+:data:`RENAMED_FLAGS`. Applied by :func:`sr_imitation.core.cli_parsing.parse_command`; README, "Coming from
+LeRobot"."""
+
+LEROBOT_TRAIN_NOTES: dict[str, str] = {
+    "--policy.type": "sr-train trains ACT-SR (ACT with sleep consolidation) only; train other LeRobot policies with "
+                     "lerobot-train",
+}
+"""A sentence appended to argparse's error about the flag (``invalid choice: 'diffusion' (choose from 'act_sr')``)."""
+
+LEROBOT_EVAL_FLAGS: dict[str, str] = {
+    "--policy.device": "--device",
+    "--eval.n_episodes": "sr-eval runs --eval.episodes per skill and evaluation seed - --eval.episodes={value} "
+                         "--eval.seeds=[0] for {value} episodes of each skill",
+    "--eval.batch_size": "sr-eval runs episodes one at a time",
+    "--eval.use_async_envs": "sr-eval runs episodes one at a time",
+    "--env.type": "--eval.env=lerobot --eval.env_type={value} with the skills in --skills=[...] (each skill's name "
+                  "is its task unless --eval.env_tasks=[...] gives one per skill); needle skills need neither",
+    "--env.task": "--skills=[...] names the skills; with --eval.env=lerobot their tasks are "
+                  "--eval.env_tasks=[{value},...]",
+    "--seed": "sr-eval seeds the episodes of every skill from --eval.seeds=[...]",
+    "--job_name": "sr-eval writes to --output_dir",
+}
+"""``lerobot-eval``'s flags on ``sr-eval``, as :data:`LEROBOT_TRAIN_FLAGS`."""
 
 
 POLICY_ALIASES: dict[str, tuple[str, type]] = {

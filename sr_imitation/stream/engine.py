@@ -168,7 +168,9 @@ class StreamEngine:
         mine = {k: v for k, v in self.run_dir.fingerprint.settings.items() if not is_allowed(k, allowed)}
         check_settings(fingerprint_path, {k: v for k, v in stored.items() if not is_allowed(k, allowed)},
                        SettingsFingerprint(mine, settings_digest(mine), self.run_dir.fingerprint.allow,
-                                           self.run_dir.fingerprint.derived))
+                                           self.run_dir.fingerprint.derived,
+                                           {k: v for k, v in self.run_dir.fingerprint.added.items()
+                                            if not is_allowed(k, allowed)}))
         skills = list(self.substrate.source_skills(stored))  # type: ignore[attr-defined]
         n = len(skills)
         if not 1 <= n < len(self.skills) or self.skills[:n] != skills:

@@ -21,7 +21,11 @@ Schema (``results_version`` :data:`RESULTS_VERSION`)::
     spi_features, memory_bytes {skill: bytes}, memory_bytes_total, stages (substrate records), config,
     extra (substrate-specific additions, e.g. ACT's whole success matrix right after each wake),
     code {commit, dirty} (the git commit the writing process started from, :mod:`sr_imitation.core.provenance`;
-    absent in runs written before it was recorded)
+    absent in runs written before it was recorded),
+    evaluation (where skills were evaluated when not in the substrate's own environment - ACT's --eval.env gym,
+    lerobot or none; absent: the needle environment / Meta-World),
+    losses (only with evaluation "none": what was measured instead of success, e.g. ACT's memory_loss and
+    validation_l1 matrices; success matrices and every metric are then null, eval_units 0)
 
 ``label`` names the variant in summaries: the method, or ``wake_only`` for ``sr`` with ``--sleep.enabled=false``.
 :func:`upgrade_results` reads the two older per-substrate schemas (ACT 2, SAC 3) into this one for summaries.
@@ -99,22 +103,42 @@ def memory_budget(memories: Sequence[Any]) -> tuple[dict[str, int], dict[str, in
     return per_skill, per_kind
 
 
+def _unmeasured(k: int) -> dict[str, Any]:
+    """A metric that was not measured (no evaluation): null, not 0."""
+    return {"final": None, "final_sem": None, "final_per_unit": [], "curve": [None] * k, "curve_sem": [None] * k}
+
+
 def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int, skills: Sequence[str],
-                  pairs: Sequence[tuple[str, str]], success: np.ndarray, after_wake: np.ndarray,
-                  spi: np.ndarray, spi_features: Sequence[int], memory_bytes: Mapping[str, int],
+                  pairs: Sequence[tuple[str, str]], success: np.ndarray | None, after_wake: np.ndarray | None,
+                  spi: np.ndarray | None, spi_features: Sequence[int], memory_bytes: Mapping[str, int],
                   stages: list[Any], config: Mapping[str, Any], extra: Mapping[str, Any] | None = None,
-                  memory_kinds: Mapping[str, int] | None = None) -> dict[str, Any]:
+                  memory_kinds: Mapping[str, int] | None = None, evaluation: str | None = None,
+                  losses: Mapping[str, Any] | None = None) -> dict[str, Any]:
     """The results dictionary (JSON-ready, NaN as null).
 
     ``success``: S per unit (U x K x K, NaN above the diagonal); ``after_wake``: each skill's success right after
     its own wake per unit (U x K, NaN where not measured: then ``bwt_wake`` is null); ``spi``: SPI per unit and
-    stage (U x K, NaN at k = 1)."""
-    measured = not np.isnan(after_wake[:, :-1]).any()
-    curves = metric_curves(success, skills, pairs, after_wake if measured else None)
-    curves["spi"] = np.asarray(spi, dtype=np.float64)
-    metrics = {name: summarize_curve(curves[name]) for name in METRICS if name in curves}
-    if "bwt_wake" not in metrics:  # --eval.after_wake=false: the reference was not measured
-        metrics["bwt_wake"] = summarize_curve(np.full_like(curves["bwt"], np.nan))
+    stage (U x K, NaN at k = 1). ``success=None`` (no evaluation, ``evaluation="none"``): every metric and success
+    entry is null and ``losses`` says what was measured instead. ``evaluation``: see the module docstring."""
+    k_total = len(skills)
+    if success is None:
+        metrics = {name: _unmeasured(k_total) for name in METRICS}
+        nothing = [[None] * k_total for _ in range(k_total)]
+        matrices = {"eval_units": 0, "success_matrix": nothing, "success_matrix_per_unit": [],
+                    "success_after_own_wake": [None] * k_total, "success_after_own_wake_per_unit": []}
+    else:
+        if after_wake is None or spi is None:
+            raise ValueError("build_results: a measured success needs after_wake and spi (NaN where not measured)")
+        measured = not np.isnan(after_wake[:, :-1]).any()
+        curves = metric_curves(success, skills, pairs, after_wake if measured else None)
+        curves["spi"] = np.asarray(spi, dtype=np.float64)
+        metrics = {name: summarize_curve(curves[name]) for name in METRICS if name in curves}
+        if "bwt_wake" not in metrics:  # --eval.after_wake=false: the reference was not measured
+            metrics["bwt_wake"] = summarize_curve(np.full_like(curves["bwt"], np.nan))
+        matrices = {"eval_units": int(success.shape[0]), "success_matrix": unit_mean(success).tolist(),
+                    "success_matrix_per_unit": success.tolist(),
+                    "success_after_own_wake": unit_mean(after_wake).tolist(),
+                    "success_after_own_wake_per_unit": after_wake.tolist()}
     results = {
         "results_version": RESULTS_VERSION,
         "substrate": substrate,
@@ -124,11 +148,7 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "seed": seed,
         "skills": list(skills),
         "pairs": [list(p) for p in pairs],
-        "eval_units": int(success.shape[0]),
-        "success_matrix": unit_mean(success).tolist(),
-        "success_matrix_per_unit": success.tolist(),
-        "success_after_own_wake": unit_mean(after_wake).tolist(),
-        "success_after_own_wake_per_unit": after_wake.tolist(),
+        **matrices,
         "metrics": metrics,
         "spi_features": [int(f) for f in spi_features],
         "memory_bytes": {k: int(v) for k, v in memory_bytes.items()},
@@ -139,6 +159,10 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "extra": dict(extra or {}),
         "code": dict(process_code_version()),
     }
+    if evaluation is not None:
+        results["evaluation"] = evaluation
+    if losses is not None:
+        results["losses"] = dict(losses)
     # numpy scalars as floats; NaN (an undefined metric, e.g. PRS at k = 1) and infinities as null
     return json.loads(json.dumps(results, default=float), parse_constant=lambda _: None)
 
@@ -151,18 +175,22 @@ def _fmt(mean: float | None, sem: float | None = None) -> str:
     return f"{mean:.3f} +- {sem:.3f}"
 
 
-def _cell(x: float | None) -> str:
-    return "-" if x is None else f"{x:.2f}"
+def _cell(x: float | None, digits: int = 2) -> str:
+    return "-" if x is None else f"{x:.{digits}f}"
 
 
 def render_markdown(results: Mapping[str, Any]) -> str:
     """``results.md``: final metrics (mean +- SE over evaluation units), success matrix, success after own wake."""
     skills = results["skills"]
     units = results["eval_units"]
-    lines = [f"# Stream results ({results['substrate']}, {results['label']}, seed {results['seed']})", "",
-             f"Mean +- SE over {units} evaluation unit(s) (ACT: evaluation seeds; SAC: one set of fixed evaluation "
-             "configurations).", "",
-             "| metric | final (k = K) | per stage |", "|---|---|---|"]
+    lines = [f"# Stream results ({results['substrate']}, {results['label']}, seed {results['seed']})", ""]
+    if results.get("evaluation") == "none":
+        return "\n".join(lines + _losses_markdown(results))
+    if results.get("evaluation"):
+        lines += [f"Evaluation: {results['evaluation']} (--eval.env).", ""]
+    lines += [f"Mean +- SE over {units} evaluation unit(s) (ACT: evaluation seeds; SAC: one set of fixed evaluation "
+              "configurations).", "",
+              "| metric | final (k = K) | per stage |", "|---|---|---|"]
     for name in METRICS:
         m = results["metrics"][name]
         curve = ", ".join("-" if x is None else f"{x:.3f}" for x in m["curve"])
@@ -177,6 +205,36 @@ def render_markdown(results: Mapping[str, Any]) -> str:
     if code.get("commit"):
         lines += [f"Code: commit {code['commit']}" + (" with uncommitted changes" if code.get("dirty") else ""), ""]
     return "\n".join(lines)
+
+
+def _losses_markdown(results: Mapping[str, Any]) -> list[str]:
+    """``results.md`` of a run without evaluation: what was measured instead of success (``losses``)."""
+    skills, losses = results["skills"], results.get("losses") or {}
+    lines = ["Evaluation: none (--eval.env=none): no closed-loop success was measured, so AFSR, PRS, BWT and SPI are "
+             "n/a. Measured instead, under the policy after each stage (rows) for each learned skill (columns):", ""]
+    tables = [("memory_loss", "Memory loss L_i (the distillation loss of skill i's stored memory; - where the method "
+                              "stores no actor memory)"),
+              ("validation_l1", "Validation l1 (the wake's behaviour-cloning l1 on skill i's validation episodes)")]
+    for key, title in tables:
+        if key not in losses:
+            continue
+        lines += [f"{title}:", "", "| after \\ skill | " + " | ".join(skills) + " |", "|---" * (len(skills) + 1) + "|"]
+        for k, row in enumerate(losses[key]):
+            lines.append(f"| {skills[k]} | " + " | ".join(_cell(x, 4) if i <= k else "" for i, x in enumerate(row))
+                         + " |")
+        after_wake = losses.get(f"{key}_after_wake")
+        if after_wake is not None:
+            diagonal = [_cell(after_wake[i][i], 4) for i in range(len(skills))]
+            lines.append("| right after own wake | " + " | ".join(diagonal) + " |")
+        lines.append("")
+    if losses.get("wake_best_val_l1"):
+        lines += ["Best validation l1 of each wake: " + ", ".join(
+            f"{s} {_cell(v, 4)}" for s, v in zip(skills, losses["wake_best_val_l1"], strict=True)), ""]
+    lines += [f"Continual-learning memory stored: {results['memory_bytes_total'] / 1e6:.2f} MB", ""]
+    code = results.get("code") or {}
+    if code.get("commit"):
+        lines += [f"Code: commit {code['commit']}" + (" with uncommitted changes" if code.get("dirty") else ""), ""]
+    return lines
 
 
 def _save(fig: Any, path: Path) -> None:

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import re
 import shutil
+from pathlib import Path
 
 import pytest
 
@@ -104,3 +105,46 @@ def test_sleep_and_sac_range_errors_name_the_key_with_its_prefix():
         SleepConfig(anchor_strength=float("nan"))
     with pytest.raises(ValueError, match=r"^sac.actor_lr must be > 0, got -1.0$"):
         SACConfig(actor_lr=-1.0)
+
+
+def test_use_amp_is_refused_instead_of_silently_ignored(tmp_path):
+    """``--policy.use_amp=true`` was stored and ignored; sr-train has no mixed-precision path yet."""
+    with pytest.raises(ValueError, match=r"^policy.use_amp: mixed precision is not implemented"):
+        tiny_stream_config(tmp_path, tmp_path / "out", SKILLS, use_images=False, use_amp=True)
+
+
+def test_push_to_hub_is_checked_before_training_and_pushes_the_final_policy(state_datasets, tmp_path, monkeypatch):
+    """``--policy.push_to_hub=true`` exited 0 without pushing. Offline: one line naming the repo before anything is
+    written; without a repo id: one line; reachable: the final consolidated checkpoint is uploaded with a card."""
+    import huggingface_hub
+
+    root = _copy(state_datasets, tmp_path / "d")
+    out = tmp_path / "out"
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", True)
+    cfg = tiny_stream_config(root, out, SKILLS[:2], use_images=False, push_to_hub=True, repo_id="me/sr_policy")
+    with pytest.raises(ValueError, match=r"^policy.push_to_hub: cannot push me/sr_policy: .*HF_HUB_OFFLINE"):
+        train_stream(cfg, fake_env_factory)
+    assert not out.exists()
+    with pytest.raises(ValueError, match=r"^policy.push_to_hub=true needs --policy.repo_id"):
+        train_stream(tiny_stream_config(root, out, SKILLS[:2], use_images=False, push_to_hub=True),
+                     fake_env_factory)
+    assert not out.exists()
+    uploads = []
+
+    class FakeApi:  # the Hub itself cannot be reached from here: record what would be uploaded
+        def whoami(self):
+            return {"name": "me"}
+
+        def create_repo(self, repo_id, private, exist_ok):
+            return type("Repo", (), {"repo_id": repo_id})()
+
+        def upload_folder(self, repo_id, repo_type, folder_path, commit_message, allow_patterns):
+            uploads.append((repo_id, sorted(p.name for p in Path(folder_path).iterdir())))
+            return type("Info", (), {"repo_url": f"https://huggingface.co/{repo_id}"})()
+
+    monkeypatch.setattr(huggingface_hub.constants, "HF_HUB_OFFLINE", False)
+    monkeypatch.setattr(huggingface_hub, "HfApi", FakeApi)
+    monkeypatch.setattr(huggingface_hub.ModelCard, "validate", lambda self, *a, **k: None)  # a Hub call too
+    train_stream(cfg, fake_env_factory)
+    assert len(uploads) == 1 and uploads[0][0] == "me/sr_policy"
+    assert {"model.safetensors", "config.json", "README.md"} <= set(uploads[0][1])

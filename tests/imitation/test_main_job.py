@@ -12,6 +12,7 @@ from pathlib import Path
 import av
 import numpy as np
 import pytest
+from safetensors.torch import load_file
 
 from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.imitation.cli import train_main
@@ -187,7 +188,34 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     # --policy.sleep not given: the policy keeps no reservoir and writes no memory (test_policy_sleep.py gives it)
     assert config["type"] == "act_sr" and config["sleep"] is None
     assert not list(out.rglob("memory.safetensors"))
+    assert any("images" in key for key in config["input_features"])  # the dataset's camera, used by default
     shutil.rmtree(out)
+    # issue 27: --policy.use_images=false was stored as false while the model still took the camera (11.2M
+    # parameters instead of 25k); now the state-only mode holds on stock lerobot-train too
+    proc = subprocess.run([*cmd, "--policy.use_images=false"], capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    pretrained = next(out.rglob("pretrained_model/config.json")).parent
+    features = json.loads((pretrained / "config.json").read_text())["input_features"]
+    assert set(features) == {"observation.state", "observation.environment_state"}
+    weights = load_file(str(pretrained / "model.safetensors"))
+    assert not any("backbone" in name for name in weights)
+    shutil.rmtree(out)
+
+
+def test_stock_lerobot_eval_evaluates_a_consolidated_checkpoint(main_job_run, tmp_path):
+    """Issue 27: the workflow's last step as a real subprocess: stock ``lerobot-eval`` loads a consolidated (sleep)
+    checkpoint of the stream and evaluates it in the needle env this package registers."""
+    tmp, _ = main_job_run
+    exe = Path(sys.executable).parent / "lerobot-eval"
+    checkpoint = tmp / "run" / "skill_2_place" / "sleep" / "pretrained_model"
+    out = tmp_path / "eval"
+    cmd = [str(exe), f"--policy.path={checkpoint}", "--env.type=needle", "--env.task=place",
+           "--env.episode_length=20", "--eval.n_episodes=1", "--eval.batch_size=1", "--policy.device=cpu",
+           f"--output_dir={out}"]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    info = json.loads(next(out.rglob("eval_info.json")).read_text())
+    assert "overall" in info or "per_task" in info or "aggregated" in info, sorted(info)
 
 
 def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):

@@ -64,6 +64,7 @@ CHOICES: dict[str, list[Any]] = {
     "wake.restore": ["best", "last"],
     "stream.video_backend": ["pyav", "torchcodec"],
     "eval.thresholds": sorted(THRESHOLD_PRESETS),
+    "eval.env": ["needle", "gym", "lerobot", "none"],  # none alone is valid; gym and lerobot need their keys
     # free strings and paths: another value
     "stream.repo_id_prefix": ["local/other_prefix"],
     "stream.dataset_root": ["/elsewhere/needle"],
@@ -79,12 +80,21 @@ CHOICES: dict[str, list[Any]] = {
     "policy.license": ["mit"],
     "stream.dataset_paths": [[f"/data/{s}" for s in STREAM]],
     "stream.extend_from": ["/runs/previous"],
+    "eval.gym_ids": [[f"Tiny{s.capitalize()}-v0" for s in STREAM]],
+    "eval.env_type": ["needle"],
+    "eval.env_tasks": [list(STREAM)],
+    "eval.env_options": [{"obs_type": "agent_pos"}],
 }
 COMPANIONS: dict[str, dict[tuple[str, ...], Any]] = {
     # ACT allows a temporal ensemble only with one action step per chunk: change both (the diff names both).
     "policy.temporal_ensemble_coeff": {("policy", "n_action_steps"): 1},
     # the stored run's method (sr) has no options: give them to a method that has them (the diff names both).
     "method_options": {("method",): "ewc"},
+    # the environment keys belong to their --eval.env (checked at parse time), the registries only before training
+    "eval.gym_ids": {("eval", "env"): "gym"},
+    "eval.env_type": {("eval", "env"): "lerobot"},
+    "eval.env_tasks": {("eval", "env"): "lerobot", ("eval", "env_type"): "needle"},
+    "eval.env_options": {("eval", "env"): "lerobot", ("eval", "env_type"): "needle"},
 }
 SKIP: dict[str, str] = {
     "policy.type": "sr-train trains act_sr only: TrainStreamConfig.__post_init__ refuses any other policy type",
@@ -114,6 +124,7 @@ ALLOWED_CHANGES: dict[str, Any] = {
     "allow_unhashed_inputs": True,
     "stream.dataset_root": "<moved>",  # the same datasets copied elsewhere (resolved in the test)
     "stream.dataset_paths": "<moved paths>",
+    "stream.repo_ids": "<cached repo_ids>",  # the same datasets in a (temporary) local LeRobot cache
 }
 
 
@@ -230,19 +241,24 @@ def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stor
     assert set(SKIP) <= covered and len(refused) == len(covered) - len(SKIP) >= 60
 
 
-def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, state_datasets, tmp_path):
+def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, state_datasets, tmp_path, monkeypatch):
     out, saved = stored
     assert set(ALLOWED_CHANGES) == set(RESUME_ALLOW_LIST)
     moved = tmp_path / "moved"  # datasets are identified by content: the same bytes elsewhere resume
     shutil.copytree(state_datasets, moved)
-    resolved = {"<moved>": str(moved), "<moved paths>": [str(moved / s) for s in STREAM]}
+    cache = tmp_path / "hf_lerobot"  # ... or in a local LeRobot cache, named by repo_id
+    shutil.copytree(state_datasets, cache / "user")
+    monkeypatch.setattr("lerobot.datasets.lerobot_dataset.HF_LEROBOT_HOME", cache)
+    resolved = {"<moved>": str(moved), "<moved paths>": [str(moved / s) for s in STREAM],
+                "<cached repo_ids>": [f"user/{s}" for s in STREAM]}
     everything = saved
     for key, new in ALLOWED_CHANGES.items():
         new = resolved.get(new, new) if isinstance(new, str) else new
         path = tuple(key.split("."))
         cfg = _parse(with_leaf(saved, path, new), tmp_path, out)
         StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))  # no error
-        if key != "overwrite":  # --resume and --overwrite exclude each other (TrainStreamConfig.__post_init__)
+        # --resume and --overwrite exclude each other, and so do repo_ids and dataset_paths (__post_init__)
+        if key not in ("overwrite", "stream.repo_ids"):
             everything = with_leaf(everything, path, new)
     cfg = _parse(everything, tmp_path, out)
     assert cfg.wake.num_workers == 1 and cfg.eval.videos_per_skill == 0 and cfg.progress

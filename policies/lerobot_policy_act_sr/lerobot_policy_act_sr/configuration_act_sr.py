@@ -10,7 +10,7 @@ the same flag names on both substrates: ``--sleep.*`` (the table "Sleep-consolid
 ``--policy.sleep`` (the design card's "a lerobot-style train command with ``--policy.sleep=true``") is the one sleep
 setting the policy holds. On ``sr-train`` it is the same switch as ``--sleep.enabled`` and
 ``--policy.sleep_memory_size`` the same setting as ``--memory.buffer_size`` (folded into them at parse time,
-:func:`sr_imitation.stream.config.fold_policy_aliases`). On stock ``lerobot-train`` ``--policy.sleep=true`` makes
+:func:`sr_imitation.stream.config.fold_alias_flags`). On stock ``lerobot-train`` ``--policy.sleep=true`` makes
 the policy keep a reservoir of the observations it trains on and write the skill's frozen actor memory
 (``memory.safetensors``) next to every checkpoint, for a later sleep (:mod:`lerobot_policy_act_sr.modeling_act_sr`).
 """
@@ -36,57 +36,66 @@ skill), the same as ``sr-train``'s ``--memory.buffer_size`` default."""
 class ACTSRConfig(ACTConfig):
     """ACT with frozen actor memories, wake-time distillation and Nash-bargained sleep.
 
-    Args (beyond ACT's):
-        distill_weight_second: gamma_2, wake distillation weight when learning the second skill.
-        distill_weight_later: gamma_k for k >= 3.
-        distill_batch_size: observations drawn from each earlier memory per wake step.
-        distill_reduction: how a memory reduces the squared chunk difference over the chunk's elements: ``mean``
-            (the "mean squared difference", on the per-element scale of ACT's l1 loss; default) or ``sum`` (the
-            literal squared norm of the paper's equation, 112x larger for 16-step chunks of 7-d actions).
-        use_images: ``false`` gives ACT's state-only mode: the state is also fed as
-            ``observation.environment_state`` and no camera is used (the CPU preset's choice).
-        backbone_norm: the vision backbone's normalization layers. ``frozen_batch`` is LeRobot's ACT
-            (``FrozenBatchNorm2d``: fixed statistics, right for ImageNet-pretrained weights); ``group`` is trainable
-            GroupNorm with 16 channels per group (our choice, as Diffusion Policy does for a ResNet-18 trained from
-            scratch); ``auto`` picks ``frozen_batch`` with ``pretrained_backbone_weights`` and ``group`` without.
-            A randomly initialized ResNet-18 with frozen batch norm has no normalization at all: on the CPU vision
-            preset its features reached an RMS of 95,000 after 1800 wake steps (the robot-state token's: 0.6),
-            the image tokens drowned the state and approach was never learned (success 0.00; docs/RESULTS.md).
-
-    The design card's switch ``sleep`` (``--policy.sleep=true``; ``None`` when not given): on stock ``lerobot-train``,
-    true keeps a uniform reservoir of the observations trained on and writes the skill's frozen actor memory
-    ``memory.safetensors`` beside each checkpoint's ``model.safetensors`` (``sleep_memory_size`` observations,
-    ``None`` meaning :data:`DEFAULT_SLEEP_MEMORY_SIZE`); false or ``None`` change nothing. On ``sr-train`` they are
-    ``--sleep.enabled`` and ``--memory.buffer_size`` (folded into them; giving both with different values is an
-    error). The other sleep and memory-buffer settings are the stream's (``sr-train --sleep.* --memory.*``).
+    Every field has its meaning in the docstring under it (``--help`` of ``sr-train`` and of stock
+    ``lerobot-train`` shows it); ACT's own fields are described by LeRobot's ``ACTConfig``. First lines of these
+    docstrings avoid a single colon: draccus would read such a line as a field definition and show no help.
     """
 
-    # ACT as in the paper.
+    # ACT as in the paper (SurgicAI table "ACT wake-training hyperparameters").
     chunk_size: int = 16
+    """Actions predicted per policy call, in environment steps (the paper's chunk 16; LeRobot's ACT 100)."""
     n_action_steps: int = 16
+    """Actions of each chunk executed before the policy is called again (at most chunk_size)."""
     latent_dim: int = 32
+    """Dimension of the VAE latent (paper 32)."""
     kl_weight: float = 10.0
+    """Weight of the KL term when use_vae is true - loss = l1 + kl_weight * KL (paper 10)."""
     vision_backbone: str = "resnet18"
-    pretrained_backbone_weights: str | None = None  # nothing downloads at run time
+    """torchvision ResNet that encodes the camera images (paper ResNet-18; unused with use_images=false)."""
+    pretrained_backbone_weights: str | None = None
+    """torchvision weights of the backbone, e.g. ResNet18_Weights.IMAGENET1K_V1; null (default) - trained from
+    scratch, so nothing is downloaded at run time."""
     optimizer_lr: float = 1e-4
+    """AdamW learning rate of the wake (paper 1e-4)."""
     optimizer_lr_backbone: float = 1e-5
+    """AdamW learning rate of the vision backbone during the wake (paper 1e-5)."""
     optimizer_weight_decay: float = 1e-4
+    """AdamW weight decay of the wake (paper 1e-4)."""
     push_to_hub: bool = False
+    """Push the trained policy to the Hugging Face Hub repository --policy.repo_id (sr-train - the consolidated
+    policy at the end of the stream). Default false, unlike LeRobot - nothing leaves the machine unasked."""
 
     # Sleeping Robots' wake objective.
     distill_weight_second: float = 1.0
+    """gamma_2, the wake distillation weight when learning the second skill (paper 1.0)."""
     distill_weight_later: float = 0.5
+    """gamma_k, the wake distillation weight for the third skill and later (paper 0.5)."""
     distill_batch_size: int = 8
+    """Observations drawn from each earlier skill's memory per wake step."""
     distill_reduction: str = "mean"
+    """How a memory's squared chunk difference is reduced over the chunk's elements - mean (the "mean squared
+    difference", on the per-element scale of ACT's l1 loss; default) or sum (the literal squared norm of the paper's
+    equation, 112x larger for 16-step chunks of 7-d actions)."""
     use_images: bool = True
+    """Feed the camera images to the model. false is ACT's state-only mode - the state is also fed as
+    observation.environment_state and no camera is used (the CPU preset's choice)."""
     backbone_norm: str = "auto"
+    """Normalization layers of the vision backbone - frozen_batch (LeRobot's ACT, FrozenBatchNorm2d with fixed
+    statistics, right for ImageNet-pretrained weights), group (trainable GroupNorm with 16 channels per group; our
+    choice, as Diffusion Policy does for a ResNet-18 trained from scratch) or auto (frozen_batch with
+    pretrained_backbone_weights, group without). A randomly initialized ResNet-18 with frozen batch norm has no
+    normalization at all - on the CPU vision preset its features reached an RMS of 95,000 after 1800 wake steps
+    (the robot-state token's 0.6), the image tokens drowned the state and approach was never learned (success 0.00;
+    docs/RESULTS.md)."""
 
+    # The design card's switch (``--policy.sleep=true``; None when not given).
     sleep: bool | None = None
     """Sleep switch (the design card's --policy.sleep=true). Stock lerobot-train - keep a reservoir of the trained-on
-    observations and write the skill's frozen actor memory (memory.safetensors) beside each checkpoint. sr-train -
-    the same switch as --sleep.enabled."""
+    observations and write the skill's frozen actor memory (memory.safetensors) beside each checkpoint's
+    model.safetensors; false or null change nothing. sr-train - the same switch as --sleep.enabled (giving both with
+    different values is an error); the other sleep and memory settings are the stream's (--sleep.*, --memory.*)."""
     sleep_memory_size: int | None = None
-    """Observations in that memory (default 1024, the paper's |B_k|); on sr-train the same as --memory.buffer_size."""
+    """Observations in that memory (null - 1024, the paper's |B_k|); on sr-train the same as --memory.buffer_size."""
 
     def __post_init__(self) -> None:
         super().__post_init__()

@@ -25,6 +25,7 @@ from pathlib import Path
 from typing import Any
 
 import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.act.modeling_act import ACTPolicy
 from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
@@ -132,6 +133,18 @@ class ObservationReservoir:
         return {k: v[: len(self)].clone() for k, v in self._buffers.items()}
 
 
+def state_only_features(config: ACTSRConfig) -> None:
+    """ACT's state-only mode (``use_images=false``) on ``config.input_features``: cameras dropped, the state also
+    declared as ``observation.environment_state`` (ACT needs an image or an environment state; the policy copies
+    the normalized state there). ``sr-train`` declares the features this way itself; stock ``lerobot-train`` fills
+    them from the dataset, cameras included, so without this the camera was still used (11.2M parameters instead
+    of 25k). Idempotent."""
+    inputs = {k: f for k, f in (config.input_features or {}).items() if f.type is not FeatureType.VISUAL}
+    if OBS_STATE in inputs and OBS_ENV_STATE not in inputs:
+        inputs[OBS_ENV_STATE] = PolicyFeature(type=FeatureType.ENV, shape=inputs[OBS_STATE].shape)
+    config.input_features = inputs
+
+
 class ACTSRPolicy(ACTPolicy):
     """ACT + Sleeping Robots (the policy class LeRobot's factory finds for ``act_sr``)."""
 
@@ -139,6 +152,8 @@ class ACTSRPolicy(ACTPolicy):
     name = "act_sr"
 
     def __init__(self, config: ACTSRConfig, **kwargs: Any) -> None:
+        if not config.use_images and config.input_features:
+            state_only_features(config)  # stock lerobot-train fills the features from the dataset, cameras included
         super().__init__(config, **kwargs)
         self.config: ACTSRConfig = config
         if config.image_features and config.resolved_backbone_norm == "group":
