@@ -4,6 +4,12 @@ set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 source .ci/env.sh
-export OMP_NUM_THREADS="${OMP_NUM_THREADS:-2}"
+# Two pytest workers (pytest-xdist), one torch thread each: both cores busy without oversubscription
+# (SR_TEST_WORKERS=0 runs in one process).
+workers="${SR_TEST_WORKERS:-2}"
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 "$venv/bin/ruff" check sr_imitation policies tests
-exec "$venv/bin/python" -m pytest "$@"
+if [ "$workers" = "0" ]; then
+  exec "$venv/bin/python" -m pytest "$@"
+fi
+exec "$venv/bin/python" -m pytest -n "$workers" "$@"
