@@ -28,6 +28,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from sr_imitation.core.io import read_checked_json, write_checked_json
+
 logger = logging.getLogger(__name__)
 
 LOG_NAME = "log.jsonl"
@@ -78,6 +80,18 @@ def _jsonable(value: Any) -> Any:
     return str(value)
 
 
+WANDB_ID_FILE = "wandb_run.json"
+"""The run's wandb id, written when wandb is first enabled for it; a resume continues that wandb run."""
+
+
+def _records(path: Path) -> int:
+    """The number of records in a log (the wandb step a resumed run continues after)."""
+    if not path.is_file():
+        return 0
+    with path.open("rb") as f:
+        return sum(1 for _ in f)
+
+
 class RunLog:
     """Append-only JSON-lines log of a run (module docstring); use as a context manager or call :meth:`close`."""
 
@@ -94,10 +108,17 @@ class RunLog:
                 os.environ.setdefault("WANDB_ERROR_REPORTING", "false")
             import wandb as wandb_lib  # noqa: PLC0415 - optional, imported only when enabled
 
+            id_path = Path(run_dir) / WANDB_ID_FILE
+            run_id = read_checked_json(id_path)["id"] if id_path.is_file() else None
+            # a resumed run continues the same wandb run (LeRobot's run_id), its steps after the logged records
+            self._global_step = _records(self.path) if run_id is not None else 0
             self._wandb = wandb_lib.init(
                 project=wandb.project, name=wandb.run_name or Path(run_dir).name, dir=str(run_dir),
                 mode=wandb.mode, config=_jsonable(dict(config or {})), reinit="finish_previous",
+                id=run_id, resume="allow" if run_id is not None else None,
             )
+            if run_id is None:
+                write_checked_json(id_path, {"id": self._wandb.id})
             logger.info("wandb (%s) logging to %s", wandb.mode, Path(run_dir) / "wandb")
 
     def log(self, kind: str, stage: int | None = None, step: int | None = None, **values: Any) -> None:

@@ -14,8 +14,8 @@ noticed after later phases were redone and rewritten. :func:`verify_run_files` c
 - ``*.npz`` (ACT evaluation trajectories of runs written before they were sealed safetensors): the zip's CRC of
   every member.
 
-Not verified, because nothing reads them back: videos, plots, markdown reports, ``log.jsonl``; nor hidden files
-(what an interrupted atomic write leaves; the resume removes them).
+Not verified, because nothing reads them back: videos, plots, markdown reports, ``log.jsonl``, wandb's own files
+(``wandb/``); nor hidden files (what an interrupted atomic write leaves; the resume removes them).
 """
 
 from __future__ import annotations
@@ -34,9 +34,13 @@ from sr_imitation.core.io import (
     verify_manifest,
 )
 
+THIRD_PARTY = ("wandb", "videos")
+"""Top-level folders other programs write into a run (wandb's offline run, rollout videos): never read back."""
+
 
 def _visible(root: Path, path: Path) -> bool:
-    return not any(part.startswith(".") for part in path.relative_to(root).parts)
+    parts = path.relative_to(root).parts
+    return not any(part.startswith(".") for part in parts) and not (parts and parts[0] in THIRD_PARTY)
 
 
 def verify_run_files(root: Path, unsealed: Iterable[str] = ()) -> int:

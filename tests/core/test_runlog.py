@@ -78,3 +78,21 @@ def test_sleep_reports_every_applied_iteration(tmp_path):
     assert [r["objective"] for r in records] == pytest.approx(result.sleep_objective)
     assert all(r["solver_status"] in ("optimal", "pareto_stationary") and math.isclose(sum(r["alpha"]), 1.0)
                for r in records)
+
+
+def test_a_resumed_run_continues_the_same_wandb_run(tmp_path, monkeypatch):
+    """Issue 27 item 6 (LeRobot's run_id): the wandb id is stored with the run; a resume continues that run, its
+    steps after the records already logged."""
+    import json
+
+    from sr_imitation.core.runlog import WANDB_ID_FILE
+
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    with RunLog(tmp_path, WandbConfig(enable=True, mode="offline")) as log:
+        first = log._wandb.id
+        log.log("wake", stage=1, step=0, loss=1.0)
+        log.log("wake", stage=1, step=1, loss=0.5)
+    assert json.loads((tmp_path / WANDB_ID_FILE).read_text())["id"] == first
+    with RunLog(tmp_path, WandbConfig(enable=True, mode="offline")) as log:
+        assert log._wandb.id == first and log._global_step == 2
+        log.log("wake", stage=2, step=0, loss=0.4)

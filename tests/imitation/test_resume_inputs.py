@@ -185,3 +185,20 @@ def test_any_single_byte_change_is_refused_before_writing_or_changes_nothing(aft
         assert outcomes.get(must_refuse) == "refused", (must_refuse, outcomes)
     assert any(k.startswith("memories/") and v == "refused" for k, v in outcomes.items()), outcomes
     assert len(outcomes) >= 15, outcomes
+
+
+def test_a_run_logged_to_wandb_resumes_into_the_same_wandb_run(datasets, reference, tmp_path, monkeypatch):
+    """wandb's own files in the run directory are not ours to verify (unsealed by design): a run with wandb resumes,
+    continues the same wandb run, and ends as the untouched run does."""
+    from sr_imitation.core.runlog import WANDB_ID_FILE, WandbConfig
+
+    monkeypatch.setenv("WANDB_SILENT", "true")
+    run = tmp_path / "run"
+    cfg = tiny_stream_config(datasets, run, STREAM, use_images=False)
+    cfg.wandb = WandbConfig(enable=True, mode="offline")
+    StreamTrainer(cfg, fake_env_factory).run(stop_after=1)
+    first = json.loads((run / WANDB_ID_FILE).read_text())["id"]
+    assert any(p.is_file() for p in (run / "wandb").rglob("*"))  # wandb's own files, unsealed
+    _resume(run, datasets, wandb=WandbConfig(enable=True, mode="offline"))
+    assert json.loads((run / WANDB_ID_FILE).read_text())["id"] == first
+    _same_as_reference(run, reference)
