@@ -74,8 +74,7 @@ def _function(args: list[str], which: int) -> Callable[[list[str]], Any]:
     if hint is not None:
         raise ValueError(hint)
     config_path, _ = split_config_path(args)
-    check_config_file(config_path)
-    config = None if config_path is None else _read_config(config_path)
+    config = check_config_file(config_path)
     hint = renamed_key_hint(config)
     if hint is not None:
         raise ValueError(f"{config_path}: {hint}")

@@ -59,11 +59,11 @@ def _decoding_key(exc: BaseException | None) -> str | None:
     return key
 
 
-def check_config_file(config_path: str | None) -> None:
-    """A ``--config_path`` file that is missing or not valid JSON, as one line naming the file (draccus names
-    neither file nor key)."""
+def check_config_file(config_path: str | None) -> object:
+    """The JSON of a ``--config_path`` file (``None`` without one); a missing file or invalid JSON is one line naming
+    the file (draccus names neither file nor key)."""
     if config_path is None:
-        return
+        return None
     import json  # noqa: PLC0415
 
     try:
@@ -72,7 +72,7 @@ def check_config_file(config_path: str | None) -> None:
     except OSError as exc:
         raise FileNotFoundError(f"{config_path}: cannot read the config file ({exc.strerror or exc})") from None
     try:
-        json.loads(text)
+        return json.loads(text)
     except json.JSONDecodeError as exc:
         raise ValueError(f"{config_path}: not valid JSON ({exc})") from None
 

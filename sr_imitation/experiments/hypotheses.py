@@ -54,16 +54,20 @@ class HypothesesConfig:
             raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
 
 
-def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float]:
-    """``{training seed: final metric}`` of every finished run of ``variant`` in ``archive``."""
+def archived_runs(archive: Path, variant: str) -> dict[int, dict[str, Any]]:
+    """``{training seed: results}`` of every finished run ``<variant>_seed<S>`` in ``archive`` (checked)."""
     out = {}
     for run in sorted(Path(archive).glob(f"{variant}_seed*")):
         suffix = run.name[len(variant) + len("_seed"):]
         if suffix.isdigit() and (run / "results.json").is_file():
-            value = load_results(run)["metrics"][metric]["final"]
-            if value is not None:
-                out[int(suffix)] = float(value)
+            out[int(suffix)] = load_results(run)
     return out
+
+
+def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float]:
+    """``{training seed: final metric}`` of every finished run of ``variant`` in ``archive``."""
+    finals = {seed: r["metrics"][metric]["final"] for seed, r in archived_runs(archive, variant).items()}
+    return {seed: float(v) for seed, v in finals.items() if v is not None}
 
 
 def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:

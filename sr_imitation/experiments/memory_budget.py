@@ -22,7 +22,7 @@ import draccus
 import numpy as np
 
 from sr_imitation.core.io import atomic_write_bytes, write_checked_json
-from sr_imitation.stream.results import load_results
+from sr_imitation.experiments.hypotheses import archived_runs
 from sr_imitation.stream.summary import mean_sem_dict
 
 logger = logging.getLogger(__name__)
@@ -47,17 +47,13 @@ class BudgetConfig:
 
 
 def _runs(archive: Path, variant: str, budget: int) -> dict[int, dict[str, Any]]:
-    out = {}
-    for run in sorted(archive.glob(f"{variant}_seed*")):
-        suffix = run.name[len(variant) + len("_seed"):]
-        if not (suffix.isdigit() and (run / "results.json").is_file()):
-            continue
-        results = load_results(run)
+    runs = archived_runs(archive, variant)
+    for seed, results in runs.items():
         stored = ((results.get("config") or {}).get("memory") or {}).get("buffer_size")
         if stored is not None and int(stored) != budget:
-            raise ValueError(f"{run}: memory.buffer_size {stored}, but its point says {budget}")
-        out[int(suffix)] = results
-    return out
+            raise ValueError(f"{archive / f'{variant}_seed{seed}'}: memory.buffer_size {stored}, but its point says "
+                             f"{budget}")
+    return runs
 
 
 def collect(cfg: BudgetConfig) -> dict[str, Any]:

@@ -93,9 +93,9 @@ def dataset_inputs(skills: Sequence[str], paths: Sequence[Path]) -> dict[str, st
     use_cache = os.environ.get("SR_NO_DIGEST_CACHE", "") in ("", "0")
     cache_path = _cache_path()
     cache = _load_cache(cache_path) if use_cache else None
-    before = json.dumps(cache, sort_keys=True) if cache is not None else ""
+    entries = None if cache is None else dict(cache)
     out = {skill: dataset_digest(Path(path), cache) for skill, path in zip(skills, paths, strict=True)}
-    if cache is not None and json.dumps(cache, sort_keys=True) != before:
+    if cache is not None and cache != entries:  # a file was hashed anew
         try:
             atomic_write_json(cache_path, cache)
         except OSError as exc:  # a read-only home: only the cache is lost

@@ -35,13 +35,13 @@ from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerpr
 from sr_imitation.core.provenance import log_code_version
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
-from sr_imitation.imitation.dataset_identity import check_inputs
 from sr_imitation.imitation.report import pair_list
 from sr_imitation.imitation.stream import (
     RESUME_ALLOW_LIST,
     SETTINGS_ADDED,
     TrainStreamConfig,
     check_evaluation_envs,
+    inputs_check,
     stored_config_dict,
     stream_inputs,
 )
@@ -104,10 +104,8 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
     check_evaluation_envs(cfg, input_features, output_features, custom_env=make_env is not None)
     stored = joint_stored_config(cfg)
     inputs = stream_inputs(cfg)
-    paths = {s: cfg.stream.dataset_path(i) for i, s in enumerate(cfg.stream.skills)}
     run = RunDirectory(cfg.output_dir, joint_fingerprint(cfg, inputs), "train_config.json", stored, cfg.resume,
-                       cfg.overwrite, check_inputs=lambda path, old: check_inputs(
-                           path, old, inputs, paths, cfg.allow_unhashed_inputs))
+                       cfg.overwrite, check_inputs=inputs_check(cfg, inputs))
     run.prepare()
     log_code_version(logger)
     substrate = JointSubstrate(cfg, make_env)

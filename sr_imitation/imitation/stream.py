@@ -304,6 +304,12 @@ def stream_inputs(cfg: TrainStreamConfig) -> dict[str, str]:
     return dataset_inputs(cfg.stream.skills, [cfg.stream.dataset_path(i) for i in range(len(cfg.stream.skills))])
 
 
+def inputs_check(cfg: TrainStreamConfig, inputs: dict[str, str]) -> Callable[[Path, Any], None]:
+    """The resume check of ``cfg``'s datasets against a stored fingerprint (``RunDirectory``'s ``check_inputs``)."""
+    paths = {s: cfg.stream.dataset_path(i) for i, s in enumerate(cfg.stream.skills)}
+    return lambda path, stored: check_inputs(path, stored, inputs, paths, cfg.allow_unhashed_inputs)
+
+
 def resume_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = None) -> SettingsFingerprint:
     """The settings of ``cfg`` that a resume must keep (everything but :data:`RESUME_ALLOW_LIST`), plus the method's
     own settings with their defaults (``method_config``, :func:`~sr_imitation.stream.methods.method_config`) and the
@@ -333,11 +339,9 @@ class StreamTrainer:
         self.substrate = ACTSubstrate(cfg, make_env)
         self.method = make_method(cfg.method, ACTSubstrate.name, self.substrate.method_settings())
         inputs = stream_inputs(cfg)
-        paths = {s: cfg.stream.dataset_path(i) for i, s in enumerate(cfg.stream.skills)}
-        self.run_dir = RunDirectory(
-            self.out, resume_fingerprint(cfg, inputs), "train_config.json", stored_config_dict(cfg), cfg.resume,
-            cfg.overwrite,
-            check_inputs=lambda path, stored: check_inputs(path, stored, inputs, paths, cfg.allow_unhashed_inputs))
+        self.run_dir = RunDirectory(self.out, resume_fingerprint(cfg, inputs), "train_config.json",
+                                    stored_config_dict(cfg), cfg.resume, cfg.overwrite,
+                                    check_inputs=inputs_check(cfg, inputs))
         self.after_phase = after_phase
 
     @property
