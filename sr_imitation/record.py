@@ -216,8 +216,55 @@ def _replace_dir(src: Path, dst: Path) -> None:
         shutil.rmtree(old, ignore_errors=True)
 
 
+def _canonical_data_files(dataset_root: Path, key: str) -> None:
+    """Give every data parquet file a fingerprint that is a function of ``key`` and the file's place.
+
+    LeRobot writes each episode through ``datasets.Dataset``, whose fingerprint lands in the parquet schema's
+    ``huggingface`` metadata; it hashes pickled transforms, so it changed from process to process and two
+    recordings of the same demos differed in bytes, hence in their content digest (``inputs.datasets.<skill>``).
+    The files are rewritten row group by row group with LeRobot's writer settings; only that value changes."""
+    import hashlib
+    import json
+
+    import pyarrow.parquet as pq
+
+    for path in sorted((dataset_root / "data").rglob("*.parquet")):
+        source = pq.ParquetFile(path)
+        schema = source.schema_arrow
+        meta = dict(schema.metadata or {})
+        if b"huggingface" not in meta:
+            continue
+        hf = json.loads(meta[b"huggingface"])
+        rel = path.relative_to(dataset_root).as_posix()
+        hf["fingerprint"] = hashlib.sha256(f"{key}:{rel}".encode()).hexdigest()[:16]
+        meta[b"huggingface"] = json.dumps(hf).encode()
+        schema = schema.with_metadata(meta)
+        tmp = path.with_name(path.name + ".tmp")
+        with pq.ParquetWriter(tmp, schema=schema, compression="snappy", use_dictionary=True) as writer:
+            for i in range(source.num_row_groups):
+                writer.write_table(source.read_row_group(i).replace_schema_metadata(meta))
+        os.replace(tmp, path)
+
+
+def _canonical_stats(dataset_root: Path) -> None:
+    """Rewrite ``meta/stats.json`` with its features in ``meta/info.json``'s order.
+
+    LeRobot aggregates the statistics over a ``set`` of feature names, so their order in the file (and its
+    bytes) followed ``PYTHONHASHSEED``; LeRobot reads the file as a mapping, so the order is free to fix."""
+    import json
+
+    stats_path = dataset_root / "meta" / "stats.json"
+    stats = json.loads(stats_path.read_text())
+    order = list(json.loads((dataset_root / "meta" / "info.json").read_text())["features"])
+    ordered = {k: stats[k] for k in order if k in stats} | {k: stats[k] for k in sorted(stats) if k not in order}
+    stats_path.write_text(json.dumps(ordered, indent=4, ensure_ascii=False))
+
+
 def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
-    """Record ``cfg.num_episodes`` successful demos of ``skill``; returns the dataset path."""
+    """Record ``cfg.num_episodes`` successful demos of ``skill``; returns the dataset path.
+
+    The dataset's bytes are a function of the recording settings (same settings, same files, whatever the
+    process's hash seed), so its content digest identifies the demos."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from sr_imitation.envs.needle.video import write_mp4
@@ -266,6 +313,8 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
                 bar.update(1)
         dataset.finalize()
         dataset = None
+        _canonical_stats(tmp / "dataset")
+        _canonical_data_files(tmp / "dataset", f"sr-record:{cfg.seed}:{skill}")
         write_checked_json(tmp / "dataset" / RECORD_SETTINGS_FILE, content_settings(cfg, skill))
         images = tmp / "dataset" / "images"
         if images.is_dir() and not any(p.is_file() for p in images.rglob("*")):

@@ -75,6 +75,28 @@ def test_same_seed_same_data(tmp_path):
     np.testing.assert_array_equal(a.hf_dataset["action"], b.hf_dataset["action"])
 
 
+def test_same_settings_same_bytes_whatever_the_hash_seed(tmp_path):
+    """Two recordings in processes with different PYTHONHASHSEED give byte-identical files, so the dataset's
+    content digest (inputs.datasets.<skill>) names the demos, not the process that wrote them."""
+    import hashlib
+    import os
+    import subprocess
+    import sys
+
+    def files(root: Path) -> dict[str, str]:
+        return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
+                for p in sorted(root.rglob("*")) if p.is_file()}
+
+    for name, hash_seed in (("a", "1"), ("b", "2")):
+        env = {**os.environ, "PYTHONHASHSEED": hash_seed}
+        subprocess.run([sys.executable, "-m", "sr_imitation.record", f"--root={tmp_path / name}",
+                        "--skills=[approach]", "--num_episodes=1", f"--image_size={SIZE}"],
+                       check=True, env=env, capture_output=True)
+    a, b = files(tmp_path / "a"), files(tmp_path / "b")
+    assert any(k.endswith(".parquet") for k in a) and "approach/meta/stats.json" in a
+    assert a == b
+
+
 def test_existing_target_is_not_overwritten(tmp_path):
     target = tmp_path / "approach"
     target.mkdir()
