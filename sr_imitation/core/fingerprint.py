@@ -271,11 +271,24 @@ def settings_from_config(config: Mapping[str, Any]) -> dict[str, Any]:
 def output_dir_for(config_path: str | os.PathLike[str] | None, args: Iterable[str], output_dir: Path) -> Path:
     """The output directory a command line means.
 
-    A run's own config file stores ``output_dir`` as ``"."`` (:data:`RUN_DIRECTORY`): the directory holding the
-    file, so ``--config_path=<run>/train_config.json --resume=true`` resumes ``<run>`` wherever it was copied, and
-    nothing in a run directory names its absolute location. An explicit ``--output_dir`` wins.
+    A run's own config file stores ``output_dir`` as ``"."`` (:data:`RUN_DIRECTORY`): the run directory the file
+    belongs to, so ``--config_path=<run>/train_config.json --resume=true`` resumes ``<run>`` wherever it was copied,
+    and nothing in a run directory names its absolute location. The copy beside each checkpoint (LeRobot's
+    ``<run>/last/pretrained_model/train_config.json``) means the same run: the nearest folder above the file that
+    holds the run's :data:`FINGERPRINT_FILE` (:func:`run_directory_of`). An explicit ``--output_dir`` wins.
     """
     given = any(a == "--output_dir" or a.startswith("--output_dir=") for a in args)
     if config_path is not None and not given and Path(output_dir) == Path(RUN_DIRECTORY):
-        return Path(config_path).parent
+        return run_directory_of(Path(config_path))
     return Path(output_dir)
+
+
+def run_directory_of(config_path: Path, levels: int = 4) -> Path:
+    """The run directory of a run's config file: its own folder, or the nearest of the ``levels`` folders above it
+    (lexically, so ``<run>/last/...`` stays in ``<run>``) that holds :data:`FINGERPRINT_FILE`; its own folder when
+    none does (a fresh run started from a copied config)."""
+    folder = Path(config_path).parent
+    for candidate in [folder, *list(folder.parents)[:levels]]:
+        if (candidate / FINGERPRINT_FILE).is_file():
+            return candidate
+    return folder

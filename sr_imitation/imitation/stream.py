@@ -46,10 +46,11 @@ from sr_imitation.imitation.evaluate import (
     resolve_eval_env,
 )
 from sr_imitation.imitation.hub import check_push, push_policy
-from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
+from sr_imitation.imitation.substrate import TRAIN_CONFIG_FILE, ACTSubstrate, seed_everything, stage_name
 from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method, method_config, methods_for
 from sr_imitation.stream.config import check_shared_settings, fold_alias_settings
+from sr_imitation.stream.rundir import point_last
 
 __all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "StreamConfig", "StreamTrainer", "TrainStreamConfig",
            "check_evaluation_envs", "resume_fingerprint", "seed_everything", "stage_name", "stored_config_dict",
@@ -339,9 +340,10 @@ class StreamTrainer:
         self.substrate = ACTSubstrate(cfg, make_env)
         self.method = make_method(cfg.method, ACTSubstrate.name, self.substrate.method_settings())
         inputs = stream_inputs(cfg)
-        self.run_dir = RunDirectory(self.out, resume_fingerprint(cfg, inputs), "train_config.json",
-                                    stored_config_dict(cfg), cfg.resume, cfg.overwrite,
-                                    check_inputs=inputs_check(cfg, inputs))
+        stored = stored_config_dict(cfg)
+        self.run_dir = RunDirectory(self.out, resume_fingerprint(cfg, inputs), TRAIN_CONFIG_FILE, stored,
+                                    cfg.resume, cfg.overwrite, check_inputs=inputs_check(cfg, inputs))
+        self.substrate.train_config = stored
         self.after_phase = after_phase
 
     @property
@@ -363,16 +365,31 @@ class StreamTrainer:
         _, inputs, outputs = check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)
         check_evaluation_envs(self.cfg, inputs, outputs, custom_env=self.substrate._make_env is not None)
         check_push(self.cfg.policy)  # --policy.push_to_hub: reachable, or one line now rather than after training
-        engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self.after_phase,
+        engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self._after_phase,
                               wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg),
                               extend_from=self.cfg.stream.extend_from)
+        self._final_phase = engine.final_phase
         results = engine.run(stop_after)
+        self._point_last()  # also when a resume found every phase done (killed between a phase and its pointer)
         if stop_after is None and self.cfg.policy.push_to_hub:
             last = len(self.cfg.stream.skills) - 1
             pretrained = self.substrate.checkpoint_dir(last, engine.final_phase(last)) / "pretrained_model"
             push_policy(self.substrate.policy, pretrained,
                         [self.cfg.stream.repo_id(i) for i in range(len(self.cfg.stream.skills))])
         return results
+
+
+    def _after_phase(self, k: int, phase: str) -> None:
+        if phase == self._final_phase(k):
+            self._point_last()
+        if self.after_phase is not None:
+            self.after_phase(k, phase)
+
+    def _point_last(self) -> None:
+        """``<output_dir>/last`` -> the newest stage's consolidated checkpoint (its final phase) recorded so far."""
+        done = [k for k in range(len(self.cfg.stream.skills)) if self.run_dir.done(k, self._final_phase(k))]
+        if done:
+            point_last(self.out, self.substrate.checkpoint_dir(done[-1], self._final_phase(done[-1])))
 
 
 def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],

@@ -118,6 +118,11 @@ def save_pretrained_model(directory: Path, policy: ACTSRPolicy, preprocessor: An
     postprocessor.save_pretrained(directory)
 
 
+TRAIN_CONFIG_FILE = "train_config.json"
+"""The run's stored config: in the run directory, and beside each checkpoint in ``pretrained_model/`` (LeRobot's
+layout), where ``--config_path=<run>/last/pretrained_model/train_config.json --resume=true`` resumes the run."""
+
+
 class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
@@ -134,6 +139,8 @@ class ACTSubstrate:
         self._make_env = make_env
         self._data: Any = None
         self.run_log: Any = None  # set by the engine: wake epochs are logged there
+        self.train_config: dict[str, Any] | None = None
+        """The run's stored config, written beside each checkpoint as LeRobot does (set by ``StreamTrainer``)."""
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=self.policy_cfg.distill_weight,
@@ -198,6 +205,8 @@ class ACTSubstrate:
         # an existing final directory was left by a run killed after the rename but before progress.json was written
         with staged_directory(self.checkpoint_dir(k, phase)) as tmp:
             save_pretrained_model(tmp / "pretrained_model", self.policy, self.preprocessor, self.postprocessor)
+            if self.train_config is not None:
+                atomic_write_json(tmp / "pretrained_model" / TRAIN_CONFIG_FILE, self.train_config)
             for name, obj in files.items():
                 atomic_write_json(tmp / name, obj)
 
@@ -451,7 +460,7 @@ class ACTSubstrate:
         n = len(self.skills)  # the stored config: no absolute run location in results.json
         # the configuration the run started with (train_config.json, written once at its start), not this
         # invocation's: a resume may change allow-listed settings only, and results say what held from the start
-        stored = self.out / "train_config.json"
+        stored = self.out / TRAIN_CONFIG_FILE
         config = read_json(stored) if stored.is_file() else stored_config_dict(self.cfg)
         return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, config,
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],

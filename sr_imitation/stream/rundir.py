@@ -12,6 +12,7 @@ after the phase's files, so a phase is either recorded with all its outputs or r
 from __future__ import annotations
 
 import logging
+import os
 import shutil
 from collections.abc import Callable, Mapping
 from pathlib import Path
@@ -27,6 +28,8 @@ from sr_imitation.core.fingerprint import (
 from sr_imitation.core.io import (
     JSON_CHECKSUM,
     CorruptFileError,
+    WriteError,
+    fsync_directory,
     atomic_write_json,
     read_checked_json,
     read_json,
@@ -41,9 +44,30 @@ PROGRESS_VERSION = 2
 """2: always sealed (1: the first version; some of its committed files carry no seal, read by reports only)."""
 REGENERATED_FILES = ("results.json",)
 """Files a run rewrites from its recorded phases at its end (not inputs of a resume, so not verified before it)."""
+LAST_POINTER = "last"
+"""``<run>/last``: the newest consolidated policy's checkpoint folder (LeRobot's ``checkpoints/last``)."""
 TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")
 """Names of what an interrupted atomic write leaves (temp files of ``atomic_write_bytes``, staging directories of
 checkpoints): removed on resume, never read."""
+
+
+def point_last(run: Path, checkpoint: Path) -> None:
+    """Point ``<run>/last`` (:data:`LAST_POINTER`) at ``checkpoint``, a folder below ``run``, as LeRobot points
+    ``checkpoints/last``: a relative symbolic link (the run stays movable), replaced atomically by renaming a new
+    link ``.last.tmp`` over it (a leftover of that name is removed on resume). A real folder of that name (a run
+    copied without following links) is replaced. ``WriteError`` naming the link on failure."""
+    run = Path(run)
+    link, tmp = run / LAST_POINTER, run / f".{LAST_POINTER}.tmp"
+    try:
+        if tmp.is_symlink() or tmp.exists():
+            tmp.unlink()
+        os.symlink(os.path.relpath(checkpoint, run), tmp, target_is_directory=True)
+        if link.is_dir() and not link.is_symlink():
+            shutil.rmtree(link)
+        os.replace(tmp, link)
+        fsync_directory(run)
+    except OSError as exc:
+        raise WriteError(link, exc) from exc
 
 
 def read_progress(path: Path) -> dict[str, Any]:
@@ -143,7 +167,7 @@ class RunDirectory:
         for pattern in TEMPORARY_PATTERNS:
             for leftover in sorted(self.path.rglob(pattern)):
                 logger.info("removing %s (left by an interrupted write)", leftover)
-                if leftover.is_dir():
+                if leftover.is_dir() and not leftover.is_symlink():
                     shutil.rmtree(leftover)
                 else:
                     leftover.unlink()

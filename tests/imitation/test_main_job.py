@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import os
 import shutil
 import subprocess
 import sys
@@ -161,6 +162,28 @@ def test_sr_train_resumes_a_finished_run_without_redoing_work(main_job_run):
     train_main([f"--config_path={run / 'train_config.json'}", "--resume=true"])
     assert (run / "progress.json").read_text() == before
     assert (run / "skill_2_place" / "sleep" / "pretrained_model" / "model.safetensors").stat().st_mtime_ns == stamp
+    # issue 27 item 6, LeRobot's habit: the config beside the newest checkpoint resumes the same run
+    train_main([f"--config_path={run / 'last' / 'pretrained_model' / 'train_config.json'}", "--resume=true"])
+    assert (run / "progress.json").read_text() == before
+    assert not (run / "last" / "pretrained_model" / "progress.json").exists()  # nothing written into the checkpoint
+
+
+def test_checkpoints_carry_the_train_config_and_last_points_at_the_newest_consolidated_policy(main_job_run):
+    """Issue 27 item 6: LeRobot keeps ``train_config.json`` in each ``pretrained_model/`` and a ``last`` pointer;
+    so do we (the pointer is relative, so a moved run keeps it; each copy is covered by its checkpoint's manifest)."""
+    from sr_imitation.core.io import verify_manifest
+
+    tmp, _ = main_job_run
+    run = tmp / "run"
+    assert (run / "last").is_symlink() and os.readlink(run / "last") == os.path.join("skill_2_place", "sleep")
+    stored = json.loads((run / "train_config.json").read_text())
+    checkpoints = sorted(run.glob("skill_*/*/pretrained_model"))
+    assert len(checkpoints) == 3  # wake 1, wake 2, sleep 2 (no sleep after the first skill)
+    for pretrained in checkpoints:
+        assert json.loads((pretrained / "train_config.json").read_text()) == stored
+        assert "pretrained_model/train_config.json" in json.loads(
+            (pretrained.parent / "checksums.json").read_text())["files"]
+        verify_manifest(pretrained.parent)
 
 
 def test_sr_train_refuses_to_overwrite_an_existing_run(main_job_run):
@@ -207,7 +230,7 @@ def test_stock_lerobot_eval_evaluates_a_consolidated_checkpoint(main_job_run, tm
     checkpoint of the stream and evaluates it in the needle env this package registers."""
     tmp, _ = main_job_run
     exe = Path(sys.executable).parent / "lerobot-eval"
-    checkpoint = tmp / "run" / "skill_2_place" / "sleep" / "pretrained_model"
+    checkpoint = tmp / "run" / "last" / "pretrained_model"  # the newest consolidated policy, as LeRobot names it
     out = tmp_path / "eval"
     cmd = [str(exe), f"--policy.path={checkpoint}", "--env.type=needle", "--env.task=place",
            "--env.episode_length=20", "--eval.n_episodes=1", "--eval.batch_size=1", "--policy.device=cpu",
