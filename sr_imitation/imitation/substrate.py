@@ -258,9 +258,10 @@ class ACTSubstrate:
     def memory_skill(self, k: int) -> str:
         return self.skills[k]
 
-    def state_sample(self, k: int, n: int = 2000) -> list[dict[str, torch.Tensor]]:
-        """``n`` preprocessed single-frame batches of skill k's demonstrations, drawn uniformly (seeded per stage;
-        EWC's Fisher samples)."""
+    def state_sample(self, k: int, n: int | None = None) -> list[dict[str, torch.Tensor]]:
+        """``n`` (default 2000) preprocessed single-frame batches of skill k's demonstrations, drawn uniformly
+        (seeded per stage; EWC's Fisher samples)."""
+        n = 2000 if n is None else n
         data = self._skill_data(k)
         rng = np.random.default_rng(self.phase_seed(k, "memory") + 7)
         pool = data.train_indices + data.val_indices

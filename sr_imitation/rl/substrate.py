@@ -22,7 +22,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import shutil
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -38,6 +38,7 @@ from sr_imitation.core.io import (
 )
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.metrics import policy_motion
+from sr_imitation.core.runlog import RunLog
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import STREAMS, SkillEnv, canonical_skill
@@ -75,6 +76,7 @@ class SACSubstrate:
         self._eval_envs: dict[str, SkillEnv] = {}
         self._videos = cfg.eval.videos_per_skill > 0
         self._memories: dict[int, CriticMemory] = {}
+        self.run_log: RunLog | None = None  # set by the engine
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=None,
@@ -202,7 +204,7 @@ class SACSubstrate:
         self.agent.load_state_dict(fresh.state_dict())
         self.agent.reset_optimizers(reset_alpha=True)
 
-    def replace_actor(self, build: Any) -> None:
+    def replace_actor(self, build: Callable[..., torch.nn.Module]) -> None:
         """Put ``build(sac_config, n_skills)`` in place of the actor (seeded from the run seed; fresh optimizers):
         a method's architecture (CompoNet). Called before any checkpoint is loaded."""
         saved = torch.random.get_rng_state()
@@ -210,6 +212,10 @@ class SACSubstrate:
         self.agent.actor = build(self.cfg.sac, len(self.skills)).to(self.agent.device)
         torch.random.set_rng_state(saved)
         self.agent.reset_optimizers()
+
+    def current_actor(self) -> torch.nn.Module:
+        """The actor trained now (CompoNet's composed actor once it replaced the plain one)."""
+        return self.agent.actor
 
     def reset_critic(self, k: int) -> None:
         """A freshly initialized twin critic and target for skill k (CompoNet's critic per skill), seeded from

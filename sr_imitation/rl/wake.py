@@ -201,11 +201,11 @@ def train_skill(
     memory = CriticMemory.from_agent(env.skill.removesuffix("-v3"), agent, states)
     # what a method needs from the replay at skill end, uniform over it, from its own generator (the rest of the
     # run is unchanged): states (EWC's Fisher) or whole transitions (CLEAR)
-    n_states = int(getattr(method, "wake_state_sample", 0) or 0)
+    n_states = method.wake_state_sample if method is not None else 0
     if n_states > 0:
         own = np.random.default_rng([seed % (2**63), 7])
         result.state_sample = replay.batch(own.integers(0, len(replay), size=n_states))["obs"]
-    n_transitions = int(getattr(method, "wake_transition_sample", 0) or 0)
+    n_transitions = method.wake_transition_sample if method is not None else 0
     if n_transitions > 0:
         own = np.random.default_rng([seed % (2**63), 8])
         result.transition_sample = replay.batch(own.integers(0, len(replay), size=n_transitions))

@@ -37,6 +37,7 @@ from sr_imitation.core.memory import Memory
 from sr_imitation.core.provenance import log_code_version
 from sr_imitation.core.runlog import RunLog, WandbConfig
 from sr_imitation.core.sleep import sleep_consolidate
+from sr_imitation.stream.capabilities import missing_capabilities
 from sr_imitation.stream.methods import ContinualMethod
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 from sr_imitation.stream.substrate import Substrate
@@ -56,7 +57,7 @@ class StreamEngine:
     ``<run>/log.jsonl``, always on; mirrored to wandb with ``wandb.enable``) gets one ``phase`` record per completed
     phase (its numbers flattened), one ``sleep`` record per sleep iteration (objective, memory losses, alpha, gradient
     norms, anchor coefficient, solver status) and whatever the substrate logs (``wake`` epochs) through
-    ``substrate.run_log`` when it has that attribute.
+    ``substrate.run_log``.
     """
 
     def __init__(self, substrate: Substrate, method: ContinualMethod, run: RunDirectory, progress: bool = True,
@@ -64,8 +65,11 @@ class StreamEngine:
                  log_config: dict[str, Any] | None = None, extend_from: Path | None = None) -> None:
         if substrate.name not in method.substrates:
             raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
-        supported = getattr(substrate, "wake_hooks", frozenset())
-        missing = sorted(method.wake_hooks_used() - set(supported))
+        lacking = missing_capabilities(substrate, method.requires)
+        if lacking:
+            raise ValueError(f"method {method.name!r} needs a substrate with {', '.join(lacking)} "
+                             f"(sr_imitation.stream.capabilities); the {substrate.name} substrate does not provide it")
+        missing = sorted(method.wake_hooks_used() - set(substrate.wake_hooks))
         if missing:
             raise ValueError(f"method {method.name!r} needs the wake hooks {missing}; the {substrate.name} "
                              "substrate's wake does not call them")
@@ -109,8 +113,7 @@ class StreamEngine:
         if source is not None:
             self._import_stages(*source)
         self.log = RunLog(self.run_dir.path, self.wandb, self.log_config)
-        if hasattr(self.substrate, "run_log"):
-            self.substrate.run_log = self.log  # type: ignore[attr-defined]
+        self.substrate.run_log = self.log
         try:
             return self._run(last)
         finally:
@@ -164,14 +167,14 @@ class StreamEngine:
         if not fingerprint_path.is_file():
             raise FileNotFoundError(f"{fingerprint_path}: extend_from must name a finished run (no fingerprint)")
         stored = read_fingerprint(fingerprint_path)
-        allowed = tuple(getattr(self.substrate, "extension_keys", ()))
+        allowed = tuple(self.substrate.extension_keys)
         mine = {k: v for k, v in self.run_dir.fingerprint.settings.items() if not is_allowed(k, allowed)}
         check_settings(fingerprint_path, {k: v for k, v in stored.items() if not is_allowed(k, allowed)},
                        SettingsFingerprint(mine, settings_digest(mine), self.run_dir.fingerprint.allow,
                                            self.run_dir.fingerprint.derived,
                                            {k: v for k, v in self.run_dir.fingerprint.added.items()
                                             if not is_allowed(k, allowed)}))
-        skills = list(self.substrate.source_skills(stored))  # type: ignore[attr-defined]
+        skills = list(self.substrate.source_skills(stored))
         n = len(skills)
         if not 1 <= n < len(self.skills) or self.skills[:n] != skills:
             raise ValueError(f"{source}: its skills {skills} are not the first skills of this stream {self.skills}")
@@ -185,7 +188,7 @@ class StreamEngine:
     def _import_stages(self, source: Path, n: int, done: dict[str, Any]) -> None:
         """Copy the source's stages (checkpoints, memories, evaluations) and their progress records; the engine
         then continues with stage n + 1 as a resume would (anchor: stage n's final checkpoint)."""
-        self.substrate.import_stages(source, n)  # type: ignore[attr-defined]
+        self.substrate.import_stages(source, n)
         keys = [RunDirectory.key(k, phase) for k in range(n) for phase in self.phases(k)]
         self.run_dir.mark_all({key: done[key] for key in keys})
         logger.info("extending %s: stages 1-%d imported, continuing with %s", source, n, self.skills[n])

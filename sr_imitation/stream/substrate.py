@@ -19,6 +19,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
+from sr_imitation.core.runlog import RunLog
 from sr_imitation.core.sleep import SleepConfig
 
 PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
@@ -76,6 +77,13 @@ class Substrate(Protocol):
     """Registry name methods refer to in :attr:`ContinualMethod.substrates` (``act``, ``sac``)."""
 
     skills: list[str]
+
+    run_log: RunLog | None
+    """Set by the engine before the first phase: the run's :class:`~sr_imitation.core.runlog.RunLog`, where the
+    substrate logs what happens inside a phase (wake epochs); ``None`` until then."""
+
+    def memory_skill(self, k: int) -> str:
+        """The skill name the memories of stage ``k`` carry."""
 
     def method_settings(self) -> MethodSettings:
         """The settings continual methods read (sleep on/off, distillation weights)."""

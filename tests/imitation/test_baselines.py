@@ -27,7 +27,8 @@ class _Policy:
 
 
 class _Substrate:
-    """What LwF and M2Distill ask of a substrate: a frozen copy of the live policy, and its features."""
+    """What LwF and M2Distill ask of a substrate (``PolicySnapshots``, ``IntermediateFeatures``): a frozen copy of the
+    live policy, its weights and outputs, and its features."""
 
     def __init__(self, live: _Policy) -> None:
         self.live = live
@@ -37,6 +38,12 @@ class _Substrate:
         frozen.net.load_state_dict(self.live.net.state_dict())
         frozen.net.requires_grad_(False)
         return frozen
+
+    def policy_weights(self):
+        return dict(self.live.net.state_dict())
+
+    def chunk_policy(self, batch):
+        return self.live.chunk(batch)
 
     def chunk_and_features(self, batch):
         return self.live.action_chunk_and_features(batch)

@@ -180,6 +180,8 @@ def _raise() -> None:
 
 
 def test_registry_names_choices_and_refuses_other_substrates():
+    import sr_imitation.rl  # noqa: F401  (registers CompoNet, the SAC-only method that lives with its substrate)
+
     assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
     assert methods_for("act") == ["ewc", "lwf", "m2distill", "replay", "sequential_bc", "sr", "wake_only"]
     assert methods_for("sac") == ["agem", "clear", "componet", "der", "ewc", "nash_mtl", "pcgrad",

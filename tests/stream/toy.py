@@ -25,6 +25,7 @@ class ToySubstrate:
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
 
     extension_keys: ClassVar[tuple[str, ...]] = ("skills", "extend_from")
+    run_log: Any = None
 
     def __init__(self, out: Path, skills: Sequence[str], seed: int = 0, sleep: bool = True, wake_steps: int = 30,
                  sleep_iterations: int = 15, distill_weight: float = 0.5, anchor_after_final: bool = False) -> None:

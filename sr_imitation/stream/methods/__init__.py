@@ -7,7 +7,6 @@ decorated by :func:`register_method`, and import it below.
 from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
     agem,
     clear,
-    componet,
     der,
     ewc,
     lwf,

@@ -68,12 +68,17 @@ class ContinualMethod:
 
     Attributes:
         name: the registry name (``--method``).
-        substrates: the substrates (``Substrate.name``) the method is defined for.
+        substrates: the substrates (``Substrate.name``) the method is defined for (the streams whose comparison it
+            belongs to).
+        requires: the capabilities (:mod:`sr_imitation.stream.capabilities`) it asks of the substrate beyond the
+            :class:`Substrate` protocol; the engine refuses a substrate without them when the run is built, and the
+            method reaches them through :func:`~sr_imitation.stream.capabilities.capability`.
         stores_memories: whether a frozen memory M_k is made after each wake (needed by sleep and distillation).
     """
 
     name: ClassVar[str] = ""
     substrates: ClassVar[frozenset[str]] = frozenset()
+    requires: ClassVar[tuple[type, ...]] = ()
     stores_memories: ClassVar[bool] = False
     memory_name: ClassVar[str] = "memory"
     """The file name a method's own memory kind is saved under (``memory``: the substrate's, SR's M_k)."""
@@ -109,6 +114,16 @@ class ContinualMethod:
         return {}
 
     WAKE_HOOKS: ClassVar[tuple[str, ...]] = ("wake_batch", "wake_loss", "adjust_gradients")
+
+    @property
+    def wake_state_sample(self) -> int:
+        """States a SAC wake keeps from its replay at skill end for this method (EWC's Fisher samples); 0: none."""
+        return 0
+
+    @property
+    def wake_transition_sample(self) -> int:
+        """Transitions a SAC wake keeps from its replay at skill end for this method (CLEAR's); 0: none."""
+        return 0
 
     def wake_hooks_used(self) -> set[str]:
         """The wake hooks this method overrides (a substrate must call every one of them)."""

@@ -25,6 +25,7 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory, register_memory
+from sr_imitation.stream.capabilities import GaussianActor, StoredTransitions, capability
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -68,6 +69,7 @@ class CLEAR(ContinualMethod):
 
     name = "clear"
     substrates = frozenset({"sac"})
+    requires = (GaussianActor, StoredTransitions)
     stores_memories = True
     memory_name = "clear"
     config: ClassVar[CLEARConfig] = CLEARConfig()
@@ -78,7 +80,7 @@ class CLEAR(ContinualMethod):
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        self._policy = substrate.gaussian_policy  # type: ignore[attr-defined]
+        self._policy = capability(substrate, GaussianActor).gaussian_policy
         self._replayed: dict[str, Tensor] | None = None
 
     def wake_batch(self, step: WakeStep) -> Mapping[str, Tensor]:
@@ -105,9 +107,8 @@ class CLEAR(ContinualMethod):
         return {"replayed": float(len(self._replayed["obs"])), "bc_loss": float(self._bc.detach())}
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
-        s: Any = substrate
-        sample = s.transition_sample(k)
+        sample = capability(substrate, StoredTransitions).transition_sample(k)
         with torch.no_grad():
-            target = s.gaussian_policy(sample["obs"])
-        memory = TransitionMemory(s.memory_skill(k), {**sample, "target": target})
+            target = capability(substrate, GaussianActor).gaussian_policy(sample["obs"])
+        memory = TransitionMemory(substrate.memory_skill(k), {**sample, "target": target})
         return self.save_memory(k, substrate, memory)

@@ -15,12 +15,14 @@ Memory per skill: the states (1000 x 39 float32) and the targets (1000 x 8): 0.1
 
 from __future__ import annotations
 
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory, OutputDistillationMemory, summed_objective
+from sr_imitation.stream.capabilities import GaussianActor, capability
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -34,15 +36,17 @@ class DERConfig:
     """States drawn from each memory per update (our choice: the sleep's batch size)."""
 
 
-def state_gaussian(substrate: Any) -> Any:
+def state_gaussian(substrate: Substrate) -> Callable[[Mapping[str, Tensor]], Tensor]:
     """The substrate's actor Gaussian ([mean, log std]) as a memory policy on ``{"state": states}`` batches."""
-    return lambda obs: substrate.gaussian_policy(obs["state"])
+    actor = capability(substrate, GaussianActor)
+    return lambda obs: actor.gaussian_policy(obs["state"])
 
 
-def gaussian_memory(substrate: Any, k: int) -> OutputDistillationMemory:
+def gaussian_memory(substrate: Substrate, k: int) -> OutputDistillationMemory:
     """The actor's Gaussian on the late-wake states of skill k, frozen now (DER's memory, R&D's expert)."""
+    states = capability(substrate, GaussianActor).memory_states(k)
     return OutputDistillationMemory.from_snapshot(substrate.memory_skill(k), state_gaussian(substrate),
-                                                  {"state": substrate.memory_states(k)}, reduction="sum")
+                                                  {"state": states}, reduction="sum")
 
 
 @register_method
@@ -51,6 +55,7 @@ class DER(ContinualMethod):
 
     name = "der"
     substrates = frozenset({"sac"})
+    requires = (GaussianActor,)
     stores_memories = True
     memory_name = "der"
     config: ClassVar[DERConfig] = DERConfig()

@@ -27,6 +27,7 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory, register_memory
+from sr_imitation.stream.capabilities import LikelihoodPolicy, capability
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -97,6 +98,7 @@ class EWC(ContinualMethod):
 
     name = "ewc"
     substrates = frozenset({"sac", "act"})
+    requires = (LikelihoodPolicy,)
     stores_memories = True
     memory_name = "ewc"
     config: ClassVar[EWCConfig] = EWCConfig()
@@ -109,11 +111,11 @@ class EWC(ContinualMethod):
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
         if not self.memories:
             return loss
-        penalty = sum(m.penalty(step.parameters) for m in self.memories)  # type: ignore[attr-defined]
+        penalty = sum(m.penalty(step.parameters) for m in self.memories if isinstance(m, FisherMemory))
         return loss + 0.5 * self.config.lam * penalty
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
-        s: Any = substrate
+        s = capability(substrate, LikelihoodPolicy)
         generator = torch.Generator().manual_seed(31 + k)
         memory = FisherMemory.estimate(s.memory_skill(k), s.policy_parameters(), s.log_likelihood,
                                        s.state_sample(k, self.config.fisher_states), generator)

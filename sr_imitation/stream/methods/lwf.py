@@ -20,6 +20,7 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory, PolicySnapshot
+from sr_imitation.stream.capabilities import PolicySnapshots, capability
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -37,11 +38,12 @@ class LwF(ContinualMethod):
 
     name = "lwf"
     substrates = frozenset({"act"})
+    requires: ClassVar[tuple[type, ...]] = (PolicySnapshots,)
     config: ClassVar[LwFConfig] = LwFConfig()
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        self.teacher = substrate.frozen_policy() if k > 0 else None  # type: ignore[attr-defined]
+        self.teacher = capability(substrate, PolicySnapshots).frozen_policy() if k > 0 else None
 
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
         if self.teacher is None:
@@ -54,4 +56,5 @@ class LwF(ContinualMethod):
         """The teacher of the last wake (the policy after stage K-1): one copy of the policy's weights."""
         if stages < 2:
             return []
-        return [PolicySnapshot(substrate.memory_skill(stages - 2), substrate.policy_weights())]  # type: ignore
+        weights = capability(substrate, PolicySnapshots).policy_weights()
+        return [PolicySnapshot(substrate.memory_skill(stages - 2), weights)]

@@ -25,6 +25,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 
+from sr_imitation.stream.capabilities import IntermediateFeatures, PolicySnapshots, capability
 from sr_imitation.stream.methods.base import WakeStep
 from sr_imitation.stream.methods.lwf import LwF
 from sr_imitation.stream.methods.registry import register_method
@@ -52,11 +53,12 @@ class M2Distill(LwF):
 
     name = "m2distill"
     substrates = frozenset({"act"})
+    requires = (PolicySnapshots, IntermediateFeatures)
     config: ClassVar[M2DistillConfig] = M2DistillConfig()  # type: ignore[assignment]
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)  # LwF's teacher: the policy before this wake
-        self.current = substrate.chunk_and_features  # type: ignore[attr-defined]
+        self.current = capability(substrate, IntermediateFeatures).chunk_and_features
 
     def wake_loss(self, loss: Tensor, step: WakeStep) -> Tensor:
         if self.teacher is None:

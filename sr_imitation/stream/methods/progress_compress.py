@@ -31,6 +31,7 @@ from typing import Any, ClassVar
 import torch
 
 from sr_imitation.core.memory import Memory
+from sr_imitation.stream.capabilities import LikelihoodPolicy, ResettableNetworks, capability
 from sr_imitation.stream.methods.der import state_gaussian
 from sr_imitation.stream.methods.ewc import FisherMemory
 from sr_imitation.stream.methods.registry import register_method
@@ -66,24 +67,26 @@ class ProgressCompress(ResetDistill):
     def sleep_memories(self, k: int, memories: Any) -> list[Memory]:
         return [memories[k]]  # only the current active column is compressed
 
-    def _fisher(self, i: int, substrate: Any) -> FisherMemory:
+    def _fisher(self, i: int, substrate: Substrate) -> FisherMemory:
         """F_i and theta*_i of the knowledge base after compression i (estimated now if not saved yet: the caller
         has the knowledge base at theta*_i)."""
         try:
-            return substrate.load_memory(i, name="kb_fisher")
+            saved = substrate.load_memory(i, name="kb_fisher")
         except FileNotFoundError:
-            memory = FisherMemory.estimate(substrate.memory_skill(i), substrate.policy_parameters(),
-                                           substrate.log_likelihood, substrate.state_sample(i),
-                                           torch.Generator().manual_seed(41 + i))
+            s = capability(substrate, LikelihoodPolicy)
+            memory = FisherMemory.estimate(substrate.memory_skill(i), s.policy_parameters(), s.log_likelihood,
+                                           s.state_sample(i), torch.Generator().manual_seed(41 + i))
             substrate.save_memory(i, memory, name="kb_fisher")
             return memory
+        if not isinstance(saved, FisherMemory):
+            raise TypeError(f"stage {i + 1}: the saved kb_fisher memory is a {type(saved).__name__}, not a Fisher")
+        return saved
 
     def prepare_sleep(self, k: int, problem: SleepProblem, substrate: Substrate) -> SleepProblem:
-        s: Any = substrate
         fishers: list[FisherMemory] = []
-        if k > 0:
-            s.load_actor(k - 1, "sleep")  # the knowledge base after compression k - 1
-            fishers = [self._fisher(i, s) for i in range(k)]
+        if k > 0:  # the knowledge base after compression k - 1
+            capability(substrate, ResettableNetworks).load_actor(k - 1, "sleep")
+            fishers = [self._fisher(i, substrate) for i in range(k)]
         c = self.config
         config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
                                      batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
@@ -92,13 +95,12 @@ class ProgressCompress(ResetDistill):
         def ewc(params: Any) -> torch.Tensor:
             return 0.5 * lam * sum(f.penalty(params) for f in fishers)
 
-        return SleepProblem(s.policy_parameters(), state_gaussian(s), config,
-                            regularizer=ewc if fishers else None)
+        parameters = capability(substrate, LikelihoodPolicy).policy_parameters()
+        return SleepProblem(parameters, state_gaussian(substrate), config, regularizer=ewc if fishers else None)
 
     def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
-        s: Any = substrate
         out = []
         for i in range(stages):
             with contextlib.suppress(FileNotFoundError):  # the last skill's Fisher: only if another skill follows
-                out.append(s.load_memory(i, name="kb_fisher"))
+                out.append(substrate.load_memory(i, name="kb_fisher"))
         return out

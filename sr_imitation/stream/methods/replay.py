@@ -36,6 +36,7 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory, register_memory
+from sr_imitation.stream.capabilities import StoredDemonstrations, capability
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -96,6 +97,7 @@ class ExperienceReplay(ContinualMethod):
 
     name = "replay"
     substrates = frozenset({"act"})
+    requires = (StoredDemonstrations,)
     stores_memories = True
     memory_name = "replay"
     config: ClassVar[ReplayConfig] = ReplayConfig()
@@ -126,5 +128,5 @@ class ExperienceReplay(ContinualMethod):
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
         """R_k: ``--memory.buffer_size`` frames of skill k (``ACTSubstrate.demonstration_frames``), saved checked."""
-        s: Any = substrate
-        return self.save_memory(k, substrate, DemonstrationMemory(s.memory_skill(k), s.demonstration_frames(k)))
+        frames = capability(substrate, StoredDemonstrations).demonstration_frames(k)
+        return self.save_memory(k, substrate, DemonstrationMemory(substrate.memory_skill(k), frames))

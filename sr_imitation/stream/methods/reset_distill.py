@@ -24,6 +24,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from sr_imitation.core.memory import Memory
+from sr_imitation.stream.capabilities import GaussianActor, LikelihoodPolicy, ResettableNetworks, capability
 from sr_imitation.stream.methods.base import ContinualMethod
 from sr_imitation.stream.methods.der import gaussian_memory, state_gaussian
 from sr_imitation.stream.methods.registry import register_method
@@ -46,6 +47,7 @@ class ResetDistill(ContinualMethod):
 
     name = "reset_distill"
     substrates = frozenset({"sac"})
+    requires: ClassVar[tuple[type, ...]] = (GaussianActor, ResettableNetworks, LikelihoodPolicy)
     stores_memories = True
     memory_name = "expert"
     config: ClassVar[ResetDistillConfig] = ResetDistillConfig()
@@ -55,16 +57,16 @@ class ResetDistill(ContinualMethod):
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        substrate.reset_networks(k)  # type: ignore[attr-defined]
+        capability(substrate, ResettableNetworks).reset_networks(k)
 
     def make_memory(self, k: int, substrate: Substrate) -> Memory:
         return self.save_memory(k, substrate, gaussian_memory(substrate, k))
 
     def prepare_sleep(self, k: int, problem: SleepProblem, substrate: Substrate) -> SleepProblem:
-        s: Any = substrate
-        if k > 0:
-            s.load_actor(k - 1, "sleep")  # the shared actor as the previous distillation left it
+        if k > 0:  # the shared actor as the previous distillation left it
+            capability(substrate, ResettableNetworks).load_actor(k - 1, "sleep")
         c = self.config
         config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
                                      batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
-        return SleepProblem(s.policy_parameters(), state_gaussian(s), config)
+        parameters = capability(substrate, LikelihoodPolicy).policy_parameters()
+        return SleepProblem(parameters, state_gaussian(substrate), config)

@@ -15,13 +15,17 @@ skill j uses module j: CompoNet needs the skill's identity at evaluation (the su
 skill), unlike every other method here.
 
 Memory: the per-skill modules (heads and attention weights) beyond a single actor; no states.
+
+It lives with the SAC substrate whose actor it replaces and registers from here (``sr_imitation.rl`` imports it).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
 
 from sr_imitation.core.memory import Memory, WeightsMemory, register_memory
+from sr_imitation.rl.composed_actor import ComposedActor
+from sr_imitation.stream.capabilities import ReplaceableActor, capability
 from sr_imitation.stream.methods.base import ContinualMethod
 from sr_imitation.stream.methods.registry import register_method
 from sr_imitation.stream.substrate import Substrate
@@ -41,22 +45,27 @@ class CompoNet(ContinualMethod):
 
     name = "componet"
     substrates = frozenset({"sac"})
+    requires = (ReplaceableActor,)
 
     def setup(self, substrate: Substrate) -> None:
-        from sr_imitation.rl.composed_actor import ComposedActor  # the SAC substrate's; imported when used
+        capability(substrate, ReplaceableActor).replace_actor(ComposedActor)
 
-        substrate.replace_actor(lambda cfg, n: ComposedActor(cfg, n))  # type: ignore[attr-defined]
+    @staticmethod
+    def _actor(substrate: Substrate) -> ComposedActor:
+        actor = capability(substrate, ReplaceableActor).current_actor()
+        if not isinstance(actor, ComposedActor):
+            raise TypeError(f"componet: the substrate's actor is a {type(actor).__name__}, not CompoNet's")
+        return actor
 
-    def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
+    def begin_wake(self, k: int, memories: Sequence[Memory], substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
-        s: Any = substrate
-        s.agent.actor.train_skill(k)
+        self._actor(substrate).train_skill(k)
         if k > 0:
-            s.reset_critic(k)
+            capability(substrate, ReplaceableActor).reset_critic(k)
 
     def extra_memories(self, substrate: Substrate, stages: int) -> list[Memory]:
-        actor: Any = substrate.agent.actor  # type: ignore[attr-defined]
-        skills = [substrate.memory_skill(j) for j in range(stages)]  # type: ignore[attr-defined]
+        actor = self._actor(substrate)
+        skills = [substrate.memory_skill(j) for j in range(stages)]
         return [ModuleWeights(skills[j], {f"{name}.{key}": t for name, module in
                                           (("mean", actor.heads_mean[j]), ("log_std", actor.heads_log_std[j]),
                                            ("attention", actor.attention[j]))

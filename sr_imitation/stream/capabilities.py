@@ -1,0 +1,160 @@
+"""What a substrate offers continual methods beyond the :class:`~sr_imitation.stream.substrate.Substrate` protocol.
+
+Each capability is a small runtime-checkable protocol. A method lists the ones it uses in
+:attr:`ContinualMethod.requires <sr_imitation.stream.methods.base.ContinualMethod.requires>`; the engine refuses a
+method whose substrate lacks one, in one line, when the run is built (before anything is written), and the method
+reaches those members through :func:`capability`, typed. So a newcomer adding a method sees here what substrates
+offer, and one adding a substrate sees what each method will ask of it.
+
+==========================  ===========  =====================================================================
+capability                  substrates   used by
+==========================  ===========  =====================================================================
+:class:`LikelihoodPolicy`   act, sac     EWC (Fisher information), Progress & Compress (knowledge-base Fisher)
+:class:`PolicySnapshots`    act          LwF (the rolling teacher), M2Distill
+:class:`IntermediateFeatures` act        M2Distill (feature distillation)
+:class:`StoredDemonstrations` act        experience replay
+:class:`GaussianActor`      sac          DER, CLEAR, Reset & Distill, Progress & Compress
+:class:`StoredTransitions`  sac          CLEAR
+:class:`ResettableNetworks` sac          Reset & Distill, Progress & Compress
+:class:`ReplaceableActor`   sac          CompoNet
+==========================  ===========  =====================================================================
+
+Batches and samples are in the substrate's own layout (ACT: preprocessed LeRobot batches, dicts of tensors; SAC: raw
+state tensors); a method passes them from one member to another without looking inside.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Mapping, Sequence
+from typing import Protocol, TypeVar, runtime_checkable
+
+import torch
+from torch import Tensor, nn
+
+Batch = Mapping[str, Tensor]
+"""A training batch in the substrate's layout."""
+Sample = Tensor | Sequence[Batch]
+"""Inputs of a skill, one at a time: a tensor whose rows are states (SAC) or single-frame batches (ACT)."""
+
+
+@runtime_checkable
+class LikelihoodPolicy(Protocol):
+    """A stochastic policy's log-likelihood and samples of a skill's inputs (the Fisher information of EWC)."""
+
+    def policy_parameters(self) -> Sequence[Tensor]:
+        """theta, the deployed policy's trainable parameters (in the sleep's order)."""
+
+    def state_sample(self, k: int, n: int) -> Sample:
+        """``n`` inputs of skill ``k``, seeded per stage."""
+
+    def log_likelihood(self, sample: Tensor | Batch, generator: torch.Generator) -> Tensor:
+        """log pi_theta(a | s) of an action drawn from (SAC) or demonstrated to (ACT) the policy, per input of
+        ``sample``, differentiable in theta."""
+
+
+@runtime_checkable
+class ChunkTeacher(Protocol):
+    """A frozen copy of the policy, as :meth:`PolicySnapshots.frozen_policy` returns it."""
+
+    def action_chunk(self, batch: Batch) -> Tensor:
+        """The deployed action chunk on a preprocessed batch."""
+
+    def action_chunk_and_features(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
+        """:meth:`action_chunk` with the encoder's intermediate features."""
+
+
+@runtime_checkable
+class PolicySnapshots(Protocol):
+    """Frozen copies of the current policy and its outputs (LwF's teacher)."""
+
+    def frozen_policy(self) -> ChunkTeacher:
+        """A frozen copy of the policy as it is now (building it leaves the random state alone)."""
+
+    def policy_weights(self) -> dict[str, Tensor]:
+        """Every tensor of the policy's state (what a frozen copy holds; the memory budget counts it)."""
+
+    def chunk_policy(self, batch: Batch) -> Tensor:
+        """The current policy's action chunk on a training batch."""
+
+
+@runtime_checkable
+class IntermediateFeatures(Protocol):
+    """The current policy's intermediate features next to its output (M2Distill's multi-level targets)."""
+
+    def chunk_and_features(self, batch: Batch) -> tuple[Tensor, dict[str, Tensor]]:
+        """The action chunk and the named intermediate features on a training batch."""
+
+
+@runtime_checkable
+class StoredDemonstrations(Protocol):
+    """Demonstration frames of a skill as a wake batch holds them (experience replay's stored frames)."""
+
+    def demonstration_frames(self, k: int, n: int | None = None) -> dict[str, Tensor]:
+        """``n`` frames of skill ``k`` (default: as many as a memory stores), seeded per stage."""
+
+
+@runtime_checkable
+class GaussianActor(Protocol):
+    """A Gaussian actor's outputs on raw states and the states a skill's memory keeps (DER's targets)."""
+
+    def gaussian_policy(self, states: Tensor) -> Tensor:
+        """[mean, log std] of the actor's pre-tanh Gaussian on raw ``states`` (B x 2A)."""
+
+    def memory_states(self, k: int) -> Tensor:
+        """The late-wake states of skill ``k`` the substrate's memory holds."""
+
+
+@runtime_checkable
+class StoredTransitions(Protocol):
+    """Transitions sampled from a skill's replay when its wake ended (CLEAR)."""
+
+    def transition_sample(self, k: int) -> dict[str, Tensor]:
+        """Transitions of wake ``k`` (``obs``, ``actions``, ``rewards``, ``next_obs``, ``terminated``)."""
+
+
+@runtime_checkable
+class ResettableNetworks(Protocol):
+    """Fresh networks per skill and the actor of an earlier checkpoint (Reset & Distill, Progress & Compress)."""
+
+    def reset_networks(self, k: int) -> None:
+        """Freshly initialized networks for skill ``k``, seeded from (run seed, k)."""
+
+    def load_actor(self, k: int, phase: str) -> None:
+        """Only the actor of the checkpoint after ``phase`` of stage ``k``."""
+
+
+@runtime_checkable
+class ReplaceableActor(Protocol):
+    """An actor a method may replace by its own architecture, and a critic it may reset (CompoNet)."""
+
+    def replace_actor(self, build: Callable[..., nn.Module]) -> None:
+        """Put ``build(policy_config, n_skills)`` in place of the actor (seeded; fresh optimizers)."""
+
+    def current_actor(self) -> nn.Module:
+        """The actor the substrate trains now."""
+
+    def reset_critic(self, k: int) -> None:
+        """A freshly initialized critic for skill ``k``, seeded from (run seed, k)."""
+
+
+C = TypeVar("C")
+
+
+def capability(substrate: object, required: type[C]) -> C:
+    """``substrate`` as the capability ``required`` (a protocol of this module); ``TypeError`` naming both if it
+    lacks it (the engine has refused such a method already: this guards direct use)."""
+    if not isinstance(substrate, required):
+        raise TypeError(f"{type(substrate).__name__} does not provide {required.__name__} "
+                        f"({', '.join(_members(required))})")
+    return substrate
+
+
+def _members(protocol: type) -> list[str]:
+    return sorted(name for name in vars(protocol) if not name.startswith("_"))
+
+
+def missing_capabilities(substrate: object, required: Sequence[type]) -> list[str]:
+    """The names of the capabilities in ``required`` that ``substrate`` (an instance or a class) lacks."""
+    if isinstance(substrate, type):
+        return [c.__name__ for c in required if not issubclass(substrate, c)]
+    return [c.__name__ for c in required if not isinstance(substrate, c)]
