@@ -1,11 +1,21 @@
 #!/usr/bin/env bash
-# Create (or reuse) the project's virtual environment and install the pinned dependencies, the core package
-# and every LeRobot plugin under policies/. Prints the venv path on the last line of stdout.
+# Create (or reuse) the environments and print this clone's environment, <clone>/.venv, on the last line of stdout
+# (its bin/ holds python, sr-*, lerobot-*, pytest, ruff, ...; `source <it>/bin/activate` to use it).
 #
-# The environment lives outside the clone, keyed by a hash of every file that pins a dependency, so a fresh
-# machine builds it from scratch (about 8 GB, 2-3 minutes) and later runs with the same pins reuse it. The
-# project itself is always (re)installed in editable mode from *this* clone, so a reused venv never points
-# at another checkout. Override the location with SR_VENV=/path.
+# Two layers, so that clones share the 8 GB of dependencies but never each other's code:
+# - The dependency venv: the pinned third-party dependencies only, outside the clone, keyed by a hash of every file
+#   that pins a dependency (~/.cache/sr_imitation/venv-<key>): a fresh machine builds it (about 8 GB, 2-3 minutes),
+#   every later run and every clone with the same pins reuses it. Nothing of this project is installed there (an
+#   older version of this script put it there: it is uninstalled).
+# - The overlay: <clone>/.venv (git-ignored), a venv of its own on the same interpreter whose one .pth file adds the
+#   dependency venv's site-packages behind its own. This clone's core and every plugin under policies/ are installed
+#   into it in editable mode (the plugins are their own distributions so that LeRobot's `lerobot_policy_*` discovery
+#   imports them; see docs/ARCHITECTURE.md), and every console script of the dependencies (lerobot-train,
+#   lerobot-eval, pytest, ...) gets a wrapper there that runs the overlay's python, so that stock `lerobot-train`
+#   finds this clone's act_sr. The overlay is rebuilt (seconds) when missing, or when the dependency venv, a
+#   pyproject.toml or this script or .ci/overlay.py changed (stamp: .venv/.sr_overlay).
+# SR_VENV=/path puts the dependency venv there instead (built there unless it holds a complete one; this project is
+# never installed into it); the overlay is always <clone>/.venv. SR_PYTHON names the interpreter that builds it.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
@@ -23,26 +33,40 @@ print(h.hexdigest()[:16])
 PY
 )
 venv="${SR_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/sr_imitation/venv-$key}"
+venv="$(mkdir -p "$(dirname "$venv")" && cd "$(dirname "$venv")" && pwd)/$(basename "$venv")"
 if [ ! -f "$venv/.sr_complete" ]; then
   echo "[venv] building $venv (pins changed or first run)" >&2
   rm -rf "$venv"
-  mkdir -p "$(dirname "$venv")"
   "$py" -m venv "$venv"
   # pip's index configuration on these machines prints one harmless warning per package: filter it.
   pip_quiet() { "$venv/bin/python" -m pip install --quiet "$@" 2>&1 | grep -v "is ignored: it is neither" >&2 || true; }
   pip_quiet --upgrade "pip==26.3" "setuptools==80.10.2" "wheel"
-  # Dependencies of the core and of every plugin, resolved against the full lock.
+  # Dependencies of the core and of every plugin, resolved against the full lock (the core itself is removed
+  # again by the purge below).
   pip_quiet -c .ci/constraints.txt ".[dev]"
   "$venv/bin/python" -c "import lerobot, metaworld, mujoco, torch, torchvision" \
     || { echo "[venv] dependency install failed" >&2; exit 1; }
-  "$venv/bin/python" -m pip uninstall --quiet -y sr_imitation >&2
+  "$venv/bin/python" -I .ci/overlay.py purge "$venv" "$root"
   touch "$venv/.sr_complete"
 else
   echo "[venv] reusing $venv" >&2
+  "$venv/bin/python" -I .ci/overlay.py purge "$venv" "$root"
 fi
-# Editable installs of this clone: the core and every plugin (plugins are their own distributions so that
-# LeRobot's `lerobot_policy_*` discovery imports them; see docs/ARCHITECTURE.md).
-plugins=()
-for d in policies/*/; do [ -f "$d/pyproject.toml" ] && plugins+=(-e "$d"); done
-PYTHONWARNINGS=ignore "$venv/bin/python" -m pip install --quiet --no-deps --no-build-isolation -e . "${plugins[@]}" >&2
-echo "$venv"
+overlay="$root/.venv"
+stamp="$key $venv $(stat -c %Y "$venv/.sr_complete") $root $(cat pyproject.toml policies/*/pyproject.toml .ci/venv.sh \
+  .ci/overlay.py | sha256sum | cut -c1-16)"
+if [ "$(cat "$overlay/.sr_overlay" 2>/dev/null || true)" != "$stamp" ]; then
+  echo "[venv] building $overlay (this clone's code over $venv)" >&2
+  rm -rf "$overlay"
+  "$venv/bin/python" -I .ci/overlay.py create "$venv" "$overlay"
+  plugins=()
+  for d in policies/*/; do [ -f "$d/pyproject.toml" ] && plugins+=(-e "$d"); done
+  # -P: the current directory (with the core's egg-info) is not on sys.path, so pip sees only the overlay's packages.
+  PYTHONWARNINGS=ignore "$overlay/bin/python" -P -m pip install --quiet --no-deps --no-build-isolation --no-index \
+    -e . "${plugins[@]}" >&2
+  "$overlay/bin/python" -I .ci/overlay.py scripts "$overlay"
+  echo "$stamp" >"$overlay/.sr_overlay"
+else
+  echo "[venv] reusing $overlay" >&2
+fi
+echo "$overlay"

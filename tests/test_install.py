@@ -1,0 +1,184 @@
+"""Installation: each clone runs its own code over the shared dependency venv, and the package installs into an
+existing LeRobot environment with plain pip (see .ci/venv.sh, .ci/overlay.py and the README's "Install")."""
+
+from __future__ import annotations
+
+import hashlib
+import importlib.metadata
+import json
+import os
+import shutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+OVERLAY_PY = ROOT / ".ci" / "overlay.py"
+PTH_NAME = "sr_shared_deps.pth"  # .ci/overlay.py's PTH_NAME
+PROJECT_DISTS = {"sr_imitation", "lerobot_policy_act_sr"}
+
+
+def _is_relative_to(path: str | Path, parent: Path) -> bool:
+    return Path(path).resolve().is_relative_to(parent.resolve())
+
+
+@pytest.fixture(scope="module")
+def shared_site() -> Path:
+    """The shared dependency site-packages that this interpreter's overlay (<repo>/.venv) reaches. Skips when the
+    tests do not run under the overlay layout (e.g. a plain PYTHONPATH run on the dependency venv's python); fails
+    instead under .ci/test.sh, which sets SR_TEST_OVERLAY."""
+    overlay = ROOT / ".venv"
+    pth = Path(overlay / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+               / PTH_NAME)
+    reason = None
+    if Path(sys.prefix).resolve() != overlay.resolve():
+        reason = f"the interpreter's prefix is {sys.prefix}, not this checkout's overlay {overlay} (.ci/venv.sh)"
+    elif not pth.is_file():
+        reason = f"{pth} is missing: {overlay} is not an overlay made by .ci/venv.sh"
+    if reason is not None:
+        if os.environ.get("SR_TEST_OVERLAY"):
+            pytest.fail(f"SR_TEST_OVERLAY is set but {reason}")
+        pytest.skip(f"not running under the overlay layout: {reason}")
+    out = subprocess.run([sys.executable, "-I", str(OVERLAY_PY), "shared-site", str(overlay)], check=True,
+                         capture_output=True, text=True).stdout.strip()
+    site = Path(out)
+    assert site.is_dir() and (site.parents[2] / ".sr_complete").is_file(), f"{site}: not a complete dependency venv"
+    return site
+
+
+def _clean_env(**extra: str) -> dict[str, str]:
+    env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "VIRTUAL_ENV", "PYTHONHOME")}
+    env.update(OMP_NUM_THREADS="1", HF_HUB_OFFLINE="1", HF_DATASETS_OFFLINE="1", **extra)
+    return env
+
+
+def _copy_checkout(dest: Path) -> Path:
+    """A second copy of this checkout as a clone's working tree holds it: the tracked files and the untracked ones
+    that git does not ignore (so uncommitted work is included), not the ignored build outputs or .venv."""
+    listed = subprocess.run(["git", "-C", str(ROOT), "ls-files", "-z", "--cached", "--others", "--exclude-standard"],
+                            check=True, capture_output=True).stdout.decode().split("\0")
+    for rel in filter(None, listed):
+        src = ROOT / rel
+        if src.is_file():  # a deleted (or meanwhile removed) file is not in the working tree
+            (dest / rel).parent.mkdir(parents=True, exist_ok=True)
+            shutil.copy2(src, dest / rel)
+    return dest
+
+
+def _fingerprint(tree: Path) -> str:
+    """Hash of every file and link under ``tree`` (paths, contents, link targets), byte-code caches left out."""
+    h = hashlib.sha256()
+    for path in sorted(tree.rglob("*")):
+        if "__pycache__" in path.parts:
+            continue
+        h.update(str(path.relative_to(tree)).encode())
+        if path.is_symlink():
+            h.update(os.readlink(path).encode())
+        elif path.is_file():
+            h.update(path.read_bytes())
+    return h.hexdigest()
+
+
+_PROBE = (
+    "import importlib.metadata as m, json, sys\n"
+    "from lerobot.utils.import_utils import register_third_party_plugins\n"
+    "register_third_party_plugins()\n"
+    "import lerobot_policy_act_sr, sr_imitation\n"
+    "from lerobot.policies.factory import make_policy_config\n"
+    "config = make_policy_config('act_sr')\n"
+    "print(json.dumps({'sr_imitation': sr_imitation.__file__, 'plugin': lerobot_policy_act_sr.__file__,\n"
+    "                  'config': type(config).__module__ + '.' + type(config).__name__,\n"
+    "                  'dists': {n: str(m.distribution(n).locate_file('')) for n in"
+    " ('sr_imitation', 'lerobot_policy_act_sr')}}))\n"
+)
+"""Run in a fresh interpreter from a neutral directory: where LeRobot's plugin discovery finds the project."""
+
+
+def _probe(python: Path, cwd: Path) -> dict:
+    proc = subprocess.run([str(python), "-c", _PROBE], cwd=cwd, env=_clean_env(), capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+def test_this_interpreter_runs_this_checkout_and_the_shared_venv_holds_no_project_code(shared_site):
+    import lerobot_policy_act_sr
+    import sr_imitation
+
+    assert _is_relative_to(sr_imitation.__file__, ROOT), sr_imitation.__file__
+    assert _is_relative_to(lerobot_policy_act_sr.__file__, ROOT / "policies"), lerobot_policy_act_sr.__file__
+    own_site = Path(sys.prefix) / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+    in_own = {d.metadata["Name"] for d in importlib.metadata.distributions(path=[str(own_site)])}
+    assert in_own >= PROJECT_DISTS, in_own  # installed (editable) in this clone's overlay, not in the shared venv
+    in_shared = {d.metadata["Name"] for d in importlib.metadata.distributions(path=[str(shared_site)])}
+    assert "lerobot" in in_shared and not (PROJECT_DISTS & in_shared), PROJECT_DISTS & in_shared
+    assert not list(shared_site.glob("__editable__*")), "an editable install left in the shared venv"
+    # The overlay's own packages come first on sys.path, the shared dependencies after them.
+    paths = [Path(p).resolve() for p in sys.path if p]
+    assert paths.index(own_site.resolve()) < paths.index(shared_site.resolve())
+    # lerobot-train next to this interpreter runs this interpreter (so it finds this clone's plugin).
+    first = (Path(sys.executable).parent / "lerobot-train").read_text().splitlines()[0]
+    assert first == f"#!{Path(sys.executable).parent / 'python'}", first
+
+
+@pytest.mark.slow
+def test_two_clones_each_run_their_own_code_over_one_shared_venv(shared_site, tmp_path):
+    first_overlay = ROOT / ".venv"
+    before = _fingerprint(first_overlay)
+    clone = _copy_checkout(tmp_path / "clone")
+    shared_venv = shared_site.parents[2]
+    proc = subprocess.run(["bash", str(clone / ".ci" / "venv.sh")], cwd=tmp_path, capture_output=True, text=True,
+                          env=_clean_env(SR_VENV=str(shared_venv)), timeout=300)
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    assert proc.stdout.strip().splitlines()[-1] == str(clone / ".venv"), proc.stdout
+    assert f"reusing {shared_venv}" in proc.stderr, proc.stderr  # the same shared venv, not rebuilt
+    neutral = tmp_path / "elsewhere"
+    neutral.mkdir()
+    for root in (ROOT, clone):
+        found = _probe(root / ".venv" / "bin" / "python", neutral)
+        assert _is_relative_to(found["sr_imitation"], root / "sr_imitation"), (root, found)
+        assert _is_relative_to(found["plugin"], root / "policies" / "lerobot_policy_act_sr"), (root, found)
+        assert all(_is_relative_to(loc, root / ".venv") for loc in found["dists"].values()), (root, found)
+        assert found["config"] == "lerobot_policy_act_sr.configuration_act_sr.ACTSRConfig", found
+        for script in ("lerobot-train", "lerobot-eval", "sr-train", "sr-sleep"):
+            first = (root / ".venv" / "bin" / script).read_text().splitlines()[0]
+            assert first == f"#!{root / '.venv' / 'bin' / 'python'}", (script, first)
+    # Building the second clone's overlay left the first one's as it was, and put nothing into the shared venv.
+    assert _fingerprint(first_overlay) == before
+    assert not (PROJECT_DISTS & {d.metadata["Name"] for d in importlib.metadata.distributions(path=[str(shared_site)])})
+
+
+@pytest.mark.slow
+def test_pip_install_into_an_existing_lerobot_environment(shared_site, tmp_path):
+    """The README's route for LeRobot users: plain (non-editable) pip installs of the repository and its plugin into
+    an environment that already has LeRobot 0.4.4 (here: a fresh overlay of the shared dependencies, which holds no
+    project code), without network; then LeRobot's factory makes act_sr and stock lerobot-train runs there."""
+    src = _copy_checkout(tmp_path / "src")
+    env_dir = tmp_path / "lerobot_env"
+    shared_python = shared_site.parents[2] / "bin" / "python"
+    subprocess.run([str(shared_python), "-I", str(OVERLAY_PY), "create", str(shared_site.parents[2]), str(env_dir)],
+                   check=True, timeout=120)
+    subprocess.run([str(env_dir / "bin" / "python"), "-I", str(OVERLAY_PY), "scripts", str(env_dir)], check=True,
+                   timeout=120)  # the existing environment's lerobot-* commands
+    python = env_dir / "bin" / "python"
+    without = subprocess.run([str(python), "-c", "import sr_imitation"], cwd=tmp_path, env=_clean_env(),
+                             capture_output=True, text=True)
+    assert without.returncode != 0, "the fresh LeRobot environment already imports sr_imitation"
+    proc = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--no-index", "--no-build-isolation",
+                           "--no-cache-dir", str(src), str(src / "policies" / "lerobot_policy_act_sr")],
+                          cwd=tmp_path, env=_clean_env(PYTHONWARNINGS="ignore"), capture_output=True, text=True,
+                          timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    site = env_dir / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
+    found = _probe(python, tmp_path)
+    assert _is_relative_to(found["sr_imitation"], site) and _is_relative_to(found["plugin"], site), found
+    assert found["config"] == "lerobot_policy_act_sr.configuration_act_sr.ACTSRConfig", found
+    assert (env_dir / "bin" / "sr-train").is_file()  # the package's own commands came with it
+    help_ = subprocess.run([str(env_dir / "bin" / "lerobot-train"), "--help"], cwd=tmp_path, env=_clean_env(),
+                           capture_output=True, text=True, timeout=300)
+    assert help_.returncode == 0, help_.stderr[-3000:]
+    assert "act_sr" in help_.stdout  # among --policy.type's choices
+    # The shared dependency venv is untouched by the user's install.
+    assert not (PROJECT_DISTS & {d.metadata["Name"] for d in importlib.metadata.distributions(path=[str(shared_site)])})
