@@ -14,32 +14,18 @@ from __future__ import annotations
 import logging
 import os
 import sys
-from dataclasses import dataclass, field
 from pathlib import Path
 
 from sr_imitation.core.cli_errors import run_cli, split_config_path
 from sr_imitation.imitation.cli import parse_config
-from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+from sr_imitation.imitation.config import MainJobConfig
+from sr_imitation.imitation.stream import train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import RecordConfig, ensure_recorded
+from sr_imitation.record import ensure_recorded
 
 logger = logging.getLogger(__name__)
 
-
-@dataclass
-class MainJobConfig:
-    """Recording settings and the stream's settings; ``record.root`` is where the stream reads its datasets."""
-
-    record: RecordConfig = field(default_factory=RecordConfig)
-    """Recording of the scripted-expert demonstrations (sr-record's flags under --record.)."""
-    train: TrainStreamConfig = field(default_factory=TrainStreamConfig)
-    """The wake-sleep stream (sr-train's flags under --train.)."""
-    expert_video: bool = True
-    """Also write a full-suture video of the scripted expert (expert_suture.mp4) to train.output_dir."""
-
-    def __post_init__(self) -> None:
-        self.train.stream.dataset_root = self.record.root
-        self.record.skills = list(self.train.stream.skills)
+__all__ = ["MainJobConfig", "main", "preset_with_datasets", "run_main_job"]
 
 
 def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:

@@ -28,6 +28,7 @@ from sr_imitation.core.cli_parsing import parse_command, wants_help
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.core.io import write_checked_json
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
+from sr_imitation.imitation.config import MainJobConfig
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.offscreen import setup_offscreen_rendering
@@ -81,8 +82,6 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
-        from sr_imitation.main_job import MainJobConfig  # noqa: PLC0415 (main_job imports this module)
-
         cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **lerobot).train
         cfg.output_dir = Path(cfg.output_dir)
         return cfg

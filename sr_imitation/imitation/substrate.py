@@ -25,7 +25,7 @@ import shutil
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -46,6 +46,7 @@ from sr_imitation.core.io import (
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.config import SUBSTRATE, TrainStreamConfig, stored_config_dict
 from sr_imitation.imitation.data import (
     load_metadata,
     load_skill_data,
@@ -59,9 +60,6 @@ from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, make_en
 from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
 from sr_imitation.imitation.wake import validation_l1, wake_train
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem
-
-if TYPE_CHECKING:
-    from sr_imitation.imitation.stream import TrainStreamConfig
 
 logger = logging.getLogger(__name__)
 
@@ -126,7 +124,7 @@ layout), where ``--config_path=<run>/last/pretrained_model/train_config.json --r
 class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
-    name: ClassVar[str] = "act"
+    name: ClassVar[str] = SUBSTRATE
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})  # hooked_update
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.repo_ids",
                                                  "stream.extend_from", *PER_SKILL_EVAL_KEYS)
@@ -456,13 +454,11 @@ class ACTSubstrate:
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:
-        from sr_imitation.imitation.stream import stored_config_dict
-
         n = len(self.skills)  # the stored config: no absolute run location in results.json
         # the configuration the run started with (train_config.json, written once at its start), not this
         # invocation's: a resume may change allow-listed settings only, and results say what held from the start
         stored = self.out / TRAIN_CONFIG_FILE
-        config = read_json(stored) if stored.is_file() else stored_config_dict(self.cfg)
+        config = read_json(stored) if stored.is_file() else stored_config_dict(self.cfg)  # a run before this file
         return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, config,
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
                             [self.checkpoint_dir(i, "wake") for i in range(n)], memories,

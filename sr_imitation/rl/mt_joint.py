@@ -31,9 +31,9 @@ from sr_imitation.core.provenance import log_code_version
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
 from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
 from sr_imitation.rl.evaluate import evaluate_policy, evaluation_configurations
+from sr_imitation.rl.results import prs_pairs
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.substrate import stage_seed
-from sr_imitation.rl.trainer import prs_pairs
 from sr_imitation.rl.wake import train_skill
 from sr_imitation.stream.results import build_results, write_results
 from sr_imitation.stream.rundir import RunDirectory

@@ -43,6 +43,7 @@ from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import STREAMS, SkillEnv, canonical_skill
 from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
+from sr_imitation.rl.results import SUBSTRATE, write_results
 from sr_imitation.rl.sac import SACAgent, TwinQ
 from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
@@ -65,7 +66,7 @@ def stage_seed(seed: int, stage: int, salt: int = 0) -> int:
 class SACSubstrate:
     """SAC with an excitability-gated actor on a Meta-World stream."""
 
-    name: ClassVar[str] = "sac"
+    name: ClassVar[str] = SUBSTRATE
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.name", "stream.skills", "stream.extend_from")
 
@@ -349,9 +350,7 @@ class SACSubstrate:
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:
-        from sr_imitation.rl.trainer import write_results
-
         for env in self._eval_envs.values():
             env.close()
         self._eval_envs.clear()
-        return write_results(self, progress, memories)
+        return write_results(self, progress, list(memories))
