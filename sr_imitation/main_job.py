@@ -16,7 +16,7 @@ import os
 import sys
 from pathlib import Path
 
-from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.core.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.config import MainJobConfig
 from sr_imitation.imitation.stream import train_stream
@@ -41,7 +41,7 @@ def run_main_job(cfg: MainJobConfig) -> dict:
     results = train_stream(cfg.train)
     if cfg.expert_video:
         from sr_imitation.envs.needle.chained import run_chained_episode
-        from sr_imitation.envs.needle.video import write_mp4
+        from sr_imitation.video import write_mp4
 
         out = cfg.train.output_dir / "expert_suture.mp4"
         if not out.exists():
@@ -53,7 +53,7 @@ def run_main_job(cfg: MainJobConfig) -> dict:
 
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_config(MainJobConfig, config_path, rest, prog="sr-main")
     results = run_main_job(cfg)

@@ -24,7 +24,7 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sr_imitation.core.cli_errors import run_cli
+from sr_imitation.core.cli_errors import run_cli, setup_logging
 from sr_imitation.core.cli_parsing import parse_command
 from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
@@ -267,7 +267,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
     process's hash seed), so its content digest identifies the demos."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from sr_imitation.envs.needle.video import write_mp4
+    from sr_imitation.video import write_mp4
 
     target = cfg.target(skill)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -348,7 +348,7 @@ def main(args: list[str] | None = None) -> None:
     """Console entry point ``sr-record`` (draccus flags, LeRobot style)."""
     setup_offscreen_rendering()
     cfg = parse_command(RecordConfig, sys.argv[1:] if args is None else args, prog="sr-record")
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    setup_logging()
     try:
         paths = record(cfg)
     except FileExistsError as e:

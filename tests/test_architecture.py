@@ -18,13 +18,13 @@ ALLOWED: dict[str, set[str]] = {
     "offscreen": set(),
     "video": {"core"},
     "envs": {"core", "offscreen", "video"},
-    "record": {"core", "envs", "offscreen"},
+    "record": {"core", "envs", "offscreen", "video"},
     # the two substrates (each with its own methods and configs); neither imports the other
     "imitation": {"core", "stream", "envs", "record", "offscreen", "video"},
     "rl": {"core", "stream", "offscreen", "video"},
     # drivers: commands, experiments, benchmarks (anything below them)
     "cli": {"core", "stream"},
-    "main_job": {"core", "stream", "envs", "record", "offscreen", "imitation"},
+    "main_job": {"core", "stream", "envs", "record", "offscreen", "video", "imitation"},
     "experiments": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl", "main_job"},
     "benchmarks": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl"},
 }

@@ -28,6 +28,7 @@ import draccus
 import numpy as np
 
 from sr_imitation.core.aggregation import FrankWolfeNashAggregator, NashAggregator, nash_objective
+from sr_imitation.core.cli_errors import setup_logging
 
 logger = logging.getLogger(__name__)
 
@@ -199,7 +200,7 @@ def timings(cfg: NashBenchConfig) -> dict:
 
 
 def main(cfg: NashBenchConfig) -> dict:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(message)s")
+    setup_logging()
     result = {"exactness": exactness(cfg), "timing": timings(cfg), "config": cfg.__dict__}
     path = Path(cfg.output)
     path.parent.mkdir(parents=True, exist_ok=True)

@@ -11,6 +11,7 @@ dump.
 
 from __future__ import annotations
 
+import logging
 import os
 import sys
 from collections.abc import Callable, Sequence
@@ -99,6 +100,15 @@ def split_debug(args: Sequence[str]) -> tuple[bool, list[str]]:
         else:
             rest.append(arg)
     return debug, rest
+
+
+LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
+"""The one format of every command's log lines."""
+
+
+def setup_logging(level: int = logging.INFO) -> None:
+    """The one logging set-up of every command (``main()`` of each console script and ``python -m`` module)."""
+    logging.basicConfig(level=level, format=LOG_FORMAT)
 
 
 def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:

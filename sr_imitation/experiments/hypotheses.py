@@ -21,6 +21,7 @@ from typing import Any
 
 import draccus
 
+from sr_imitation.core.cli_errors import run_cli, setup_logging
 from sr_imitation.core.io import atomic_write_bytes, write_checked_json
 from sr_imitation.stream.results import METRICS, load_results
 from sr_imitation.stream.stats import paired_test
@@ -95,7 +96,7 @@ def render(rows: list[dict[str, Any]], archive: Path) -> str:
 
 
 def main(args: list[str] | None = None) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     cfg = draccus.parse(HypothesesConfig, args=list(sys.argv[1:] if args is None else args))
     rows = run_tests(cfg)
     text = render(rows, cfg.archive)
@@ -106,6 +107,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from sr_imitation.core.cli_errors import run_cli
-
     run_cli("sr_imitation.experiments.hypotheses", main)

@@ -21,6 +21,7 @@ from typing import Any
 import draccus
 import numpy as np
 
+from sr_imitation.core.cli_errors import run_cli, setup_logging
 from sr_imitation.core.io import atomic_write_bytes, write_checked_json
 from sr_imitation.experiments.hypotheses import archived_runs
 from sr_imitation.stream.summary import mean_sem_dict
@@ -125,7 +126,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
 
 
 def main(args: list[str] | None = None) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     cfg = draccus.parse(BudgetConfig, args=list(sys.argv[1:] if args is None else args))
     summary = collect(cfg)
     text = render(summary)
@@ -137,6 +138,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from sr_imitation.core.cli_errors import run_cli
-
     run_cli("sr_imitation.experiments.memory_budget", main)

@@ -33,6 +33,7 @@ from typing import Any
 
 import draccus
 
+from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
@@ -150,7 +151,7 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
 
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     cfg = draccus.parse(MT5CompareConfig, args=list(sys.argv[1:] if args is None else args))
     print_final_means(run_compare(cfg), [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
 

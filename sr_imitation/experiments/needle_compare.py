@@ -41,6 +41,7 @@ from typing import Any, NamedTuple
 
 import draccus
 
+from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
@@ -163,7 +164,7 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
 
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     cfg = draccus.parse(CompareConfig, args=list(sys.argv[1:] if args is None else args))
     print_final_means(run_compare(cfg), [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
 

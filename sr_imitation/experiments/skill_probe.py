@@ -32,6 +32,7 @@ import draccus
 import numpy as np
 import torch
 
+from sr_imitation.core.cli_errors import run_cli, setup_logging
 from sr_imitation.core.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.envs.needle import geometry as G
 from sr_imitation.imitation.data import load_metadata
@@ -175,12 +176,10 @@ def run(cfg: ProbeConfig, make_env: Any = None) -> list[dict[str, Any]]:
 
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     cfg = draccus.parse(ProbeConfig, args=list(sys.argv[1:] if args is None else args))
     print(render(run(cfg)))  # noqa: T201  (command output)
 
 
 if __name__ == "__main__":
-    from sr_imitation.core.cli_errors import run_cli
-
     run_cli("skill_probe", main)

@@ -25,6 +25,7 @@ from typing import Any
 
 import draccus
 
+from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.core.fingerprint import FINGERPRINT_FILE, write_fingerprint
 from sr_imitation.core.io import atomic_write_json, write_checked_json
 from sr_imitation.imitation.cli import parse_config
@@ -118,7 +119,7 @@ def replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> dict[str, Any]
 
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     args = list(sys.argv[1:] if args is None else args)
     sleep_args = [a for a in args if a.startswith("--sleep.")]
     cfg = draccus.parse(SleepReplayConfig, args=[a for a in args if a not in sleep_args])

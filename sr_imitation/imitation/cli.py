@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import contextlib
 import json
-import logging
 import os
 import sys
 from collections.abc import Iterator
@@ -23,7 +22,7 @@ from typing import TypeVar
 from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
-from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.core.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.core.cli_parsing import parse_command, wants_help
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.core.io import write_checked_json
@@ -65,7 +64,7 @@ def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args:
 
 def _setup_logging() -> None:
     setup_offscreen_rendering()
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
 
 
 def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamConfig:

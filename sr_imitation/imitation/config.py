@@ -269,7 +269,7 @@ RESUME_ALLOW_LIST: dict[str, str] = {
 """Settings of ``sr-train`` that may differ on ``--resume`` (fnmatch patterns, each covering the keys below it),
 with the reason each cannot change results. Every other setting of :class:`TrainStreamConfig`, the whole
 ``--policy.*`` included, is fingerprinted at the run's start (``settings_fingerprint.json``) and must be equal on
-resume; the check runs before anything is written (:meth:`StreamTrainer._prepare_output_dir`)."""
+resume; the check runs before anything is written (``RunDirectory.prepare``)."""
 
 
 SETTINGS_ADDED: dict[str, Any] = {

@@ -20,7 +20,6 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
-from sr_imitation.core.fingerprint import SettingsFingerprint
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.config import (
     RESUME_ALLOW_LIST,
@@ -74,14 +73,6 @@ class StreamTrainer:
     @property
     def policy(self) -> Any:
         return self.substrate.policy
-
-    def _prepare_output_dir(self) -> None:
-        self.run_dir.prepare()
-
-    def _check_resume_settings(self, fingerprint: SettingsFingerprint) -> bool:
-        """Compare ``fingerprint`` with the run's stored settings (see :class:`RunDirectory`)."""
-        self.run_dir.fingerprint = fingerprint
-        return self.run_dir._check_settings()
 
     def run(self, stop_after: int | None = None) -> dict[str, Any]:
         """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``

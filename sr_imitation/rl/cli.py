@@ -19,7 +19,7 @@ import json
 import logging
 import sys
 
-from sr_imitation.core.cli_errors import run_cli, split_config_path
+from sr_imitation.core.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.core.cli_parsing import parse_command
 from sr_imitation.core.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
@@ -48,7 +48,7 @@ def parse(args: list[str]) -> RLTrainConfig:
 
 
 def main(args: list[str] | None = None) -> None:
-    logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    setup_logging()
     train(parse(list(sys.argv[1:] if args is None else args)))
 
 

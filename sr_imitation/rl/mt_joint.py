@@ -151,11 +151,11 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
 
 
 def main(args: list[str] | None = None) -> None:
-    from sr_imitation.core.cli_errors import run_cli
+    from sr_imitation.core.cli_errors import run_cli, setup_logging
     from sr_imitation.rl.cli import parse
 
     def _main(argv: list[str]) -> None:
-        logging.basicConfig(level=logging.INFO, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+        setup_logging()
         episodes = PAPER_EPISODES
         rest = []
         for a in argv:

@@ -124,15 +124,12 @@ class StreamEngine:
         self.method.setup(self.substrate)
         pending_load: tuple[int, str] | None = None
         for k in range(last):
-            phases = self.phases(k)
-            if not all(self.run_dir.done(k, p) for p in phases):
-                self.method.on_skill_start(k, self.substrate)
-            for phase in phases:
+            for phase in self.phases(k):
                 if self.run_dir.done(k, phase):  # recorded with all its files: restore what later phases need
                     if phase in POLICY_PHASES:
                         pending_load = (k, phase)
                     elif phase == "memory":
-                        self.memories.append(self.method.load_memory(k, self.substrate))
+                        self.memories.append(self.substrate.load_memory(k, name=self.method.memory_name))
                     continue
                 if pending_load is not None:
                     logger.info("resuming from stage %d %s", pending_load[0] + 1, pending_load[1])
@@ -148,7 +145,6 @@ class StreamEngine:
                 logger.info("stage %d (%s): %s done in %.1f s", k + 1, self.skills[k], phase, record["seconds"])
                 if self.after_phase is not None:
                     self.after_phase(k, phase)
-            self.method.on_skill_end(k, self.substrate)
         if last < len(self.skills):
             return dict(self.run_dir.progress)
         kept = self.memories + self.method.extra_memories(self.substrate, len(self.skills))

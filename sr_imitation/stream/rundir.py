@@ -135,7 +135,7 @@ class RunDirectory:
         elif not exists and self.resume:
             raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume")
         if exists:
-            self._check_settings()
+            self.check_settings_against_run()
             progress_path = self.path / PROGRESS_FILE
             if progress_path.exists():
                 self.progress = read_checked_json(progress_path)
@@ -149,7 +149,7 @@ class RunDirectory:
         write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
         atomic_write_json(self.path / self.config_file, self.stored_config)
 
-    def _check_settings(self) -> None:
+    def check_settings_against_run(self) -> None:
         """Compare with the stored fingerprint: its inputs first (:attr:`check_inputs`), then every setting; raise
         :class:`~sr_imitation.core.fingerprint.SettingsMismatchError` naming every differing key."""
         path = self.path / FINGERPRINT_FILE

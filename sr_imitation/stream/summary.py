@@ -8,8 +8,8 @@ stage i), BWT_wake (reference right after skill i's own wake) and SPI, the final
 right after each skill's own wake, each as mean +- SE over training seeds (each seed's value is its mean over
 evaluation units), and every metric's paired difference to the baseline variant over the training seeds both have.
 Written as ``summary.json``, ``summary.md`` and ``summary.png`` (bars with the seeds as dots). Used by
-``sr_imitation.experiments.needle_compare`` and ``sr_imitation.rl.report``; reads results of every schema version
-(:func:`sr_imitation.stream.results.upgrade_results`).
+``sr_imitation.experiments.needle_compare`` and ``sr_imitation.experiments.mt5_compare``; reads results of every
+schema version (:func:`sr_imitation.stream.results.upgrade_results`).
 """
 
 from __future__ import annotations

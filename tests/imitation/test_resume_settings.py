@@ -128,6 +128,13 @@ ALLOWED_CHANGES: dict[str, Any] = {
 }
 
 
+def check_resume(cfg, fingerprint) -> None:
+    """The resume check of a run directory against ``fingerprint`` (what a resume of ``cfg`` runs first)."""
+    run = StreamTrainer(cfg).run_dir
+    run.fingerprint = fingerprint
+    run.check_settings_against_run()
+
+
 def _weights(run: Path, phase: str = "skill_2_place/sleep") -> dict[str, torch.Tensor]:
     return load_file(str(run / phase / "pretrained_model" / "model.safetensors"))
 
@@ -155,7 +162,7 @@ def test_decode_is_what_parse_gives_for_a_config_file(stored, tmp_path):
 def stored(state_datasets, tmp_path_factory) -> tuple[Path, dict[str, Any]]:
     """A run directory as a fresh run leaves it before its first step: fingerprint + train_config.json."""
     out = tmp_path_factory.mktemp("stored") / "run"
-    StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False))._prepare_output_dir()
+    StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False)).run_dir.prepare()
     return out, json.loads((out / "train_config.json").read_text())
 
 
@@ -227,7 +234,7 @@ def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stor
                 tried.append(f"{new!r}: parsed back to the stored value")
                 continue
             before = tree_state(out)
-            err = assert_refused_naming(lambda c=cfg, f=fingerprint: StreamTrainer(c)._check_resume_settings(f), key)
+            err = assert_refused_naming(lambda c=cfg, f=fingerprint: check_resume(c, f), key)
             assert tree_state(out) == before
             assert f"{FINGERPRINT_FILE}: cannot resume" in str(err)
             refused.append(key)
@@ -256,13 +263,13 @@ def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, state_
         new = resolved.get(new, new) if isinstance(new, str) else new
         path = tuple(key.split("."))
         cfg = _parse(with_leaf(saved, path, new), tmp_path, out)
-        StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))  # no error
+        check_resume(cfg, resume_fingerprint(cfg))  # no error
         # --resume and --overwrite exclude each other, and so do repo_ids and dataset_paths (__post_init__)
         if key not in ("overwrite", "stream.repo_ids"):
             everything = with_leaf(everything, path, new)
     cfg = _parse(everything, tmp_path, out)
     assert cfg.wake.num_workers == 1 and cfg.eval.videos_per_skill == 0 and cfg.progress
-    StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))
+    check_resume(cfg, resume_fingerprint(cfg))
 
 
 def test_a_run_made_on_another_device_is_refused(stored, tmp_path):
@@ -272,7 +279,7 @@ def test_a_run_made_on_another_device_is_refused(stored, tmp_path):
     settings = {**read_fingerprint(run / FINGERPRINT_FILE), "policy.device": "cuda"}  # as a GPU run stores it
     write_fingerprint(run / FINGERPRINT_FILE, SettingsFingerprint(settings, settings_digest(settings)))
     cfg = _parse(saved, tmp_path, run)
-    err = assert_refused_naming(lambda: StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg)),
+    err = assert_refused_naming(lambda: check_resume(cfg, resume_fingerprint(cfg)),
                                 "policy.device")
     assert 'policy.device: "cuda" -> "cpu"' in str(err)
 
@@ -341,11 +348,11 @@ def test_a_run_without_fingerprint_is_refused_naming_the_file(stored, tmp_path):
     (run / FINGERPRINT_FILE).unlink()
     before = tree_state(run)
     with pytest.raises(CorruptFileError, match=f"{FINGERPRINT_FILE}: missing: cannot resume"):
-        StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
+        StreamTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
     assert tree_state(run) == before and not (run / FINGERPRINT_FILE).exists()
     (run / "train_config.json").unlink()
     with pytest.raises(FileNotFoundError, match="holds no run to resume"):
-        StreamTrainer(_parse(saved, tmp_path, run))._prepare_output_dir()
+        StreamTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
 
 
 @pytest.mark.parametrize("damage", ["flip", "truncate", "config"])

@@ -15,6 +15,7 @@ from pathlib import Path
 import draccus
 import numpy as np
 
+from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.envs.needle.env import NeedleEnv
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, Skill
@@ -120,10 +121,10 @@ class ChainedVideoConfig:
 
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
-    from sr_imitation.envs.needle.video import write_mp4
+    from sr_imitation.video import write_mp4
 
     cfg = draccus.parse(ChainedVideoConfig, args=args)
-    logging.basicConfig(level=logging.INFO, format="%(levelname)s %(name)s: %(message)s")
+    setup_logging()
     result, frames = run_chained_episode(
         cfg.seed, cfg.thresholds, render=True, height=cfg.height, width=cfg.width, wrist_size=cfg.height // 4
     )

@@ -9,8 +9,8 @@ A method answers, per skill:
   it at each policy update;
 * what it keeps after the wake: :meth:`~ContinualMethod.make_memory` (default: the substrate's memory, what SR's
   sleep needs; EWC keeps a parameter snapshot and Fisher instead);
-* whether it sleeps: :meth:`~ContinualMethod.sleeps_after`;
-* ``on_skill_start`` / ``on_skill_end`` for anything else.
+* whether it sleeps: :meth:`~ContinualMethod.sleeps_after`, and on which memories and problem
+  (:meth:`~ContinualMethod.sleep_memories`, :meth:`~ContinualMethod.prepare_sleep`).
 
 Everything else (data, wake loop, checkpoints, evaluation, metrics, resume) belongs to the engine and the substrate,
 so a baseline is one file: subclass :class:`ContinualMethod`, decorate it with :func:`register_method`. A method's
@@ -143,12 +143,9 @@ class ContinualMethod:
         ``substrate.save_memory(k, memory)`` unless the substrate's :meth:`make_memory` saved it."""
         return substrate.make_memory(k)
 
-    def load_memory(self, k: int, substrate: Substrate) -> Memory:
-        """M_k as :meth:`make_memory` saved it (a resumed run): ``substrate.load_memory(k, name=memory_name)``."""
-        return substrate.load_memory(k, name=self.memory_name)
-
     def save_memory(self, k: int, substrate: Substrate, memory: Memory) -> Memory:
-        """Save a method's own M_k under :attr:`memory_name` (where :meth:`load_memory` finds it); returns it."""
+        """Save a method's own M_k under :attr:`memory_name`, where the engine loads it back on resume
+        (``substrate.load_memory(k, name=memory_name)``); returns it."""
         substrate.save_memory(k, memory, name=self.memory_name)
         return memory
 
@@ -175,12 +172,3 @@ class ContinualMethod:
         uses the sleep phase for its own offline consolidation (Reset & Distill's distillation) changes the policy
         function, the configuration or the parameters' starting point here."""
         return problem
-
-    def on_skill_start(self, k: int, substrate: Substrate) -> None:
-        """Called before the wake of stage ``k`` (0-based), also when that wake is resumed."""
-
-    def on_skill_end(self, k: int, substrate: Substrate) -> None:
-        """Called after stage ``k``'s last phase (also for stages completed before a resume)."""
-
-    def describe(self) -> dict[str, Any]:
-        return {"method": self.name}

@@ -8,7 +8,6 @@ over M_1..M_k (Nash bargaining, Eq. 1, with the anchor of Eq. 2), run by the eng
 from __future__ import annotations
 
 from collections.abc import Sequence
-from typing import Any
 
 from sr_imitation.core.memory import Memory
 from sr_imitation.stream.methods.base import ContinualMethod
@@ -39,9 +38,6 @@ class SleepingRobots(ContinualMethod):
             return [], 0.0
         return list(memories), weight(skill_number)
 
-    def describe(self) -> dict[str, Any]:
-        variant = "sleeping_robots" if self.settings.sleep else "sr_wake_only"
-        return {"method": self.name, "variant": variant, **self.settings.extra}
 
 
 @register_method
@@ -57,5 +53,3 @@ class WakeOnly(SleepingRobots):
     def sleeps_after(self, skill_number: int) -> bool:
         return False
 
-    def describe(self) -> dict[str, Any]:
-        return {"method": self.name, "variant": "sr_wake_only", **self.settings.extra}
