@@ -21,7 +21,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.cli_errors import check_config_file, run_cli, split_config_path
+from sr_imitation.infra.cli_errors import check_config_file, run_cli, split_config_path
 from sr_imitation.stream.config import renamed_flag_hint, renamed_key_hint
 
 SUBSTRATE_COMMANDS: dict[str, tuple[str, str, str]] = {

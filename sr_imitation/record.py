@@ -24,12 +24,12 @@ from pathlib import Path
 import numpy as np
 from tqdm import tqdm
 
-from sr_imitation.core.cli_errors import run_cli, setup_logging
-from sr_imitation.core.cli_parsing import parse_command
-from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
 from sr_imitation.envs.needle.expert import ExpertSettings, NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, skill_from_name
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)

@@ -1,5 +1,5 @@
 """The package's walls (issue 29): no import cycles, not even through imports inside functions or under
-``TYPE_CHECKING``, and no upward imports between the layers (core < stream < substrates < drivers)."""
+``TYPE_CHECKING``, and no upward imports between the layers (io < core < infra < stream < substrates < drivers)."""
 
 from __future__ import annotations
 
@@ -10,23 +10,28 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1] / "sr_imitation"
 
 ALLOWED: dict[str, set[str]] = {
-    # formulas and the run infrastructure they are saved through
-    "core": set(),
+    # atomic writes and checked files: everything is saved through them
+    "io": set(),
+    # formulas: memories, aggregation, sleep, excitability, metrics
+    "core": {"io"},
+    # run infrastructure: settings fingerprints, run log, provenance, command-line parsing and errors
+    "infra": {"core", "io"},
     # Algorithm 1, the method plugins and the shared results: substrate-free
-    "stream": {"core"},
+    "stream": {"core", "io", "infra"},
     # the needle world and what records it
     "offscreen": set(),
-    "video": {"core"},
-    "envs": {"core", "offscreen", "video"},
-    "record": {"core", "envs", "offscreen", "video"},
+    "video": {"core", "io", "infra"},
+    "envs": {"core", "io", "infra", "offscreen", "video"},
+    "record": {"core", "io", "infra", "envs", "offscreen", "video"},
     # the two substrates (each with its own methods and configs); neither imports the other
-    "imitation": {"core", "stream", "envs", "record", "offscreen", "video"},
-    "rl": {"core", "stream", "offscreen", "video"},
+    "imitation": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video"},
+    "rl": {"core", "io", "infra", "stream", "offscreen", "video"},
     # drivers: commands, experiments, benchmarks (anything below them)
-    "cli": {"core", "stream"},
-    "main_job": {"core", "stream", "envs", "record", "offscreen", "video", "imitation"},
-    "experiments": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl", "main_job"},
-    "benchmarks": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl"},
+    "cli": {"core", "io", "infra", "stream"},
+    "main_job": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation"},
+    "experiments": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl",
+                    "main_job"},
+    "benchmarks": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl"},
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""
 

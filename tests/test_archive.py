@@ -7,9 +7,9 @@ import logging
 
 import pytest
 
-from sr_imitation.core.fingerprint import SettingsMismatchError, settings_fingerprint, write_fingerprint
-from sr_imitation.core.io import CorruptFileError
 from sr_imitation.experiments.archive import archive_run, archived_run
+from sr_imitation.infra.fingerprint import SettingsMismatchError, settings_fingerprint, write_fingerprint
+from sr_imitation.io import CorruptFileError
 
 SETTINGS = {"seed": 0, "sleep": {"lr": 1e-5, "enabled": True}, "output_dir": "x"}
 ALLOW = ("output_dir",)

@@ -9,8 +9,8 @@ import pytest
 
 import sr_imitation.imitation.cli as imitation_cli
 import sr_imitation.rl.cli as rl_cli
-from sr_imitation.core.cli_errors import run_cli, split_debug
-from sr_imitation.core.fingerprint import SettingsMismatchError
+from sr_imitation.infra.cli_errors import run_cli, split_debug
+from sr_imitation.infra.fingerprint import SettingsMismatchError
 
 
 def _one_line_error(prog, main, args, capsys) -> str:

@@ -14,11 +14,11 @@ from pathlib import Path
 import pytest
 from draccus.wrappers import docstring
 
-import sr_imitation.core.cli_parsing as cli_parsing
+import sr_imitation.infra.cli_parsing as cli_parsing
 from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation import cli, main_job, record
-from sr_imitation.core.cli_errors import run_cli
 from sr_imitation.imitation import cli as imitation_cli
+from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, RENAMED_FLAGS
 from tests.test_cli_errors import _one_line_error
 
@@ -40,7 +40,7 @@ COMMANDS = {  # the console entries' main functions, as run_cli runs them
 FLAGS_WITHOUT_HELP_ALLOWED: dict[str, set[str]] = {command: set() for command in COMMANDS}
 """Flags allowed to show no meaning in ``--help``: none. A new field without a docstring fails here; give it one
 (under the field, or an ``Args:`` entry of its class) or, for a field of a class this project cannot edit, an
-entry of :data:`sr_imitation.core.cli_parsing.INHERITED_FIELD_HELP`."""
+entry of :data:`sr_imitation.infra.cli_parsing.INHERITED_FIELD_HELP`."""
 
 
 def _help(command: str, monkeypatch, capsys) -> tuple[object, str]:

@@ -7,8 +7,8 @@ import json
 
 import pytest
 
-from sr_imitation.core.io import write_checked_json
 from sr_imitation.experiments.memory_budget import main
+from sr_imitation.io import write_checked_json
 from tests.stream.test_results import _results
 
 

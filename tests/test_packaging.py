@@ -40,16 +40,24 @@ def test_lerobot_discovers_and_imports_the_plugin():
 
 
 def test_core_and_stream_engine_import_neither_lerobot_nor_simulators():
+    """The layers below the substrates (io, core, infra, stream) import neither LeRobot nor a simulator."""
     found = _run_json(
         "import json, sys\n"
+        "import sr_imitation.io\n"
         "import sr_imitation.core, sr_imitation.core.sleep, sr_imitation.core.memory, sr_imitation.core.metrics\n"
-        "import sr_imitation.core.aggregation, sr_imitation.core.excitability, sr_imitation.core.io\n"
+        "import sr_imitation.core.aggregation, sr_imitation.core.excitability\n"
+        "import sr_imitation.infra, sr_imitation.infra.fingerprint, sr_imitation.infra.runlog\n"
+        "import sr_imitation.infra.provenance, sr_imitation.infra.cli_errors, sr_imitation.infra.cli_parsing\n"
         "import sr_imitation.stream, sr_imitation.stream.engine, sr_imitation.stream.methods\n"
         "print(json.dumps({'modules': sorted(m.split('.')[0] for m in sys.modules),\n"
-        "                  'core': 'sr_imitation.core.sleep' in sys.modules}))\n",
+        "                  'imported': sorted(m for m in sys.modules if m.startswith('sr_imitation.'))}))\n",
         timeout=120,
     )
-    assert found["core"] is True and "torch" in found["modules"]  # the probe did import the core
+    assert "torch" in found["modules"]
+    probed = {"sr_imitation.io", "sr_imitation.core.sleep", "sr_imitation.infra.fingerprint",
+              "sr_imitation.infra.runlog", "sr_imitation.infra.provenance", "sr_imitation.infra.cli_errors",
+              "sr_imitation.infra.cli_parsing", "sr_imitation.stream.engine"}
+    assert probed <= set(found["imported"])  # the probe did import every layer
     bad = {"lerobot", "metaworld", "mujoco", "gymnasium", "lerobot_policy_act_sr"} & set(found["modules"])
     assert not bad, bad
 

@@ -28,7 +28,7 @@ import draccus
 import numpy as np
 
 from sr_imitation.core.aggregation import FrankWolfeNashAggregator, NashAggregator, nash_objective
-from sr_imitation.core.cli_errors import setup_logging
+from sr_imitation.infra.cli_errors import setup_logging
 
 logger = logging.getLogger(__name__)
 

@@ -126,7 +126,7 @@ def main(args: list[str] | None = None) -> dict:
         results.update(bench_record(cfg))
     print(json.dumps(results, indent=2))
     if cfg.output is not None:
-        from sr_imitation.core.io import atomic_write_json
+        from sr_imitation.io import atomic_write_json
 
         atomic_write_json(cfg.output, results)
     return results

@@ -78,7 +78,7 @@ def main(args: list[str] | None = None) -> dict:
             span = f" ({row['steps_min']}-{row['steps_max']})" if "steps_min" in row else ""
             print(f"| {skill} | {row['success_rate']:.0%} | {row['steps_mean']:.1f}{span} |")
     if cfg.output is not None:
-        from sr_imitation.core.io import atomic_write_json
+        from sr_imitation.io import atomic_write_json
 
         atomic_write_json(cfg.output, results)
     else:

@@ -1,6 +1,8 @@
 """The substrate-agnostic core of Sleeping Robots: memories, Nash aggregation, sleep, excitability, metrics.
 
-Depends on torch and numpy only; the ACT (imitation) and SAC (RL) substrates plug into it.
+Formulas only. Depends on torch, numpy and :mod:`sr_imitation.io` (memories are saved through it); the run
+infrastructure around it (settings fingerprints, run log, provenance, command lines) is :mod:`sr_imitation.infra`.
+The ACT (imitation) and SAC (RL) substrates plug into it.
 """
 
 from sr_imitation.core.aggregation import (
@@ -16,7 +18,6 @@ from sr_imitation.core.aggregation import (
     nash_weights,
 )
 from sr_imitation.core.excitability import ExcitabilityConfig, ExcitableReLU, update_excitability
-from sr_imitation.core.io import CorruptFileError, atomic_write_bytes, atomic_write_json
 from sr_imitation.core.memory import (
     Memory,
     OutputDistillationMemory,
@@ -45,7 +46,6 @@ __all__ = [
     "AGGREGATORS",
     "Aggregation",
     "Aggregator",
-    "CorruptFileError",
     "ExcitabilityConfig",
     "ExcitableReLU",
     "FrankWolfeNashAggregator",
@@ -60,8 +60,6 @@ __all__ = [
     "SleepResult",
     "afsr_curve",
     "anchor_coefficient",
-    "atomic_write_bytes",
-    "atomic_write_json",
     "bwt_curve",
     "load_memory",
     "make_aggregator",

@@ -32,7 +32,7 @@ from typing import Any, ClassVar
 import torch
 from torch import Tensor
 
-from sr_imitation.core.io import (
+from sr_imitation.io import (
     CorruptFileError,
     load_checked_safetensors,
     save_checked_safetensors,

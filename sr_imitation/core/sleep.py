@@ -266,7 +266,7 @@ def sleep_consolidate(
         progress: show a tqdm progress bar.
         on_iteration: called after each applied update with the iteration index and that iteration's record
             (``objective``, ``memory_losses``, ``alpha``, ``grad_norms``, ``anchor_lambda``, ``solver_status``,
-            ``solver_iterations``), e.g. to write the run log (``sr_imitation.core.runlog``).
+            ``solver_iterations``), e.g. to write the run log (``sr_imitation.infra.runlog``).
         regularizer: an extra differentiable term R(theta) of the objective whose gradient is added to the
             aggregated direction, like the anchor's (not bargained); e.g. Progress & Compress's EWC penalty during
             its compression. ``None`` (SR): nothing is added.

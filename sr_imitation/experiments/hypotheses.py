@@ -21,8 +21,8 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.cli_errors import run_cli, setup_logging
-from sr_imitation.core.io import atomic_write_bytes, write_checked_json
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.stream.results import METRICS, load_results
 from sr_imitation.stream.stats import paired_test
 

@@ -33,8 +33,8 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.experiments.archive import check_archive, run_plan
+from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory

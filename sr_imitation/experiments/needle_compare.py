@@ -41,10 +41,10 @@ from typing import Any, NamedTuple
 
 import draccus
 
-from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.experiments.archive import check_archive, run_plan
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
+from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices

@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, atomic_write_json, read_json
 from sr_imitation.core.metrics import bwt_curve, mean_sem
+from sr_imitation.io import atomic_write_bytes, atomic_write_json, read_json
 
 _NAME = re.compile(r"^(?P<variant>.+?)_(?:seed|s)(?P<seed>\d+)$")
 

@@ -25,12 +25,12 @@ from typing import Any
 
 import draccus
 
-from sr_imitation.core.cli_errors import setup_logging
-from sr_imitation.core.fingerprint import FINGERPRINT_FILE, write_fingerprint
-from sr_imitation.core.io import atomic_write_json, write_checked_json
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.infra.cli_errors import setup_logging
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
+from sr_imitation.io import atomic_write_json, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.rundir import read_progress
 

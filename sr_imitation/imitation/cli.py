@@ -22,14 +22,14 @@ from typing import TypeVar
 from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
-from sr_imitation.core.cli_errors import run_cli, setup_logging, split_config_path
-from sr_imitation.core.cli_parsing import parse_command, wants_help
-from sr_imitation.core.fingerprint import output_dir_for
-from sr_imitation.core.io import write_checked_json
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.config import MainJobConfig
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
+from sr_imitation.infra.cli_parsing import parse_command, wants_help
+from sr_imitation.infra.fingerprint import output_dir_for
+from sr_imitation.io import write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 
@@ -57,7 +57,7 @@ def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args:
                  prog: str = "sr-train", prefix: str = "", names: dict[str, str] | None = None,
                  notes: dict[str, str] | None = None) -> T:
     """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`), with the teaching
-    command line of :func:`~sr_imitation.core.cli_parsing.parse_command` (``prefix``, ``names``, ``notes`` there)."""
+    command line of :func:`~sr_imitation.infra.cli_parsing.parse_command` (``prefix``, ``names``, ``notes`` there)."""
     with act_sr_choices_only():
         return parse_command(cls, args, prog=prog, config_path=config_path, prefix=prefix, names=names, notes=notes)
 

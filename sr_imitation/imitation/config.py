@@ -20,20 +20,20 @@ import torch
 from lerobot.configs.policies import PreTrainedConfig
 
 from lerobot_policy_act_sr import ACTSRConfig
-from sr_imitation.core.fingerprint import (
-    RUN_DIRECTORY,
-    SettingsFingerprint,
-    check_finite,
-    settings_fingerprint,
-    to_jsonable,
-)
-from sr_imitation.core.runlog import WandbConfig
 from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.data import STATS_SOURCES, cached_dataset_path
 from sr_imitation.imitation.dataset_identity import check_inputs, dataset_inputs
 from sr_imitation.imitation.evaluate import EvalConfig
 from sr_imitation.imitation.wake import WakeConfig
+from sr_imitation.infra.fingerprint import (
+    RUN_DIRECTORY,
+    SettingsFingerprint,
+    check_finite,
+    settings_fingerprint,
+    to_jsonable,
+)
+from sr_imitation.infra.runlog import WandbConfig
 from sr_imitation.record import RecordConfig
 from sr_imitation.stream import method_config, methods_for
 from sr_imitation.stream.config import check_shared_settings, fold_alias_settings
@@ -281,7 +281,7 @@ SETTINGS_ADDED: dict[str, Any] = {
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
 (the needle environment, issue 27): a stored fingerprint without one of them resumes with that value and is refused
-with another (:attr:`~sr_imitation.core.fingerprint.SettingsFingerprint.added`)."""
+with another (:attr:`~sr_imitation.infra.fingerprint.SettingsFingerprint.added`)."""
 
 
 def stream_inputs(cfg: TrainStreamConfig) -> dict[str, str]:

@@ -28,8 +28,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.io import atomic_write_json, file_digest
 from sr_imitation.imitation.data import DatasetMismatchError, dataset_info_path
+from sr_imitation.io import atomic_write_json, file_digest
 
 logger = logging.getLogger(__name__)
 

@@ -31,8 +31,6 @@ from typing import Any
 import numpy as np
 import torch
 
-from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerprint
-from sr_imitation.core.provenance import log_code_version
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
 from sr_imitation.imitation.report import pair_list
@@ -47,6 +45,8 @@ from sr_imitation.imitation.stream import (
 )
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.wake import wake_train
+from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
+from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.stream.results import build_results, write_results
 from sr_imitation.stream.rundir import RunDirectory
 
@@ -144,7 +144,7 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
 
 
 def main(args: list[str] | None = None) -> None:
-    from sr_imitation.core.cli_errors import run_cli
+    from sr_imitation.infra.cli_errors import run_cli
 
     def _main(argv: list[str]) -> None:
         _setup_logging()

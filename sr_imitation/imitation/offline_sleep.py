@@ -66,17 +66,6 @@ from lerobot.utils.utils import is_torch_device_available
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
-from sr_imitation.core.fingerprint import to_jsonable
-from sr_imitation.core.io import (
-    MANIFEST,
-    CorruptFileError,
-    WriteError,
-    atomic_write_bytes,
-    atomic_write_json,
-    staged_directory,
-    verify_manifest,
-    write_checked_json,
-)
 from sr_imitation.core.memory import load_memory, memory_contents
 from sr_imitation.core.sleep import SleepConfig, SleepResult, SurgicAISleepConfig, sleep_consolidate
 from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
@@ -88,6 +77,17 @@ from sr_imitation.imitation.substrate import (
     normalize_raw_observations,
     save_pretrained_model,
     seed_everything,
+)
+from sr_imitation.infra.fingerprint import to_jsonable
+from sr_imitation.io import (
+    MANIFEST,
+    CorruptFileError,
+    WriteError,
+    atomic_write_bytes,
+    atomic_write_json,
+    staged_directory,
+    verify_manifest,
+    write_checked_json,
 )
 
 logger = logging.getLogger(__name__)

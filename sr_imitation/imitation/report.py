@@ -25,11 +25,11 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import load_checked_safetensors, read_checked_json
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import all_pairs, policy_motion, spi_at_stage
 from sr_imitation.envs.needle.skills import PRS_PAIRS as SURGICAI_PAIRS
 from sr_imitation.imitation.evaluate import spi_features
+from sr_imitation.io import load_checked_safetensors, read_checked_json
 from sr_imitation.stream.results import (
     build_results,
     memory_budget,

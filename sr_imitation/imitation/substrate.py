@@ -33,16 +33,6 @@ from lerobot.policies.factory import make_policy, make_pre_post_processors
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
-from sr_imitation.core.io import (
-    CorruptFileError,
-    atomic_write_json,
-    read_checked_json,
-    read_json,
-    save_checked_safetensors,
-    staged_directory,
-    verify_manifest,
-    write_checked_json,
-)
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.imitation.actor_memory import ActorMemory
@@ -59,6 +49,16 @@ from sr_imitation.imitation.data import (
 from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, make_env_factory
 from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
 from sr_imitation.imitation.wake import validation_l1, wake_train
+from sr_imitation.io import (
+    CorruptFileError,
+    atomic_write_json,
+    read_checked_json,
+    read_json,
+    save_checked_safetensors,
+    staged_directory,
+    verify_manifest,
+    write_checked_json,
+)
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem
 
 logger = logging.getLogger(__name__)

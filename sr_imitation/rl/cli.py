@@ -19,9 +19,9 @@ import json
 import logging
 import sys
 
-from sr_imitation.core.cli_errors import run_cli, setup_logging, split_config_path
-from sr_imitation.core.cli_parsing import parse_command
-from sr_imitation.core.fingerprint import output_dir_for
+from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
+from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.fingerprint import output_dir_for
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.stream.config import fold_alias_flags
 

@@ -14,15 +14,15 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.core.excitability import ExcitabilityConfig
-from sr_imitation.core.fingerprint import (
+from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.infra.fingerprint import (
     RUN_DIRECTORY,
     SettingsFingerprint,
     check_finite,
     settings_fingerprint,
     to_jsonable,
 )
-from sr_imitation.core.runlog import WandbConfig
-from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.infra.runlog import WandbConfig
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
 from sr_imitation.stream.config import check_shared_settings

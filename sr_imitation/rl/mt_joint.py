@@ -25,9 +25,9 @@ from typing import Any
 import numpy as np
 import torch
 
-from sr_imitation.core.fingerprint import SettingsFingerprint, settings_fingerprint
-from sr_imitation.core.io import load_checked_safetensors, save_checked_safetensors
-from sr_imitation.core.provenance import log_code_version
+from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
+from sr_imitation.infra.provenance import log_code_version
+from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
 from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
 from sr_imitation.rl.evaluate import evaluate_policy, evaluation_configurations
@@ -151,7 +151,7 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
 
 
 def main(args: list[str] | None = None) -> None:
-    from sr_imitation.core.cli_errors import run_cli, setup_logging
+    from sr_imitation.infra.cli_errors import run_cli, setup_logging
     from sr_imitation.rl.cli import parse
 
     def _main(argv: list[str]) -> None:

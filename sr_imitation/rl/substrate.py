@@ -30,15 +30,15 @@ import numpy as np
 import torch
 
 from sr_imitation.core.excitability import activity_recording_off, update_excitability
-from sr_imitation.core.io import (
+from sr_imitation.core.memory import Memory, load_memory
+from sr_imitation.core.metrics import policy_motion
+from sr_imitation.infra.runlog import RunLog
+from sr_imitation.io import (
     CorruptFileError,
     load_checked_safetensors,
     save_checked_safetensors,
     write_checked_json,
 )
-from sr_imitation.core.memory import Memory, load_memory
-from sr_imitation.core.metrics import policy_motion
-from sr_imitation.core.runlog import RunLog
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import STREAMS, SkillEnv, canonical_skill

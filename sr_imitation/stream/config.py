@@ -96,7 +96,7 @@ is one ``--flag`` is that ``sr-train`` flag (accepted as it; giving both is refu
 answer (``{value}``: the value given). A flag ``sr-train`` has itself (``--seed``, ``--output_dir``, ``--resume``,
 ``--wandb.enable``, ``--policy.*``) is never looked up here, so a flag added to the config later wins over its entry.
 ``--policy.type`` other than ``act_sr`` is answered by :data:`LEROBOT_TRAIN_NOTES`; ``--eval.n_episodes`` by
-:data:`RENAMED_FLAGS`. Applied by :func:`sr_imitation.core.cli_parsing.parse_command`; README, "Coming from
+:data:`RENAMED_FLAGS`. Applied by :func:`sr_imitation.infra.cli_parsing.parse_command`; README, "Coming from
 LeRobot"."""
 
 LEROBOT_TRAIN_NOTES: dict[str, str] = {

@@ -24,7 +24,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.fingerprint import (
+from sr_imitation.core.memory import Memory
+from sr_imitation.core.sleep import sleep_consolidate
+from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     check_settings,
@@ -32,11 +34,9 @@ from sr_imitation.core.fingerprint import (
     read_fingerprint,
     settings_digest,
 )
-from sr_imitation.core.io import read_checked_json
-from sr_imitation.core.memory import Memory
-from sr_imitation.core.provenance import log_code_version
-from sr_imitation.core.runlog import RunLog, WandbConfig
-from sr_imitation.core.sleep import sleep_consolidate
+from sr_imitation.infra.provenance import log_code_version
+from sr_imitation.infra.runlog import RunLog, WandbConfig
+from sr_imitation.io import read_checked_json
 from sr_imitation.stream.capabilities import missing_capabilities
 from sr_imitation.stream.methods import ContinualMethod
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
@@ -53,7 +53,7 @@ class StreamEngine:
 
     ``after_phase(k, phase)`` (tests) is called after each newly completed phase; raising there simulates a kill.
 
-    Logging: every phase logs INFO lines, and the run log (:class:`~sr_imitation.core.runlog.RunLog`,
+    Logging: every phase logs INFO lines, and the run log (:class:`~sr_imitation.infra.runlog.RunLog`,
     ``<run>/log.jsonl``, always on; mirrored to wandb with ``wandb.enable``) gets one ``phase`` record per completed
     phase (its numbers flattened), one ``sleep`` record per sleep iteration (objective, memory losses, alpha, gradient
     norms, anchor coefficient, solver status) and whatever the substrate logs (``wake`` epochs) through

@@ -20,7 +20,7 @@ Schema (``results_version`` :data:`RESULTS_VERSION`)::
     metrics.<afsr|prs|bwt|bwt_wake|spi>: {final, final_sem, final_per_unit, curve, curve_sem}
     spi_features, memory_bytes {skill: bytes}, memory_bytes_total, stages (substrate records), config,
     extra (substrate-specific additions, e.g. ACT's whole success matrix right after each wake),
-    code {commit, dirty} (the git commit the writing process started from, :mod:`sr_imitation.core.provenance`;
+    code {commit, dirty} (the git commit the writing process started from, :mod:`sr_imitation.infra.provenance`;
     absent in runs written before it was recorded),
     evaluation (where skills were evaluated when not in the substrate's own environment - ACT's --eval.env gym,
     lerobot or none; absent: the needle environment / Meta-World),
@@ -42,9 +42,9 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import JSON_CHECKSUM, atomic_write_bytes, read_checked_json, read_json, write_checked_json
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
-from sr_imitation.core.provenance import process_code_version
+from sr_imitation.infra.provenance import process_code_version
+from sr_imitation.io import JSON_CHECKSUM, atomic_write_bytes, read_checked_json, read_json, write_checked_json
 
 RESULTS_VERSION = 5
 """5: the schema of 4, and a file without its ``sha256`` seal is refused (4: one schema for both substrates; before:

@@ -1,6 +1,6 @@
 """A run directory that cannot change silently: settings fingerprint, stored config, progress, leftovers.
 
-Fresh run: the directory is created, the settings fingerprint (:mod:`sr_imitation.core.fingerprint`) and the stored
+Fresh run: the directory is created, the settings fingerprint (:mod:`sr_imitation.infra.fingerprint`) and the stored
 config are written once. Resume: the requested settings are checked against the fingerprint *before anything is
 written* (a refused resume leaves the directory byte-identical), ``progress.json`` is read, and temporary files
 left by a killed atomic write are removed. Nothing stored at the start is ever rewritten.
@@ -18,14 +18,14 @@ from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.fingerprint import (
+from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     check_settings,
     read_fingerprint,
     write_fingerprint,
 )
-from sr_imitation.core.io import (
+from sr_imitation.io import (
     JSON_CHECKSUM,
     CorruptFileError,
     WriteError,
@@ -151,7 +151,7 @@ class RunDirectory:
 
     def check_settings_against_run(self) -> None:
         """Compare with the stored fingerprint: its inputs first (:attr:`check_inputs`), then every setting; raise
-        :class:`~sr_imitation.core.fingerprint.SettingsMismatchError` naming every differing key."""
+        :class:`~sr_imitation.infra.fingerprint.SettingsMismatchError` naming every differing key."""
         path = self.path / FINGERPRINT_FILE
         if not path.is_file():
             if not (self.path / self.config_file).is_file() and not (self.path / PROGRESS_FILE).is_file():

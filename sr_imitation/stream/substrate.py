@@ -19,8 +19,8 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
-from sr_imitation.core.runlog import RunLog
 from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.infra.runlog import RunLog
 
 PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
 """Every phase of a stage, in the engine's order (a stage without sleep has the first three)."""
@@ -79,7 +79,7 @@ class Substrate(Protocol):
     skills: list[str]
 
     run_log: RunLog | None
-    """Set by the engine before the first phase: the run's :class:`~sr_imitation.core.runlog.RunLog`, where the
+    """Set by the engine before the first phase: the run's :class:`~sr_imitation.infra.runlog.RunLog`, where the
     substrate logs what happens inside a phase (wake epochs); ``None`` until then."""
 
     def memory_skill(self, k: int) -> str:

@@ -23,9 +23,9 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.io import atomic_write_bytes, write_checked_json
 from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import mean_sem
+from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.stream.results import METRICS, load_results
 from sr_imitation.stream.rundir import read_progress
 
@@ -399,6 +399,6 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    from sr_imitation.core.cli_errors import run_cli
+    from sr_imitation.infra.cli_errors import run_cli
 
     run_cli("sr_imitation.stream.summary", main)

@@ -2,14 +2,14 @@
 
 A file is read back only when the phase that needs it runs, so a corrupted stage-1 checkpoint would otherwise be
 noticed after later phases were redone and rewritten. :func:`verify_run_files` checks them all first and raises
-:class:`~sr_imitation.core.io.CorruptFileError` naming the first bad file:
+:class:`~sr_imitation.io.CorruptFileError` naming the first bad file:
 
 - a folder with ``checksums.json`` (a checkpoint in LeRobot's layout): every file it lists
-  (:func:`~sr_imitation.core.io.verify_manifest`);
+  (:func:`~sr_imitation.io.verify_manifest`);
 - ``*.safetensors`` outside such folders (memories, SAC checkpoints, trajectories, statistics): header and tensor
-  checksums (:func:`~sr_imitation.core.io.load_checked_safetensors`);
+  checksums (:func:`~sr_imitation.io.load_checked_safetensors`);
 - ``*.json`` outside such folders (progress, fingerprint, evaluations, diagnostics): their ``sha256`` seal
-  (:func:`~sr_imitation.core.io.read_checked_json`), except ``unsealed`` names (the run's config copy, which the
+  (:func:`~sr_imitation.io.read_checked_json`), except ``unsealed`` names (the run's config copy, which the
   settings fingerprint checks, and the files a run rewrites at its end);
 - ``*.npz`` (ACT evaluation trajectories of runs written before they were sealed safetensors): the zip's CRC of
   every member.
@@ -25,7 +25,7 @@ import zlib
 from collections.abc import Iterable
 from pathlib import Path
 
-from sr_imitation.core.io import (
+from sr_imitation.io import (
     MANIFEST,
     CorruptFileError,
     load_checked_safetensors,

@@ -9,8 +9,8 @@ import pytest
 import torch
 from torch import nn
 
-from sr_imitation.core.io import CorruptFileError, atomic_write_bytes, save_checked_safetensors
 from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
+from sr_imitation.io import CorruptFileError, atomic_write_bytes, save_checked_safetensors
 
 
 def _snapshot() -> nn.Module:
@@ -190,7 +190,7 @@ def test_summed_objective_equals_the_sum_of_per_memory_objectives():
 
 
 def test_scalar_tensors_save_and_load(tmp_path):
-    from sr_imitation.core.io import load_checked_safetensors
+    from sr_imitation.io import load_checked_safetensors
 
     save_checked_safetensors(tmp_path / "s.safetensors", {"log_alpha": torch.tensor(-1.5)}, {"format": "x"})
     tensors, _ = load_checked_safetensors(tmp_path / "s.safetensors")

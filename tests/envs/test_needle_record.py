@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 from sr_imitation import record as rec
-from sr_imitation.core.io import read_checked_json
 from sr_imitation.envs.needle import SKILL_NAMES
+from sr_imitation.io import read_checked_json
 
 SIZE = 32
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")

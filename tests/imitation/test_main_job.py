@@ -15,8 +15,8 @@ import numpy as np
 import pytest
 from safetensors.torch import load_file
 
-from sr_imitation.core.io import read_checked_json, write_checked_json
 from sr_imitation.imitation.cli import train_main
+from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.main_job import main as main_job
 
 TINY_POLICY = {
@@ -171,7 +171,7 @@ def test_sr_train_resumes_a_finished_run_without_redoing_work(main_job_run):
 def test_checkpoints_carry_the_train_config_and_last_points_at_the_newest_consolidated_policy(main_job_run):
     """Issue 27 item 6: LeRobot keeps ``train_config.json`` in each ``pretrained_model/`` and a ``last`` pointer;
     so do we (the pointer is relative, so a moved run keeps it; each copy is covered by its checkpoint's manifest)."""
-    from sr_imitation.core.io import verify_manifest
+    from sr_imitation.io import verify_manifest
 
     tmp, _ = main_job_run
     run = tmp / "run"

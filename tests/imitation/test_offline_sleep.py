@@ -22,8 +22,6 @@ from lerobot.policies.factory import get_policy_class, make_policy, make_pre_pos
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
-from sr_imitation.core.cli_errors import run_cli
-from sr_imitation.core.io import CorruptFileError, read_checked_json, verify_manifest
 from sr_imitation.core.memory import load_memory
 from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.imitation.actor_memory import ActorMemory
@@ -39,6 +37,8 @@ from sr_imitation.imitation.offline_sleep import (
 )
 from sr_imitation.imitation.stream import StreamTrainer
 from sr_imitation.imitation.substrate import phase_seed
+from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.io import CorruptFileError, read_checked_json, verify_manifest
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_policy, tiny_stream_config
 

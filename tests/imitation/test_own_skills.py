@@ -17,14 +17,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sr_imitation.core.fingerprint import (
-    FINGERPRINT_FILE,
-    SettingsFingerprint,
-    SettingsMismatchError,
-    read_fingerprint,
-    settings_digest,
-    write_fingerprint,
-)
 from sr_imitation.imitation.cli import parse_train_args
 from sr_imitation.imitation.data import DatasetMismatchError
 from sr_imitation.imitation.evaluate import EvalConfig
@@ -36,7 +28,16 @@ from sr_imitation.imitation.stream import (
     train_stream,
 )
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.infra.fingerprint import (
+    FINGERPRINT_FILE,
+    SettingsFingerprint,
+    SettingsMismatchError,
+    read_fingerprint,
+    settings_digest,
+    write_fingerprint,
+)
 from tests.imitation.helpers import ACTION_DIM, STATE_DIM, make_skill_dataset, tiny_stream_config
+from tests.imitation.test_resume_settings import check_resume
 
 SKILLS = ["pick", "place_cup"]
 GYM_IDS = {"pick": "SrTinyPick-v0", "place_cup": "SrTinyPlaceCup-v0"}
@@ -314,18 +315,17 @@ def test_a_run_from_before_the_evaluation_settings_resumes_with_the_needle_env_o
     """Runs fingerprinted before ``eval.env`` existed were evaluated on the needle env: their fingerprint lacks the
     new keys, which count as their defaults (:data:`SETTINGS_ADDED`); another evaluation is refused naming it."""
     out = tmp_path / "run"
-    StreamTrainer(tiny_stream_config(state_datasets, out, ["approach", "place"], use_images=False)
-                  )._prepare_output_dir()
+    StreamTrainer(tiny_stream_config(state_datasets, out, ["approach", "place"], use_images=False)).run_dir.prepare()
     stored = read_fingerprint(out / FINGERPRINT_FILE)
     assert set(SETTINGS_ADDED) <= set(stored)
     settings = {k: v for k, v in stored.items() if k not in SETTINGS_ADDED}  # as an older run stored them
     write_fingerprint(out / FINGERPRINT_FILE, SettingsFingerprint(settings, settings_digest(settings)))
     cfg = tiny_stream_config(state_datasets, out, ["approach", "place"], use_images=False)
     cfg.resume = True
-    StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))  # no error
+    check_resume(cfg, resume_fingerprint(cfg))  # no error
     cfg.eval = EvalConfig(env="none", episodes=0)
     with pytest.raises(SettingsMismatchError, match=re.escape('eval.env: "needle" -> "none"')):
-        StreamTrainer(cfg)._check_resume_settings(resume_fingerprint(cfg))
+        check_resume(cfg, resume_fingerprint(cfg))
 
 
 def test_an_extension_keeps_the_evaluation_of_the_skills_it_imports(own_datasets, tmp_path):

@@ -18,19 +18,19 @@ from safetensors.torch import load_file
 
 import sr_imitation.imitation.cli as cli
 import sr_imitation.imitation.dataset_identity as identity
-from sr_imitation.core.cli_errors import run_cli
-from sr_imitation.core.fingerprint import (
+from sr_imitation.imitation.dataset_identity import InputsMismatchError, dataset_digest, dataset_inputs
+from sr_imitation.imitation.stream import StreamTrainer, train_stream
+from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     read_fingerprint,
     settings_digest,
     write_fingerprint,
 )
-from sr_imitation.imitation.dataset_identity import InputsMismatchError, dataset_digest, dataset_inputs
-from sr_imitation.imitation.stream import StreamTrainer, train_stream
-from tests.core.test_fingerprint import tree_state
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+from tests.infra.test_fingerprint import tree_state
 
 STREAM = SKILLS[:2]
 
@@ -190,7 +190,7 @@ def test_any_single_byte_change_is_refused_before_writing_or_changes_nothing(aft
 def test_a_run_logged_to_wandb_resumes_into_the_same_wandb_run(datasets, reference, tmp_path, monkeypatch):
     """wandb's own files in the run directory are not ours to verify (unsealed by design): a run with wandb resumes,
     continues the same wandb run, and ends as the untouched run does."""
-    from sr_imitation.core.runlog import WANDB_ID_FILE, WandbConfig
+    from sr_imitation.infra.runlog import WANDB_ID_FILE, WandbConfig
 
     monkeypatch.setenv("WANDB_SILENT", "true")
     run = tmp_path / "run"

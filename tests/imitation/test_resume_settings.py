@@ -21,7 +21,15 @@ from safetensors.torch import load_file
 
 import sr_imitation.imitation.cli as cli
 from sr_imitation.core.aggregation import AGGREGATORS
-from sr_imitation.core.fingerprint import (
+from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
+from sr_imitation.imitation.stream import (
+    RESUME_ALLOW_LIST,
+    StreamTrainer,
+    TrainStreamConfig,
+    resume_fingerprint,
+    train_stream,
+)
+from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     SettingsMismatchError,
@@ -31,19 +39,11 @@ from sr_imitation.core.fingerprint import (
     settings_digest,
     write_fingerprint,
 )
-from sr_imitation.core.io import CorruptFileError
-from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
-from sr_imitation.imitation.stream import (
-    RESUME_ALLOW_LIST,
-    StreamTrainer,
-    TrainStreamConfig,
-    resume_fingerprint,
-    train_stream,
-)
+from sr_imitation.io import CorruptFileError
 from sr_imitation.stream import methods_for
-from tests.core.test_fingerprint import assert_refused_naming, changed_values, leaves, tree_state, with_leaf
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+from tests.infra.test_fingerprint import assert_refused_naming, changed_values, leaves, tree_state, with_leaf
 
 STREAM = SKILLS[:2]
 MAPPING = ["MEAN_STD", "MIN_MAX", "IDENTITY"]

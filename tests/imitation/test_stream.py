@@ -11,12 +11,12 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.core.fingerprint import SettingsMismatchError
-from sr_imitation.core.io import CorruptFileError, write_checked_json
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import DatasetMismatchError
 from sr_imitation.imitation.stream import StreamConfig, train_stream
 from sr_imitation.imitation.wake import NonFiniteLossError
+from sr_imitation.infra.fingerprint import SettingsMismatchError
+from sr_imitation.io import CorruptFileError, write_checked_json
 from sr_imitation.stream import StreamEngine
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
@@ -246,7 +246,7 @@ def test_in_memory_dataset_serves_the_same_items_as_lerobot(image_datasets):
 
 
 def test_the_run_log_has_wake_epochs_sleep_iterations_and_phases(finished_run):
-    from sr_imitation.core.runlog import read_log
+    from sr_imitation.infra.runlog import read_log
 
     out, results = finished_run
     records = read_log(out / "log.jsonl")

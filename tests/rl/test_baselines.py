@@ -9,8 +9,8 @@ import dataclasses
 import pytest
 import torch
 
-from sr_imitation.core.fingerprint import SettingsMismatchError
-from sr_imitation.core.io import load_checked_safetensors
+from sr_imitation.infra.fingerprint import SettingsMismatchError
+from sr_imitation.io import load_checked_safetensors
 from sr_imitation.rl.config import EvalConfig
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream import METHODS

@@ -81,8 +81,8 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
 
 
 def test_the_archive_keeps_finished_runs_and_refuses_other_settings(tmp_path, tiny_preset, monkeypatch):
-    from sr_imitation.core.fingerprint import SettingsMismatchError
     from sr_imitation.experiments.archive import ARCHIVED_FILES
+    from sr_imitation.infra.fingerprint import SettingsMismatchError
     from sr_imitation.rl import cli
 
     archive = tmp_path / "archive"

@@ -8,7 +8,7 @@ from collections import Counter
 
 import pytest
 
-from sr_imitation.core.fingerprint import SettingsMismatchError
+from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.rl.config import EvalConfig
 from sr_imitation.rl.mt_joint import MultiSkillEnv, run_mt_joint
 from tests.rl.test_trainer import tiny_config

@@ -12,9 +12,9 @@ import draccus
 import pytest
 import torch
 
-from sr_imitation.core.fingerprint import SettingsMismatchError
-from sr_imitation.core.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.infra.fingerprint import SettingsMismatchError
+from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.rl.config import (
     CriticMemoryConfig,
     EvalConfig,
@@ -241,7 +241,7 @@ def test_an_unknown_skill_is_refused_before_the_first_gradient(tmp_path):
 def test_every_sealed_file_is_verified_before_a_resume_writes(tmp_path, uninterrupted):
     """Issue 26: a flipped byte in a completed phase's file (the last stage's trajectories and sleep diagnostics
     were read only at the report) is refused naming the file before the resume writes anything."""
-    from tests.core.test_fingerprint import tree_state
+    from tests.infra.test_fingerprint import tree_state
 
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
     stopped = tmp_path / "stopped"

@@ -10,8 +10,8 @@ from pathlib import Path
 import pytest
 
 import sr_imitation.rl  # noqa: F401  (registers CompoNet)
-from sr_imitation.core.fingerprint import settings_fingerprint
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.infra.fingerprint import settings_fingerprint
 from sr_imitation.rl.substrate import SACSubstrate
 from sr_imitation.stream import METHODS, ContinualMethod, RunDirectory, StreamEngine
 from sr_imitation.stream import capabilities as caps

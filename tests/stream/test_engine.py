@@ -10,8 +10,8 @@ from typing import Any
 import pytest
 import torch
 
-from sr_imitation.core.fingerprint import SettingsMismatchError, settings_fingerprint
-from sr_imitation.core.io import CorruptFileError
+from sr_imitation.infra.fingerprint import SettingsMismatchError, settings_fingerprint
+from sr_imitation.io import CorruptFileError
 from sr_imitation.stream import (
     METHODS,
     ContinualMethod,
@@ -243,7 +243,7 @@ def test_a_method_needing_a_wake_hook_the_substrate_does_not_call_is_refused(tmp
 
 
 def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(tmp_path):
-    from sr_imitation.core.runlog import read_log
+    from sr_imitation.infra.runlog import read_log
 
     out = tmp_path / "r"
     with pytest.raises(KilledError):
@@ -261,7 +261,7 @@ def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(t
 
 def test_wandb_offline_mirrors_the_log_without_network(tmp_path, monkeypatch):
     pytest.importorskip("wandb")
-    from sr_imitation.core.runlog import WandbConfig
+    from sr_imitation.infra.runlog import WandbConfig
 
     monkeypatch.setenv("WANDB_SILENT", "true")
     substrate = ToySubstrate(tmp_path / "r", SKILLS[:2])

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sr_imitation.core.cli_errors import run_cli
-from sr_imitation.core.io import CorruptFileError, read_checked_json, write_checked_json
-from sr_imitation.core.provenance import process_code_version
+from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.infra.provenance import process_code_version
+from sr_imitation.io import CorruptFileError, read_checked_json, write_checked_json
 from sr_imitation.stream.results import (
     RESULTS_VERSION,
     SEALED_SINCE,

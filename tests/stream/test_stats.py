@@ -61,8 +61,8 @@ def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
 
     from scipy import stats as st
 
-    from sr_imitation.core.io import write_checked_json
     from sr_imitation.experiments.hypotheses import HypothesesConfig, main
+    from sr_imitation.io import write_checked_json
     from tests.stream.test_results import _results
 
     shifts = {"sr": [0.0, -0.05, -0.02, -0.03], "wake_only": [-0.1, -0.06, -0.14]}  # wake_only has no seed 3

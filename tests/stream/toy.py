@@ -11,9 +11,9 @@ from typing import Any, ClassVar
 
 import torch
 
-from sr_imitation.core.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
 from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
 from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
 from sr_imitation.stream import MethodSettings, SleepProblem
 from sr_imitation.stream.methods.base import WakeStep
 

@@ -15,10 +15,10 @@ from pathlib import Path
 import draccus
 import numpy as np
 
-from sr_imitation.core.cli_errors import setup_logging
 from sr_imitation.envs.needle.env import NeedleEnv
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, Skill
+from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)

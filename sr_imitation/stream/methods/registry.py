@@ -5,7 +5,7 @@ from __future__ import annotations
 from collections.abc import Mapping
 from typing import Any, TypeVar
 
-from sr_imitation.core.fingerprint import to_jsonable
+from sr_imitation.infra.fingerprint import to_jsonable
 from sr_imitation.stream.methods.base import ContinualMethod, with_options
 from sr_imitation.stream.substrate import MethodSettings
 

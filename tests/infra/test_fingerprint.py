@@ -18,7 +18,7 @@ from typing import Any
 
 import pytest
 
-from sr_imitation.core.fingerprint import (
+from sr_imitation.infra.fingerprint import (
     ABSENT,
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -34,7 +34,7 @@ from sr_imitation.core.fingerprint import (
     settings_fingerprint,
     write_fingerprint,
 )
-from sr_imitation.core.io import CorruptFileError
+from sr_imitation.io import CorruptFileError
 
 
 class Mode(enum.Enum):

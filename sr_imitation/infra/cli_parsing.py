@@ -11,8 +11,8 @@
   instead of argparse's usage dump; a flag of another program (LeRobot's ``--steps``, ``--batch_size``) is
   accepted as the flag it maps to or answered with its name here (``names``, e.g.
   :data:`sr_imitation.stream.config.LEROBOT_TRAIN_FLAGS`). Every other usage error argparse finds (a choice
-  outside the list, a missing value) is one line too: :class:`~sr_imitation.core.cli_errors.UsageError`, which
-  :func:`~sr_imitation.core.cli_errors.run_cli` prints with a pointer to ``--help``.
+  outside the list, a missing value) is one line too: :class:`~sr_imitation.infra.cli_errors.UsageError`, which
+  :func:`~sr_imitation.infra.cli_errors.run_cli` prints with a pointer to ``--help``.
 * Abbreviated flags are refused (argparse would take ``--wake.batch=4`` as ``--wake.batch_size=4``): a prefix of
   a flag is answered like any other unknown flag, with the full name.
 """
@@ -36,7 +36,7 @@ from typing import Any, NoReturn, TypeVar
 import draccus
 from draccus.argparsing import ArgumentParser
 
-from sr_imitation.core.cli_errors import UsageError
+from sr_imitation.infra.cli_errors import UsageError
 
 logger = logging.getLogger(__name__)
 

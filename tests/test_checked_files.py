@@ -9,7 +9,8 @@ import json
 import pytest
 import torch
 
-from sr_imitation.core.io import (
+from sr_imitation.core.memory import OutputDistillationMemory, load_memory
+from sr_imitation.io import (
     CorruptFileError,
     load_checked_safetensors,
     read_checked_json,
@@ -18,7 +19,6 @@ from sr_imitation.core.io import (
     write_checked_json,
     write_manifest,
 )
-from sr_imitation.core.memory import OutputDistillationMemory, load_memory
 
 
 def _memory() -> OutputDistillationMemory:
@@ -60,7 +60,7 @@ def test_files_without_a_header_checksum_are_refused(tmp_path):
 
     tensors = {"w": torch.ones(3)}
     header = {"format": "x", "tensors": {"w": {"dtype": "float32", "shape": [3]}}}
-    from sr_imitation.core.io import tensors_digest
+    from sr_imitation.io import tensors_digest
 
     header["sha256"] = tensors_digest(tensors)
     save_file(tensors, str(tmp_path / "old.safetensors"), metadata={"sr_header": json.dumps(header)})
@@ -147,8 +147,8 @@ def test_a_failed_write_names_the_file_and_leaves_the_old_one(tmp_path, monkeypa
     import errno
     import os as _os
 
-    from sr_imitation.core.cli_errors import run_cli
-    from sr_imitation.core.io import WriteError, atomic_write_bytes
+    from sr_imitation.infra.cli_errors import run_cli
+    from sr_imitation.io import WriteError, atomic_write_bytes
 
     path = tmp_path / "progress.json"
     path.write_bytes(b"old")

@@ -7,7 +7,7 @@ import subprocess
 
 import pytest
 
-from sr_imitation.core.provenance import PACKAGE_ROOT, code_version, log_code_version, process_code_version
+from sr_imitation.infra.provenance import PACKAGE_ROOT, code_version, log_code_version, process_code_version
 
 
 def _git(root, *args):
@@ -37,7 +37,7 @@ def test_code_version_names_the_commit_and_whether_tracked_files_changed(tmp_pat
 
 
 def test_the_package_root_holds_the_package():
-    assert (PACKAGE_ROOT / "sr_imitation" / "core" / "provenance.py").is_file()
+    assert (PACKAGE_ROOT / "sr_imitation" / "infra" / "provenance.py").is_file()
 
 
 def test_the_process_takes_its_code_version_once():

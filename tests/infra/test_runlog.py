@@ -10,7 +10,7 @@ import pytest
 import torch
 
 from sr_imitation.core import OutputDistillationMemory, SleepConfig, sleep_consolidate
-from sr_imitation.core.runlog import LOG_NAME, RunLog, WandbConfig, read_log
+from sr_imitation.infra.runlog import LOG_NAME, RunLog, WandbConfig, read_log
 
 
 def test_records_are_json_lines_flushed_as_written(tmp_path):
@@ -85,7 +85,7 @@ def test_a_resumed_run_continues_the_same_wandb_run(tmp_path, monkeypatch):
     steps after the records already logged."""
     import json
 
-    from sr_imitation.core.runlog import WANDB_ID_FILE
+    from sr_imitation.infra.runlog import WANDB_ID_FILE
 
     monkeypatch.setenv("WANDB_SILENT", "true")
     with RunLog(tmp_path, WandbConfig(enable=True, mode="offline")) as log:

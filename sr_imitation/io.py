@@ -10,6 +10,9 @@ of their header (:func:`save_checked_safetensors`), JSON records a sha256 entry 
 (:func:`write_manifest`). The exceptions are files written for people or other programs to read and never read
 back as state: a run's config copy (``config.json`` / ``train_config.json``, which draccus must be able to parse;
 the checked copy of its settings is ``settings_fingerprint.json``), reports, plots, videos and logs.
+
+The lowest layer of the package (``tests/test_architecture.py``): it imports nothing of ``sr_imitation``, and the
+core's memories, the run infrastructure (:mod:`sr_imitation.infra`) and everything above are saved through it.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ reported as ``<prog>: error: <message>`` on stderr with exit status 2, without a
 ``SR_DEBUG=1``) re-raises it with the full traceback. Errors raised while draccus builds the config arrive wrapped
 (``ParsingError: Couldn't instantiate class ...``); the message shown is the innermost one, which names the key.
 Anything else (a bug) keeps its traceback. A :class:`UsageError` (a flag the command does not know, a choice outside
-its list: :mod:`sr_imitation.core.cli_parsing`) is one line with a pointer to ``--help`` instead of argparse's usage
+its list: :mod:`sr_imitation.infra.cli_parsing`) is one line with a pointer to ``--help`` instead of argparse's usage
 dump.
 """
 
@@ -17,7 +17,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
-from sr_imitation.core.io import CorruptFileError, WriteError
+from sr_imitation.io import CorruptFileError, WriteError
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, PermissionError,
                                                 IsADirectoryError, NotADirectoryError, CorruptFileError, WriteError)

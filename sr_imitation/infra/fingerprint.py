@@ -19,7 +19,7 @@ Allow-list patterns are :func:`fnmatch.fnmatchcase` patterns (``eval.videos_per_
 also covers everything below the key it names (``policy.input_features`` covers
 ``policy.input_features.observation.state.shape``).
 
-Substrate-free: only the standard library and :mod:`sr_imitation.core.io`.
+Substrate-free: only the standard library and :mod:`sr_imitation.io`.
 """
 
 from __future__ import annotations
@@ -35,7 +35,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path, PurePath
 from typing import Any
 
-from sr_imitation.core.io import CorruptFileError, atomic_write_json, read_json
+from sr_imitation.io import CorruptFileError, atomic_write_json, read_json
 
 FINGERPRINT_FILE = "settings_fingerprint.json"
 """Name of the fingerprint file in a run directory (next to the program's own config file)."""

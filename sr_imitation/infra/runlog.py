@@ -28,7 +28,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.core.io import read_checked_json, write_checked_json
+from sr_imitation.io import read_checked_json, write_checked_json
 
 logger = logging.getLogger(__name__)
 
