@@ -3,7 +3,7 @@
     sr-train --config_path=configs/needle_cpu.json                    # ACT-SR on the needle stream (substrate act)
     sr-train --config_path=configs/sac_mt5_cpu.json --seed=1          # SAC on Meta-World MT5 (the file says sac)
     sr-train --substrate=sac --stream.name=mt5 --sleep.enabled=false  # flags alone; SR wake-only
-    sr-train --config_path=outputs/run1/config.json --resume=true     # any run, wherever it was copied
+    sr-train --config_path=outputs/run1/train_config.json --resume=true  # any run, wherever it was copied
     sr-train --substrate=sac --help                                   # the SAC substrate's flags
 
 The substrate comes from ``--substrate=<name>``, else from the config file's ``substrate`` key (a run's stored

@@ -59,11 +59,11 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
-from sr_imitation.stream.substrate import MethodSettings, SleepProblem
+from sr_imitation.stream.rundir import RUN_CONFIG_FILE
+from sr_imitation.stream.substrate import PHASE_IDS, MethodSettings, SleepProblem
 
 logger = logging.getLogger(__name__)
 
-PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
 PER_SKILL_EVAL_KEYS = ("eval.gym_ids", "eval.env_tasks")
 """Evaluation settings with one entry per skill: an extended stream has more; its first entries must equal the run
 it extends (:meth:`ACTSubstrate.source_skills`)."""
@@ -116,7 +116,7 @@ def save_pretrained_model(directory: Path, policy: ACTSRPolicy, preprocessor: An
     postprocessor.save_pretrained(directory)
 
 
-TRAIN_CONFIG_FILE = "train_config.json"
+TRAIN_CONFIG_FILE = RUN_CONFIG_FILE
 """The run's stored config: in the run directory, and beside each checkpoint in ``pretrained_model/`` (LeRobot's
 layout), where ``--config_path=<run>/last/pretrained_model/train_config.json --resume=true`` resumes the run."""
 

@@ -5,7 +5,7 @@ LeRobot-style flags through draccus, the same names as the imitation substrate's
 
     sr-train --config_path=configs/sac_mt5_cpu.json --seed=1 --output_dir=outputs/sac_cpu_s1
     sr-train --config_path=configs/sac_mt5_cpu.json --output_dir=outputs/sac_cpu_s1 --resume=true
-    sr-train --config_path=outputs/sac_cpu_s1/config.json --resume=true   # resumes that run, wherever it is
+    sr-train --config_path=outputs/sac_cpu_s1/train_config.json --resume=true   # resumes that run, wherever it is
     sr-train --config_path=configs/sac_mt5_cpu.json --sleep.enabled=false   # SR wake-only ablation
     sr-train --config_path=configs/sac_mt5_cpu.json --stream.name=mt8 --stream.extend_from=outputs/sac_cpu_s1
 
@@ -38,8 +38,8 @@ def train(cfg: RLTrainConfig) -> dict:
 
 
 def parse(args: list[str]) -> RLTrainConfig:
-    """The config ``args`` describe; a run's own ``config.json`` stores output_dir "." (the run directory itself),
-    resolved to the file's directory unless ``--output_dir`` is given."""
+    """The config ``args`` describe; a run's own ``train_config.json`` (``config.json`` before issue 29) stores
+    output_dir "." (the run directory itself), resolved to the file's directory unless ``--output_dir`` is given."""
     config_path, rest = split_config_path(args)
     rest = fold_alias_flags(rest)  # the flags only: a config file has no policy section here
     cfg = parse_command(RLTrainConfig, rest, prog="sr-train", config_path=config_path)

@@ -328,7 +328,7 @@ class RLTrainConfig:
         return self.stream.skill_list
 
     def stored_config(self) -> dict[str, Any]:
-        """``config.json`` of a run: the whole config (draccus reads it back with ``--config_path``) without the
+        """``train_config.json`` of a run: the whole config (draccus reads it back with ``--config_path``) without the
         per-invocation flags and with ``output_dir`` "." (the directory holding the file: the run never names its
         absolute location, so a copied run resumes where it is)."""
         out = {k: v for k, v in to_jsonable(self).items() if k not in ("resume", "overwrite")}

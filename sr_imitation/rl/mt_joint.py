@@ -36,7 +36,7 @@ from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.substrate import stage_seed
 from sr_imitation.rl.wake import train_skill
 from sr_imitation.stream.results import build_results, write_results
-from sr_imitation.stream.rundir import RunDirectory
+from sr_imitation.stream.rundir import RUN_CONFIG_FILE, RunDirectory
 
 logger = logging.getLogger(__name__)
 
@@ -99,7 +99,7 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
     cfg = joint_config(cfg, episodes)
     out = Path(cfg.output_dir)
     stored = _stored_config(cfg, episodes)
-    run = RunDirectory(out, settings_fingerprint(stored, RESUME_ALLOW_LIST), "config.json", stored, cfg.resume,
+    run = RunDirectory(out, settings_fingerprint(stored, RESUME_ALLOW_LIST), RUN_CONFIG_FILE, stored, cfg.resume,
                        cfg.overwrite)
     run.prepare()
     log_code_version(logger)

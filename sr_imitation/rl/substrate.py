@@ -47,7 +47,7 @@ from sr_imitation.rl.results import SUBSTRATE, write_results
 from sr_imitation.rl.sac import SACAgent, TwinQ
 from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
-from sr_imitation.stream.substrate import MethodSettings, SleepProblem
+from sr_imitation.stream.substrate import PHASE_IDS, MethodSettings, SleepProblem
 
 logger = logging.getLogger(__name__)
 
@@ -55,7 +55,6 @@ CHECKPOINT_FORMAT = "sr_imitation.rl.stage"
 CHECKPOINT_VERSION = 3
 """3: one checkpoint per policy-changing phase (``wake/``, ``sleep/``) of the stream engine (2: one per stage with
 the wake snapshot inside; 1: per-stage evaluation draws)."""
-PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
 
 
 def stage_seed(seed: int, stage: int, salt: int = 0) -> int:

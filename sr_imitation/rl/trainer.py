@@ -3,7 +3,8 @@
 
 Output layout (every file written atomically; ``progress.json`` records each phase after its files)::
 
-    <output_dir>/settings_fingerprint.json, config.json   (written once at the start, never on resume)
+    <output_dir>/settings_fingerprint.json, train_config.json   (written once at the start, never on resume;
+                                                                  runs before issue 29: config.json)
     <output_dir>/progress.json
     <output_dir>/stages/01_reach/{wake/agent.safetensors, memory.safetensors, trajectories.safetensors}
     <output_dir>/stages/02_door-open/{wake/, sleep/agent.safetensors, sleep/sleep_diagnostics.json, ...}
@@ -26,6 +27,7 @@ from sr_imitation.rl.results import prs_pairs, write_results
 from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SACSubstrate, stage_seed
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method
 from sr_imitation.stream.results import RESULTS_VERSION
+from sr_imitation.stream.rundir import RUN_CONFIG_FILE
 
 logger = logging.getLogger(__name__)
 
@@ -60,7 +62,7 @@ class StreamTrainer:
         self.substrate = SACSubstrate(cfg)
         self.method = make_method(cfg.method, SACSubstrate.name, self.substrate.method_settings())
         # Runs from before the engine (one checkpoint per stage) cannot be resumed by it: no legacy settings.
-        self.run_dir = RunDirectory(self.out, cfg.resume_fingerprint(), "config.json", cfg.stored_config(),
+        self.run_dir = RunDirectory(self.out, cfg.resume_fingerprint(), RUN_CONFIG_FILE, cfg.stored_config(),
                                     cfg.resume, cfg.overwrite)
         self.engine = StreamEngine(self.substrate, self.method, self.run_dir, cfg.progress, self._after_phase,
                                    wandb=cfg.wandb, log_config=cfg.stored_config(), extend_from=cfg.stream.extend_from)

@@ -44,6 +44,11 @@ PROGRESS_VERSION = 2
 """2: always sealed (1: the first version; some of its committed files carry no seal, read by reports only)."""
 REGENERATED_FILES = ("results.json",)
 """Files a run rewrites from its recorded phases at its end (not inputs of a resume, so not verified before it)."""
+RUN_CONFIG_FILE = "train_config.json"
+"""The run's stored config, on every substrate (LeRobot's name; ``--config_path=<run>/train_config.json --resume=true``
+resumes the run)."""
+LEGACY_CONFIG_FILES = ("config.json",)
+"""Where SAC runs written before issue 29 stored their config (not sealed, not rewritten: read by ``--config_path``)."""
 LAST_POINTER = "last"
 """``<run>/last``: the newest consolidated policy's checkpoint folder (LeRobot's ``checkpoints/last``)."""
 TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")
@@ -86,7 +91,8 @@ class RunDirectory:
     Args:
         path: the directory.
         fingerprint: the requested settings (the whole config minus its documented allow-list).
-        config_file: the stored config's file name (``train_config.json``); ``stored_config`` is its content.
+        config_file: the stored config's file name (:data:`RUN_CONFIG_FILE` for the substrates' runs);
+            ``stored_config`` is its content.
         resume, overwrite: the per-invocation flags.
         check_inputs: ``check_inputs(fingerprint_file, stored_settings)`` is called on resume before the settings
             are compared, to refuse other input data with its own message (the ACT substrate's datasets:
@@ -142,7 +148,7 @@ class RunDirectory:
                 if not isinstance(self.progress.get("completed"), dict):
                     raise CorruptFileError(progress_path, "cannot resume: no 'completed' phases recorded")
             # every sealed file, before anything is written (the fingerprint: checked above by read_fingerprint)
-            verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, FINGERPRINT_FILE))
+            verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, *LEGACY_CONFIG_FILES, FINGERPRINT_FILE))
             self._remove_leftovers()
             return
         self.path.mkdir(parents=True, exist_ok=True)
@@ -154,7 +160,8 @@ class RunDirectory:
         :class:`~sr_imitation.infra.fingerprint.SettingsMismatchError` naming every differing key."""
         path = self.path / FINGERPRINT_FILE
         if not path.is_file():
-            if not (self.path / self.config_file).is_file() and not (self.path / PROGRESS_FILE).is_file():
+            configs = (self.config_file, *LEGACY_CONFIG_FILES)
+            if not any((self.path / c).is_file() for c in configs) and not (self.path / PROGRESS_FILE).is_file():
                 raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume (no {FINGERPRINT_FILE})")
             raise CorruptFileError(path, "missing: cannot resume a run without its settings fingerprint (deleted, or "
                                          "not written by this code); start a new run in another output_dir")

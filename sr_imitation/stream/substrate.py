@@ -24,6 +24,9 @@ from sr_imitation.infra.runlog import RunLog
 
 PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
 """Every phase of a stage, in the engine's order (a stage without sleep has the first three)."""
+PHASE_IDS: dict[str, int] = {phase: i for i, phase in enumerate(PHASES)}
+"""Each phase's number (wake 0 ... sleep.eval 4): what a substrate's per-phase seed is derived from, with the run
+seed and the stage (the formula is the substrate's, fixed since its first runs)."""
 
 
 @dataclass

@@ -206,6 +206,29 @@ def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, un
     assert a.keys() == b.keys() and all(torch.equal(a[n], b[n]) for n in a)
 
 
+def test_a_run_that_stored_its_config_as_config_json_resumes_from_it(tmp_path, uninterrupted):
+    """Issue 29: every run stores train_config.json; a SAC run written before stored config.json, and
+    ``sr-train --config_path=<run>/config.json --resume=true`` still resumes it to the uninterrupted results."""
+    from sr_imitation.cli import parse_args
+
+    cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
+    run = tmp_path / "old"
+
+    def kill(k, phase):
+        if (k, phase) == (1, "wake"):
+            raise SimulatedKillError
+
+    with pytest.raises(SimulatedKillError):
+        StreamTrainer(tiny_config(run, **cfg), after_phase=kill).run()
+    assert (run / "train_config.json").is_file() and not (run / "config.json").exists()
+    (run / "train_config.json").rename(run / "config.json")  # the layout of a run from before issue 29
+    parsed = parse_args([f"--config_path={run / 'config.json'}", "--resume=true"])
+    assert parsed.output_dir == run
+    resumed = StreamTrainer(parsed).run()
+    assert resumed["metrics"] == uninterrupted[1]["metrics"]
+    assert not (run / "train_config.json").exists()  # nothing stored at the start is rewritten
+
+
 def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
     """MT8 from MT5 in miniature: a finished one-skill run is extended by a second skill; stage 1 is imported (its
     evaluation and checkpoint are the source's), only stage 2 runs. Not equal to a two-skill run from scratch: the

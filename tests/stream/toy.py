@@ -16,8 +16,7 @@ from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
 from sr_imitation.stream import MethodSettings, SleepProblem
 from sr_imitation.stream.methods.base import WakeStep
-
-PHASE_IDS = {"wake": 0, "memory": 1, "wake.eval": 2, "sleep": 3, "sleep.eval": 4}
+from sr_imitation.stream.substrate import PHASE_IDS
 
 
 class ToySubstrate:
