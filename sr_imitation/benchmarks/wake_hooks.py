@@ -18,13 +18,14 @@ from typing import Any
 import torch
 
 from sr_imitation.benchmarks.timing import median_ms
+from sr_imitation.core.excitability import activity_recording_off
 from sr_imitation.core.memory import OutputDistillationMemory
 from sr_imitation.rl.config import SACConfig
 from sr_imitation.rl.critic_memory import CriticMemory
 from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
 from sr_imitation.rl.sac import SACAgent
-from sr_imitation.rl.wake import MethodHooks
 from sr_imitation.stream.methods import METHODS
+from sr_imitation.stream.methods.base import WakeHooks
 from sr_imitation.stream.methods.clear import TransitionMemory
 from sr_imitation.stream.methods.ewc import FisherMemory
 from sr_imitation.stream.substrate import MethodSettings
@@ -87,7 +88,8 @@ def main() -> None:
         method = METHODS[name](MethodSettings(sleep=False))
         memories = _memories(name, agent, sub, ns.past, g)
         method.begin_wake(ns.past, memories, sub)
-        hooks = MethodHooks(method, agent, ns.past, seed=0)
+        hooks = WakeHooks(method, ns.past, agent.actor_parameters(), agent.policy_fn, seed=0,
+                          quiet=lambda: activity_recording_off(agent.actor))
         ms = median_ms(lambda hooks=hooks: agent.update(dict(batch), 0.0, hooks), ns.repeats, warmup=5)
         results["ms"][name] = round(ms, 3)
     results["ratio_to_no_hooks"] = {k: round(v / base, 2) for k, v in results["ms"].items()}

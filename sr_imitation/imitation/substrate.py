@@ -59,6 +59,7 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
+from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE
 from sr_imitation.stream.substrate import PHASE_IDS, MethodSettings, SleepProblem
 
@@ -311,7 +312,7 @@ class ACTSubstrate:
                                          self.phase_seed(index, "wake"), self.cfg.stream.video_backend)
         return self._data
 
-    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: ContinualMethod | None = None
              ) -> tuple[dict[str, Any], dict[str, Any]]:
         self._data = None
         data = self._skill_data(k)
@@ -323,7 +324,9 @@ class ACTSubstrate:
             if log is not None:
                 log.log("wake", stage=k + 1, step=epoch, **values)
 
-        hooks = _ACTHooks(method, self, k) if method is not None and method.has_wake_hooks else None
+        hooks = None
+        if method is not None and method.has_wake_hooks:
+            hooks = WakeHooks(method, k, self.trainable(), self.chunk_policy, self.phase_seed(k, "wake"))
         result = wake_train(self.policy, self.preprocessor, data, self.cfg.wake, self.phase_seed(k, "wake"),
                             self.cfg.progress, on_epoch=on_epoch, hooks=hooks)
         self.policy.set_wake_memories([], 0.0)
@@ -463,33 +466,3 @@ class ACTSubstrate:
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
                             [self.checkpoint_dir(i, "wake") for i in range(n)], memories,
                             evaluation=self.cfg.eval.env)
-
-
-class _ACTHooks:
-    """Hands a continual method's wake hooks a ``WakeStep`` at every ACT update (``imitation.wake.hooked_update``);
-    memory batches come from a generator seeded per stage."""
-
-    def __init__(self, method: Any, substrate: ACTSubstrate, k: int) -> None:
-        from sr_imitation.stream.methods.base import WakeStep
-
-        self.method, self.substrate, self.k = method, substrate, k
-        self.generator = torch.Generator().manual_seed(substrate.phase_seed(k, "wake") + 17)
-        self.parameters = substrate.trainable()
-        self.updates = 0
-        self._make_step = WakeStep
-        self._step: Any = None
-
-    def batch(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
-        """The batch this update trains on: the method's :meth:`wake_batch` of the current skill's ``batch``."""
-        step = self._make_step(self.k, self.updates, self.parameters, self.substrate.chunk_policy, batch,
-                               self.generator)
-        return dict(self.method.wake_batch(step))
-
-    def loss(self, loss: torch.Tensor, batch: dict[str, torch.Tensor]) -> torch.Tensor:
-        self._step = self._make_step(self.k, self.updates, self.parameters, self.substrate.chunk_policy,
-                                     batch, self.generator)
-        return self.method.wake_loss(loss, self._step)
-
-    def adjust(self) -> None:
-        self.method.adjust_gradients(self._step)
-        self.updates += 1

@@ -115,14 +115,14 @@ def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.T
                   grad_clip_norm: float, hooks: Any) -> tuple[MetricsTracker, dict]:
     """LeRobot's ``update_policy`` step (forward, backward, gradient clipping, optimizer step) with a continual
     method's hooks between: ``hooks.batch(batch)`` gives the batch the update trains on (experience replay mixes in
-    stored frames), ``hooks.loss(loss, batch)`` replaces the loss before the backward pass and ``hooks.adjust()`` may
+    stored frames), ``hooks.loss(loss)`` replaces the loss before the backward pass and ``hooks.adjust()`` may
     change the gradients before clipping. Used only when the method has hooks (CPU, no mixed precision: LeRobot's
     accelerator calls reduce to these); other methods keep ``update_policy`` itself."""
     start = time.perf_counter()
     policy.train()
     batch = hooks.batch(batch)
     loss, output = policy.forward(batch)
-    loss = hooks.loss(loss, batch)
+    loss = hooks.loss(loss)
     loss.backward()
     hooks.adjust()
     limit = grad_clip_norm if grad_clip_norm > 0 else float("inf")

@@ -210,8 +210,8 @@ class ActorHooks(Protocol):
     def batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
         """The batch critic and actor train on instead of ``batch`` (the current skill's replay sample)."""
 
-    def loss(self, actor_loss: Tensor, batch: dict[str, Tensor]) -> Tensor:
-        """The objective to differentiate instead of ``actor_loss`` (SAC's own actor loss on ``batch``)."""
+    def loss(self, actor_loss: Tensor) -> Tensor:
+        """The objective to differentiate instead of ``actor_loss`` (SAC's own actor loss on the batch)."""
 
     def adjust(self) -> None:
         """Change the actor's ``.grad`` after the backward pass."""
@@ -262,9 +262,9 @@ class SACAgent(nn.Module):
                actor_hooks: ActorHooks | None = None) -> UpdateInfo:
         """One SAC gradient step on critic, actor and alpha, then the actor's homeostatic update (Eq. 3).
 
-        ``actor_hooks`` (a continual method's wake hooks, :class:`sr_imitation.rl.wake.MethodHooks`) may replace the
-        batch (critic and actor) and the actor loss before its backward pass, and change the actor's gradients
-        before its optimizer step; their forward passes do not count as the actor's recorded activity."""
+        ``actor_hooks`` (a continual method's wake hooks, :class:`sr_imitation.stream.methods.base.WakeHooks`) may
+        replace the batch (critic and actor) and the actor loss before its backward pass, and change the actor's
+        gradients before its optimizer step; their forward passes do not count as the actor's recorded activity."""
         cfg = self.cfg
         if actor_hooks is not None:
             batch = actor_hooks.batch(batch)
@@ -288,7 +288,7 @@ class SACAgent(nn.Module):
         new_actions, log_prob, _ = self.actor.sample(obs)
         q_pi = self.critic.min_q(obs, new_actions)
         actor_loss = (alpha * log_prob - q_pi).mean()
-        objective = actor_loss if actor_hooks is None else actor_hooks.loss(actor_loss, batch)
+        objective = actor_loss if actor_hooks is None else actor_hooks.loss(actor_loss)
         self.actor_optimizer.zero_grad(set_to_none=True)
         objective.backward()
         if actor_hooks is not None:

@@ -11,7 +11,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import torch
 from torch import Tensor
 from tqdm.auto import tqdm
 
@@ -20,6 +19,7 @@ from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, W
 from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
 from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent
+from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
 
 logger = logging.getLogger(__name__)
 
@@ -73,46 +73,6 @@ class WakeResult:
         }
 
 
-class MethodHooks:
-    """Hands a continual method's wake hooks (``sr_imitation.stream.methods.ContinualMethod.wake_loss`` /
-    ``adjust_gradients``) a :class:`~sr_imitation.stream.methods.WakeStep` at every actor update; their forward
-    passes leave the actor's recorded activity alone (:func:`activity_recording_off`). Numbers the method returns
-    are averaged into the wake summary. Memory batches come from ``generator``, seeded per stage, so the hooks do
-    not change the global random streams SAC itself draws from."""
-
-    def __init__(self, method: Any, agent: SACAgent, stage: int, seed: int) -> None:
-        from sr_imitation.stream.methods.base import WakeStep
-
-        self.method, self.agent, self.stage = method, agent, stage
-        self.generator = torch.Generator().manual_seed(int(seed) % (2**31) + 17)
-        self.parameters = agent.actor_parameters()  # theta for this wake (CompoNet sets what trains before it)
-        self.updates = 0
-        self.sums: dict[str, float] = {}
-        self._step_type = WakeStep
-        self._step: Any = None
-
-    def batch(self, batch: dict[str, Tensor]) -> dict[str, Tensor]:
-        self._step = self._step_type(self.stage, self.updates, self.parameters, self.agent.policy_fn,
-                                     batch, self.generator)
-        with activity_recording_off(self.agent.actor):
-            self._step.batch = dict(self.method.wake_batch(self._step))
-        return self._step.batch
-
-    def loss(self, actor_loss: Tensor, batch: dict[str, Tensor]) -> Tensor:
-        with activity_recording_off(self.agent.actor):
-            return self.method.wake_loss(actor_loss, self._step)
-
-    def adjust(self) -> None:
-        with activity_recording_off(self.agent.actor):
-            values = self.method.adjust_gradients(self._step)
-        for key, value in values.items():
-            self.sums[key] = self.sums.get(key, 0.0) + float(value)
-        self.updates += 1
-
-    def summary(self) -> dict[str, float]:
-        return {key: value / max(1, self.updates) for key, value in sorted(self.sums.items())}
-
-
 def train_skill(
     agent: SACAgent,
     env: SkillEnv,
@@ -123,7 +83,7 @@ def train_skill(
     memory_cfg: CriticMemoryConfig,
     seed: int,
     progress: bool = True,
-    method: Any = None,
+    method: ContinualMethod | None = None,
 ) -> tuple[WakeResult, CriticMemory]:
     """Train ``agent`` on one skill and freeze its critic memory.
 
@@ -131,7 +91,8 @@ def train_skill(
     uniform random actions first; then ``utd_ratio`` SAC updates per environment step, each followed by the
     actor's homeostatic update at the wake rate (the novelty rate during the first, scaled, 500 episodes of the
     first skill). Stops at the scaled ``max_episodes`` or by :func:`should_stop_early`. A ``method`` with wake
-    hooks shapes every actor update (:class:`MethodHooks`); its averaged numbers are ``result.method``.
+    hooks shapes every actor update (:class:`~sr_imitation.stream.methods.base.WakeHooks`); its averaged numbers
+    are ``result.method``.
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -146,7 +107,10 @@ def train_skill(
     result = WakeResult(env.skill, 0, 0, 0, "max_episodes")
     episode_starts: list[int] = []
     update_credit = 0.0
-    hooks = MethodHooks(method, agent, skill_index, seed) if method is not None and method.has_wake_hooks else None
+    hooks = None
+    if method is not None and method.has_wake_hooks:  # the actor's recorded activity is left alone by the hooks
+        hooks = WakeHooks(method, skill_index, agent.actor_parameters(), agent.policy_fn, seed,
+                          quiet=lambda: activity_recording_off(agent.actor))
     bar = tqdm(range(budget.max_episodes), desc=f"wake {env.skill}", disable=not progress, leave=False)
     for episode in bar:
         episode_starts.append(replay.total)

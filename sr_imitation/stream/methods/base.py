@@ -20,11 +20,14 @@ earlier in the process: a resumed run must compute the same numbers.
 
 from __future__ import annotations
 
+import contextlib
 import dataclasses
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
+import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
@@ -51,6 +54,50 @@ class WakeStep:
     policy: Any
     batch: Mapping[str, Tensor]
     generator: Any = None
+
+
+class WakeHooks:
+    """Hands a continual method's wake hooks a :class:`WakeStep` at every policy update of a substrate's wake loop:
+    ``batch(batch)`` before the forward pass (the method's :meth:`~ContinualMethod.wake_batch`), ``loss(loss)``
+    before the backward pass (:meth:`~ContinualMethod.wake_loss`), ``adjust()`` after it
+    (:meth:`~ContinualMethod.adjust_gradients`; the numbers it returns are averaged in :meth:`summary`). One step
+    object per update; memory batches come from a generator seeded by ``seed`` (per stage), so the hooks leave the
+    random streams the substrate draws from alone; ``quiet`` wraps every hook (the SAC actor's activity recording
+    is off while a method evaluates the actor)."""
+
+    def __init__(self, method: ContinualMethod, stage: int, parameters: Sequence[Tensor], policy: Any, seed: int,
+                 quiet: Callable[[], AbstractContextManager[Any]] = contextlib.nullcontext) -> None:
+        self.method, self.stage, self.parameters, self.policy, self.quiet = method, stage, parameters, policy, quiet
+        self.generator = torch.Generator().manual_seed(int(seed) % (2**31) + 17)
+        self.updates = 0
+        self.sums: dict[str, float] = {}
+        self._step: WakeStep | None = None
+
+    def batch(self, batch: Mapping[str, Tensor]) -> dict[str, Tensor]:
+        """The batch this update trains on."""
+        self._step = WakeStep(self.stage, self.updates, self.parameters, self.policy, batch, self.generator)
+        with self.quiet():
+            self._step.batch = dict(self.method.wake_batch(self._step))
+        return dict(self._step.batch)
+
+    def loss(self, loss: Tensor) -> Tensor:
+        """The loss the update differentiates."""
+        assert self._step is not None, "WakeHooks.batch must be called first in every update"
+        with self.quiet():
+            return self.method.wake_loss(loss, self._step)
+
+    def adjust(self) -> None:
+        """After the backward pass, before clipping and the optimizer step."""
+        assert self._step is not None, "WakeHooks.batch must be called first in every update"
+        with self.quiet():
+            values = self.method.adjust_gradients(self._step)
+        for key, value in values.items():
+            self.sums[key] = self.sums.get(key, 0.0) + float(value)
+        self.updates += 1
+
+    def summary(self) -> dict[str, float]:
+        """The mean over updates of every number :meth:`~ContinualMethod.adjust_gradients` returned."""
+        return {key: value / max(1, self.updates) for key, value in sorted(self.sums.items())}
 
 
 def with_options(method: str, config: Any, options: Mapping[str, Any]) -> Any:
