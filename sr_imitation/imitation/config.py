@@ -33,10 +33,9 @@ from sr_imitation.infra.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
-from sr_imitation.infra.runlog import WandbConfig
 from sr_imitation.record import RecordConfig
 from sr_imitation.stream import method_config, methods_for
-from sr_imitation.stream.config import check_shared_settings, fold_alias_settings
+from sr_imitation.stream.config import RunConfig, check_shared_settings, fold_alias_settings
 
 logger = logging.getLogger(__name__)
 
@@ -128,7 +127,7 @@ class MemoryConfig:
 
 
 @dataclass
-class TrainStreamConfig:
+class TrainStreamConfig(RunConfig):
     """``sr-train`` on the imitation substrate (ACT-SR on the needle stream), e.g.
     ``sr-train --policy.type=act_sr --stream.skills=[approach,place] --sleep.enabled=true``.
     ``sr-train --substrate=sac --help`` shows the Meta-World SAC substrate's flags instead."""
@@ -147,26 +146,13 @@ class TrainStreamConfig:
     """Sleep consolidation (defaults - the paper's SurgicAI table; --sleep.enabled=false is SR wake-only)."""
     eval: EvalConfig = field(default_factory=EvalConfig)
     """Evaluation after every wake and sleep."""
-    method: str = "sr"
-    """Continual method - sr, wake_only, sequential_bc, lwf, m2distill or ewc (sr_imitation/stream/methods)."""
-    method_options: dict[str, float] = field(default_factory=dict)
-    """Values for the method's own settings, e.g. --method_options='{lam: 100}' for EWC's lambda (each method's
-    file lists them)."""
-    wandb: WandbConfig = field(default_factory=WandbConfig)
-    """Mirror the run log (log.jsonl) to Weights & Biases (offline by default)."""
     output_dir: Path = Path("outputs/needle_stream")
     """Run directory (refused if it exists, unless --resume or --overwrite)."""
     seed: int = 1000
     """Training seed - every phase seeds its generators from it."""
-    resume: bool = False
-    """Continue the run in output_dir (settings must equal its settings_fingerprint.json)."""
-    overwrite: bool = False
-    """Delete output_dir first."""
     allow_unhashed_inputs: bool = False
     """Resume a run started before datasets were fingerprinted by content, without checking its data (you vouch
     that the datasets are unchanged; a run that has the fingerprints always checks them)."""
-    progress: bool = True
-    """Console progress bars."""
     torch_threads: int | None = None
     """torch's intra-op threads (null - this process's default, e.g. OMP_NUM_THREADS). Fingerprinted as the number
     in effect: CPU reductions split over another number of threads round differently, so a resume must use the same

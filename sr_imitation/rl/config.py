@@ -22,10 +22,9 @@ from sr_imitation.infra.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
-from sr_imitation.infra.runlog import WandbConfig
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
-from sr_imitation.stream.config import check_shared_settings
+from sr_imitation.stream.config import RunConfig, check_shared_settings
 
 
 @dataclass
@@ -263,7 +262,7 @@ class StreamConfig:
 
 
 @dataclass
-class RLTrainConfig:
+class RLTrainConfig(RunConfig):
     """``sr-train --substrate=sac``: SAC wake, frozen critic memories and Nash sleep on Meta-World (e.g.
     ``--config_path=configs/sac_mt5_cpu.json``). The flags shared with the imitation substrate have the same names
     (``--method``, ``--stream.*``, ``--sleep.*``, ``--memory.*``, ``--eval.*``, ``--seed``, ``--output_dir``)."""
@@ -278,11 +277,6 @@ class RLTrainConfig:
     """The skills (--stream.name=mt5|mt5-reverse|mt8 or --stream.skills=[...]) and --stream.extend_from."""
     max_episode_steps: int = 500
     """Meta-World's time limit (max_path_length)."""
-    method: str = "sr"
-    """The continual method (``sr_imitation.stream.methods``): ``sr``, ``wake_only``, ``sequential_bc``, ``ewc``,
-    ``der``, ``agem``, ``nash_mtl`` or ``pcgrad``."""
-    method_options: dict[str, float] = field(default_factory=dict)
-    """Values for the method's own settings, e.g. ``--method_options='{lam: 100}'`` for EWC's lambda."""
     sac: SACConfig = field(default_factory=SACConfig)
     """SAC (Table "SAC hyperparameters")."""
     wake: WakeConfig = field(default_factory=WakeConfig)
@@ -299,16 +293,8 @@ class RLTrainConfig:
     """Torch device (cpu or cuda)."""
     torch_threads: int = 1
     """Torch intra-op threads (results are reproducible at a fixed count)."""
-    resume: bool = False
-    """Continue the run in output_dir (settings must equal its settings_fingerprint.json)."""
-    overwrite: bool = False
-    """Delete output_dir first."""
-    progress: bool = True
-    """Console progress bars."""
     plots: bool = True
     """Draw PNG plots from results.json at the end."""
-    wandb: WandbConfig = field(default_factory=WandbConfig)
-    """Mirror the run log (``log.jsonl``) to Weights & Biases (``--wandb.enable=true``; offline by default)."""
 
     def __post_init__(self) -> None:
         self.output_dir = Path(self.output_dir)

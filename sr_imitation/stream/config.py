@@ -13,7 +13,8 @@ Both substrates' run configurations (:class:`sr_imitation.imitation.stream.Train
     --wake.*           the wake budget and early stopping
     --seed --output_dir --resume --overwrite --progress --wandb.*
 
-:func:`check_shared_settings` validates what they share; :data:`RENAMED_FLAGS` turns the flags of earlier versions
+:class:`RunConfig` declares the run settings they share once (each substrate's config inherits it and adds its
+own); :func:`check_shared_settings` validates what they share; :data:`RENAMED_FLAGS` turns the flags of earlier versions
 into a one-line hint; :data:`POLICY_ALIASES` are the ACT-SR policy's own names (stock ``lerobot-train``'s, the
 design card's ``--policy.sleep=true``) of shared settings, folded into them (:func:`fold_alias_flags`);
 :data:`LEROBOT_TRAIN_FLAGS` and :data:`LEROBOT_EVAL_FLAGS` are ``lerobot-train``'s and ``lerobot-eval``'s flags,
@@ -23,11 +24,40 @@ accepted as the flag they map to or answered in one line with the names used her
 from __future__ import annotations
 
 from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import draccus
 from draccus.cfgparsing import parse_string
 from draccus.utils import DecodingError
+
+from sr_imitation.infra.runlog import WandbConfig
+
+
+@dataclass
+class RunConfig:
+    """The run settings of ``sr-train`` on every substrate, declared once; a substrate's configuration inherits
+    them and adds its own (policy, data, wake, memory, evaluation) and its defaults of ``output_dir`` and ``seed``."""
+
+    method: str = "sr"
+    """Continual method (``sr_imitation.stream.methods``); the substrate's choices are listed by ``sr-train --help``
+    and in one line for an unknown name."""
+    method_options: dict[str, float] = field(default_factory=dict)
+    """Values for the method's own settings, e.g. --method_options='{lam: 100}' for EWC's lambda (each method's
+    file lists them)."""
+    output_dir: Path = Path("outputs/stream")
+    """Run directory (refused if it exists, unless --resume or --overwrite)."""
+    seed: int = 0
+    """Training seed - every phase seeds its generators from it."""
+    resume: bool = False
+    """Continue the run in output_dir (settings must equal its settings_fingerprint.json)."""
+    overwrite: bool = False
+    """Delete output_dir first."""
+    progress: bool = True
+    """Console progress bars."""
+    wandb: WandbConfig = field(default_factory=WandbConfig)
+    """Mirror the run log (log.jsonl) to Weights & Biases (--wandb.enable=true; offline by default)."""
 
 RENAMED_FLAGS: dict[str, str] = {
     "--policy.sleep_lr": "--sleep.lr",
