@@ -26,7 +26,8 @@ ALLOWED: dict[str, set[str]] = {
     "cli": {"core", "stream"},
     "main_job": {"core", "stream", "envs", "record", "offscreen", "video", "imitation"},
     "experiments": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl", "main_job"},
-    "benchmarks": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl"},
+    "benchmarks": {"core", "stream", "envs", "record", "offscreen", "video", "imitation", "rl", "main_job",
+                   "experiments"},  # the grid benchmark times the experiment drivers' runner
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""
 
