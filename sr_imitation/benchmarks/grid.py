@@ -10,8 +10,8 @@ process (one torch thread, as ``OMP_NUM_THREADS=1``), then with ``sr-grid`` on a
 cores (one run per core, one thread each). Each time is the wall time of the whole grid, end to end: for Ray it
 includes starting and stopping Ray and a fresh worker process (with its imports) per run. The two grids' results
 are compared (every run's results.json metrics and every checkpoint's weights, bit for bit). Prints a markdown
-table for docs/BENCHMARKS.md with the load average before and after, which says how much of the machine the grid
-had.
+table for docs/BENCHMARKS.md with the load average before and after and the runs' own phase seconds
+(``progress.json``) under each runner: their ratio says whether the grid had the cores to itself.
 """
 
 from __future__ import annotations
@@ -61,12 +61,22 @@ def _same_results(a: Path, b: Path) -> bool:
     return True
 
 
+def _phase_seconds(root: Path) -> float:
+    """The runs' own compute time: every recorded phase's seconds (progress.json), summed over the runs."""
+    total = 0.0
+    for progress in root.glob("*/progress.json"):
+        total += sum(p.get("seconds", 0.0) for p in json.loads(progress.read_text())["completed"].values())
+    return total
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--variants", nargs="+", default=["sr", "wake_only"])
     parser.add_argument("--seeds", nargs="+", type=int, default=[0, 1])
     parser.add_argument("--cpus", type=int, default=2, help="cores of the local Ray (one run each)")
     parser.add_argument("--root", type=Path, default=None, help="working folder (default: a temporary one)")
+    parser.add_argument("--wake_epochs", type=int, default=PRESET["train"]["wake"]["max_epochs"],
+                        help="wake epochs per skill (the runs' length; about 12 steps an epoch)")
     args = parser.parse_args()
     os.environ["OMP_NUM_THREADS"] = "1"  # the loop's process and, inherited, Ray's workers
     from sr_imitation.core.cli_errors import setup_logging
@@ -83,7 +93,9 @@ def main() -> None:
     root = args.root or Path(tempfile.mkdtemp(prefix="grid_bench_"))
     root.mkdir(parents=True, exist_ok=True)
     preset = root / "preset.json"
-    preset.write_text(json.dumps({**PRESET, "record": {**PRESET["record"], "root": str(root / "datasets")}}))
+    train = {**PRESET["train"], "wake": {**PRESET["train"]["wake"], "max_epochs": args.wake_epochs,
+                                          "min_epochs": args.wake_epochs}}
+    preset.write_text(json.dumps({"record": {**PRESET["record"], "root": str(root / "datasets")}, "train": train}))
     preset_with_datasets(preset, [])  # recorded before any timing
     runs = len(args.variants) * len(args.seeds)
     times, loads = {}, {}
@@ -102,12 +114,18 @@ def main() -> None:
           f"{' '.join(map(str, args.seeds))}); Ray on {args.cpus} cores; load average (1 min) before the loop "
           f"{loads['loop']:.1f}, before Ray {loads['ray']:.1f}, at the end {loads['end']:.1f}")
     print()
-    print("| runner | wall s (grid) | runs per hour | throughput |")
-    print("|---|---|---|---|")
+    phases = {runner: _phase_seconds(root / runner) for runner in times}
+    print("| runner | wall s (grid) | runs per hour | throughput | the runs' phases, s (summed) |")
+    print("|---|---|---|---|---|")
     for runner, label in (("loop", "loop (one process, one run at a time)"),
                           ("ray", f"sr-grid, local Ray on {args.cpus} cores")):
         print(f"| {label} | {times[runner]:.1f} | {3600 * runs / times[runner]:.0f} | "
-              f"{times['loop'] / times[runner]:.2f}x |")
+              f"{times['loop'] / times[runner]:.2f}x | {phases[runner]:.1f} |")
+    print()
+    print(f"each run's phases took {phases['ray'] / phases['loop']:.2f}x as long under Ray as in the loop (1.0 on "
+          "cores the grid has to itself; more: the runs shared the cores with other work); the rest of the grid's "
+          f"wall time under Ray, {times['ray'] - phases['ray'] / min(args.cpus, runs):.1f} s, is starting Ray, "
+          "fresh worker processes (imports) and the runs' set-up outside their phases")
     print()
     print(f"results identical (metrics and every checkpoint's weights): {'yes' if same else 'NO'}")
 

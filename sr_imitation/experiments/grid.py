@@ -114,13 +114,14 @@ class RayOptions:
     """A running Ray cluster: ``auto`` (on one of its nodes) or ``ray://<head>:10001`` (Ray's client:
     ``ray[client]``). ``None``: start Ray on this machine (``local_cpus`` cores) and stop it at the end."""
     local_cpus: int | None = None
-    """Cores of the local Ray (``None``: all of this machine's); ignored with ``address``."""
+    """Cores of the local Ray (``None`` - all of this machine's); ignored with ``address``."""
     num_cpus: float = 1.0
-    """Cores per run (Ray resource ``num_cpus``; each run's ``OMP_NUM_THREADS`` is this, at least 1)."""
+    """Cores per run (Ray resource ``num_cpus``); a run's torch threads and ``OMP_NUM_THREADS`` are this (at least 1)
+    unless its ``torch_threads`` is set."""
     num_gpus: float | None = None
-    """GPUs per run (``None``: 1 when the preset trains on ``cuda``, else 0)."""
+    """GPUs per run (``None`` - 1 when the preset trains on ``cuda``, else 0)."""
     memory_gb: float | None = None
-    """Memory per run in GiB (Ray resource ``memory``; ``None``: not reserved)."""
+    """Memory per run in GiB (Ray resource ``memory``); ``None`` - not reserved."""
     max_retries: int = 3
     """Times a run whose worker process died (killed, out of memory, node lost) is retried; each retry resumes it.
     A run that raises an error is not retried."""
@@ -133,9 +134,9 @@ class GridConfig:
     preset: Path = Path("configs/needle_cpu.json")
     """The config every run starts from: an sr-main preset (needle, ACT) or a SAC config (``"substrate": "sac"``)."""
     variants: list[str] = field(default_factory=list)
-    """Variants to run, in this order (the substrate's ``VARIANTS``; empty: its default list)."""
+    """Variants to run, in this order (the substrate's ``VARIANTS``); empty - its default list."""
     seeds: list[int] = field(default_factory=list)
-    """Training seeds (empty: the substrate's default list)."""
+    """Training seeds (empty - the substrate's default list)."""
     output_root: Path = Path("outputs/grid")
     """Where the runs (``<variant>_seed<seed>``), their logs and the summary go."""
     extra: list[str] = field(default_factory=list)
@@ -148,7 +149,8 @@ class GridConfig:
     """``ray``: every run a Ray task, as many at once as the cluster's resources allow; ``loop``: one after another
     in this process."""
     summary_only: bool = False
-    """Run nothing: write the summary of the planned runs found finished (archive first, then ``output_root``)."""
+    """Run nothing, only write the summary of the planned runs found finished (archive first, then
+    ``output_root``; not checked against the settings)."""
     ray: RayOptions = field(default_factory=RayOptions)
     """Ray's address and each run's resources."""
 
