@@ -232,7 +232,11 @@ def _task(module: str, variant: str, run: Any, log_file: str, threads: int) -> d
     logging.getLogger().addHandler(handler)
     logging.getLogger().setLevel(logging.INFO)
     _arm_kill_hook(run.output_dir)
-    info = run_one(importlib.import_module(module).GRID, variant, run)
+    try:
+        info = run_one(importlib.import_module(module).GRID, variant, run)
+    except BaseException:
+        logger.exception("%s failed", run.output_dir)  # the whole traceback in the run's log
+        raise
     return {**info, "node": os.uname().nodename, "pid": os.getpid()}
 
 

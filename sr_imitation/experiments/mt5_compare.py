@@ -4,10 +4,12 @@
         --seeds=[0,1] --variants=[sr,wake_only,ewc] --output_root=outputs/mt5_compare
 
 Each (variant, seed) is an ordinary ``sr-train --substrate=sac`` run of the preset plus the variant's flags, in
-``<output_root>/<variant>_seed<seed>``. The runner skips finished runs (``results.json`` present), resumes killed ones
-(``progress.json`` present) and starts the others, one after another (``--archive=docs/results/<folder>``: also skips
-the runs that folder holds with the same settings and copies each run finished now into it,
-:mod:`sr_imitation.experiments.archive`), then writes the shared multi-run summary
+``<output_root>/<variant>_seed<seed>``. The runner is ``sr-grid``'s (:mod:`sr_imitation.experiments.grid`; this
+module is its MT5 variant table, :data:`GRID`): it skips finished runs (``results.json`` and the same settings),
+resumes killed ones and starts the others, one after another (``--runner=loop``, the default here) or as Ray tasks,
+one per core (``--runner=ray``, ``--ray.*``; ``sr_mt8`` starts when its seed's ``sr`` run has finished)
+(``--archive=docs/results/<folder>``: also skips the runs that folder holds with the same settings and copies each
+run finished now into it, :mod:`sr_imitation.experiments.archive`), then writes the shared multi-run summary
 (``summary.json`` / ``.md`` / ``.png``: AFSR, PRS, BWT against both references, SPI, mean +- SE over seeds, paired
 differences to ``sr``) and ``memory.md`` (bytes each method's continual-learning mechanism stores at the end of the
 stream, by memory kind, next to the paper's memory-budget table).

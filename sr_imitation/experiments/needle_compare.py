@@ -16,10 +16,13 @@ iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamm
 BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the
 union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run of the preset
 (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets (recorded once,
-as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones and starts the
-others, one after another, each evaluated on the preset's evaluation seeds. ``--archive=docs/results/<folder>``
-(:mod:`sr_imitation.experiments.archive`) also skips the runs that folder holds with the same settings and copies
-every run finished now into it, so a comparison spread over sessions keeps its raw outputs in one place.
+as by ``sr-main``), each evaluated on the preset's evaluation seeds. The runner is ``sr-grid``'s
+(:mod:`sr_imitation.experiments.grid`; this module is its needle variant table, :data:`GRID`): it skips finished runs
+(``results.json`` and the same settings), resumes killed ones and starts the others, one after another
+(``--runner=loop``, the default here) or as Ray tasks, one per core (``--runner=ray``, ``--ray.*``).
+``--archive=docs/results/<folder>`` (:mod:`sr_imitation.experiments.archive`) also skips the runs that folder holds
+with the same settings and copies every run finished now into it, so a comparison spread over sessions keeps its raw
+outputs in one place.
 
 Written to ``output_root`` (:func:`sr_imitation.stream.summary.write_summary`): ``summary.md`` / ``.json`` /
 ``.png`` (the final AFSR, PRS, BWT against both references and SPI, mean +- SE over training seeds, each seed's

@@ -86,7 +86,7 @@ def _assert_same_run(reference: Path, run: Path) -> None:
         assert a[key] == b[key], key
     files = sorted(p.relative_to(reference) for p in reference.rglob("*.safetensors"))
     assert files and files == sorted(p.relative_to(run) for p in run.rglob("*.safetensors"))
-    assert any(f.name == "model.safetensors" and f.parts[0].startswith("skill_2") for f in files)  # the final policy
+    assert any(f.parts[0] in ("skill_2_place", "stages") for f in files)  # the last stage's checkpoints
     for file in files:
         x, y = load_file(reference / file), load_file(run / file)
         assert x.keys() == y.keys() and all(torch.equal(x[k], y[k]) for k in x), file
@@ -140,6 +140,38 @@ def test_runs_in_the_archive_are_not_submitted(preset, loop_runs, local_ray, tmp
     assert summary["variants"]["sr"]["runs"] == {"0": str(archive / "sr_seed0")}
     assert summary["variants"]["wake_only"]["runs"] == {"0": str(archive / "wake_only_seed0")}  # archived at once
     _assert_same_run(loop_runs / "wake_only_seed0", out / "wake_only_seed0")
+
+
+def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(local_ray, tmp_path, caplog):
+    from tests.experiments import toy_grid
+
+    local_ray()
+    out, archive = tmp_path / "grid", tmp_path / "archive"
+    cfg = GridConfig(preset=tmp_path / "unused.json", variants=["after_a", "a", "fails", "after_fails", "b"],
+                     seeds=[0], output_root=out, archive=archive)
+    with pytest.raises(RuntimeError, match=r"2 of 5 runs failed .*fails_seed0: .*toy failure; "
+                                           r"after_fails_seed0: not started: fails_seed0 failed"):
+        run_grid(cfg, toy_grid.GRID)
+    results = {v: json.loads((out / f"{v}_seed0" / "results.json").read_text()) for v in ("a", "b", "after_a")}
+    assert results["after_a"]["waited"] and results["after_a"]["start"] >= results["a"]["end"]
+    assert sorted(p.name for p in archive.iterdir()) == ["a_seed0", "after_a_seed0", "b_seed0"]  # the others kept
+    assert not (out / "after_fails_seed0").exists()
+    assert "toy failure" in (out / "logs" / "fails_seed0.log").read_text()  # the traceback in the run's log
+
+
+def test_the_sac_grid_on_ray_gives_the_loops_results(local_ray, tmp_path):
+    from sr_imitation.rl.config import EvalConfig
+    from tests.rl.test_trainer import tiny_config
+
+    stored = tiny_config(tmp_path / "unused", eval=EvalConfig(episodes=1, videos_per_skill=0)).stored_config()
+    stored.pop("output_dir", None)
+    preset = tmp_path / "sac.json"
+    preset.write_text(json.dumps(stored))
+    assert substrate_of_preset(preset) == "sac"
+    run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=tmp_path / "loop", runner="loop"))
+    local_ray()
+    run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=tmp_path / "ray"))
+    _assert_same_run(tmp_path / "loop" / "sr_seed0", tmp_path / "ray" / "sr_seed0")
 
 
 def test_the_command_line_and_the_summary_on_request(loop_runs, preset, caplog):
