@@ -19,7 +19,8 @@ comparison (:mod:`sr_imitation.experiments.needle_compare`: its variants, its su
    whose worker dies is retried (``--ray.max_retries``) and the retry resumes the run from its last recorded phase
    (``progress.json``), which reaches the numbers of an uninterrupted run (tested). ``loop`` runs them here, one
    after another. A run that depends on another (``sr_mt8`` continues the seed's ``sr`` run) starts when that one
-   has finished;
+   has finished. A run that raises an error stops the loop; on Ray the other runs go on, and the failed ones (with
+   the runs waiting for them) are named in one error at the end, the summary then left unwritten;
 4. copies every run into ``--archive`` as it finishes and logs one line per finished run (variant, seed, final
    AFSR, wall time); Ray's dashboard shows the tasks where ``ray[default]`` is installed (not pinned here);
 5. writes the summary once, at the end (``--summary_only=true``: only the summary, of the finished runs found).
@@ -392,6 +393,7 @@ def _run_ray(cfg: GridConfig, substrate: GridSubstrate, plan: Mapping[RunKey, An
                         submit(key)
                     else:
                         failed[key] = f"not started: {run_name(*dep)} failed"
+                        release(key, False)
 
         for key in todo:
             if waiting[key] not in todo:
