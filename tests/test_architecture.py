@@ -31,7 +31,8 @@ ALLOWED: dict[str, set[str]] = {
     "main_job": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation"},
     "experiments": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl",
                     "main_job"},
-    "benchmarks": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl"},
+    "benchmarks": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl",
+                   "main_job", "experiments"},  # the grid benchmark times the experiment drivers' runner
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""
 

@@ -97,25 +97,3 @@ def check_archive(plan: Mapping[RunKey, Any], archive: Path | None,
     all before the first one starts; ``fingerprint(variant, config)`` is the run's settings fingerprint."""
     return {key: archived_run(archive, Path(cfg.output_dir).name, fingerprint(key[0], cfg))
             for key, cfg in plan.items()}
-
-
-def run_plan(plan: Mapping[RunKey, Any], archived: Mapping[RunKey, Path | None], archive: Path | None,
-             run: Callable[[str, Any], object]) -> dict[str, dict[str, Path]]:
-    """Run the planned runs in order: skip the archived ones and those finished in their ``output_dir``, run the
-    others with ``run(variant, config)`` (it resumes a killed run), and copy each finished one into ``archive``
-    (when given). Returns ``{variant: {seed: run directory}}`` for the summary (archived runs: their archive copy)."""
-    runs: dict[str, dict[str, Path]] = {}
-    for (variant, seed), cfg in plan.items():
-        out = Path(cfg.output_dir)
-        kept = archived.get((variant, seed))
-        if kept is not None:
-            logger.info("=== %s seed %d: in the archive (%s), skipped", variant, seed, kept)
-        elif (out / "results.json").exists():
-            logger.info("=== %s seed %d: finished (%s), skipped", variant, seed, out)
-        else:
-            logger.info("=== %s seed %d -> %s", variant, seed, out)
-            run(variant, cfg)
-        if kept is None and archive is not None:
-            kept = archive_run(out, archive, out.name)
-        runs.setdefault(variant, {})[str(seed)] = kept or out
-    return runs

@@ -4,10 +4,12 @@
         --seeds=[0,1] --variants=[sr,wake_only,ewc] --output_root=outputs/mt5_compare
 
 Each (variant, seed) is an ordinary ``sr-train --substrate=sac`` run of the preset plus the variant's flags, in
-``<output_root>/<variant>_seed<seed>``. The runner skips finished runs (``results.json`` present), resumes killed ones
-(``progress.json`` present) and starts the others, one after another (``--archive=docs/results/<folder>``: also skips
-the runs that folder holds with the same settings and copies each run finished now into it,
-:mod:`sr_imitation.experiments.archive`), then writes the shared multi-run summary
+``<output_root>/<variant>_seed<seed>``. The runner is ``sr-grid``'s (:mod:`sr_imitation.experiments.grid`; this
+module is its MT5 variant table, :data:`GRID`): it skips finished runs (``results.json`` and the same settings),
+resumes killed ones and starts the others, one after another (``--runner=loop``, the default here) or as Ray tasks,
+one per core (``--runner=ray``, ``--ray.*``; ``sr_mt8`` starts when its seed's ``sr`` run has finished)
+(``--archive=docs/results/<folder>``: also skips the runs that folder holds with the same settings and copies each
+run finished now into it, :mod:`sr_imitation.experiments.archive`), then writes the shared multi-run summary
 (``summary.json`` / ``.md`` / ``.png``: AFSR, PRS, BWT against both references, SPI, mean +- SE over seeds, paired
 differences to ``sr``) and ``memory.md`` (bytes each method's continual-learning mechanism stores at the end of the
 stream, by memory kind, next to the paper's memory-budget table).
@@ -26,19 +28,17 @@ gain at 1, which is that actor.
 from __future__ import annotations
 
 import logging
-import sys
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import draccus
-
-from sr_imitation.experiments.archive import check_archive, run_plan
-from sr_imitation.infra.cli_errors import setup_logging
-from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.experiments.archive import RunKey
+from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
+from sr_imitation.experiments.grid import main as grid_main
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
-from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
+from sr_imitation.stream.summary import load_groups, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
 logger = logging.getLogger(__name__)
@@ -88,57 +88,92 @@ PAIRED_BASELINE = "sr"
 
 
 @dataclass
-class MT5CompareConfig:
+class MT5CompareConfig(GridConfig):
+    """The MT5 comparison's command line: :class:`~sr_imitation.experiments.grid.GridConfig` with this module's
+    defaults (and ``--runner=loop``)."""
+
     preset: Path = Path("configs/sac_mt5_cpu.json")
     """The SAC configuration every run starts from."""
-    seeds: list[int] = field(default_factory=lambda: [0, 1])
-    """Training seeds."""
     variants: list[str] = field(default_factory=lambda: ["sr", "wake_only"])
     """Variants to run (:data:`VARIANTS`), in this order."""
+    seeds: list[int] = field(default_factory=lambda: [0, 1])
+    """Training seeds."""
     output_root: Path = Path("outputs/mt5_compare")
     """Where the runs, the summary and the memory table go."""
-    extra: list[str] = field(default_factory=list)
-    """Flags added to every run (e.g. ``--eval.episodes=10``)."""
-    archive: Path | None = None
-    """A folder of finished runs' raw outputs (e.g. ``docs/results/mt5_compare``;
-    :mod:`sr_imitation.experiments.archive`): runs it holds with the same settings are skipped and summarized from
-    there, runs finished now are copied into it. ``None``: only ``output_root``."""
+    runner: str = "loop"
+    """``loop``: one run after another in this process (as before sr-grid); ``ray``: every run a Ray task, as many at
+    once as there are cores (``--ray.*``: :mod:`sr_imitation.experiments.grid`)."""
 
     def __post_init__(self) -> None:
-        check_choices("variants", self.variants, VARIANTS)
-        if "sr_mt8" in self.variants and ("sr" not in self.variants
-                                          or self.variants.index("sr") > self.variants.index("sr_mt8")):
-            raise ValueError("variants: sr_mt8 continues the seed's sr run; list sr before it")
+        super().__post_init__()
+        GRID.validate(self.variants)
 
 
-def run_args(cfg: MT5CompareConfig, variant: str, seed: int) -> list[str]:
+def run_args(cfg: GridConfig, variant: str, seed: int) -> list[str]:
     """The ``sr-train --substrate=sac`` arguments of one run."""
-    out = cfg.output_root / f"{variant}_seed{seed}"
+    out = cfg.output_root / run_name(variant, seed)
     args = [f"--config_path={cfg.preset}", f"--seed={seed}", f"--output_dir={out}", *VARIANTS[variant], *cfg.extra]
     if variant == "sr_mt8":
-        args.append(f"--stream.extend_from={cfg.output_root / f'sr_seed{seed}'}")
+        args.append(f"--stream.extend_from={cfg.output_root / run_name('sr', seed)}")
     if RunDirectory.occupied(out):
         args.append("--resume=true")
     return args
 
 
-def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
-    from sr_imitation.rl.cli import parse, train
-    from sr_imitation.rl.mt_joint import joint_fingerprint, run_mt_joint
+class MT5Grid:
+    """The MT5 comparison for the grid runner (:class:`~sr_imitation.experiments.grid.GridSubstrate`); Meta-World
+    and the SAC substrate are imported on use."""
 
-    plan = {(v, s): parse(run_args(cfg, v, s)) for v in cfg.variants for s in cfg.seeds}
-    archived = check_archive(plan, cfg.archive,
-                             lambda v, run: joint_fingerprint(run) if v == "mt_joint" else run.resume_fingerprint())
-    for (variant, seed), run in plan.items():
-        source = run.stream.extend_from
-        if variant == "sr_mt8" and archived[variant, seed] is None and archived[("sr", seed)] is not None \
-                and not (Path(source) / "stages").is_dir():
-            raise FileNotFoundError(
-                f"{source}: sr_mt8 seed {seed} continues this sr run, which is only in the archive "
-                f"({archived[('sr', seed)]}, report files, no checkpoints); run sr seed {seed} into this "
-                "output_root first (without --archive), then sr_mt8")
-    runs = run_plan(plan, archived, cfg.archive, lambda v, run: (run_mt_joint if v == "mt_joint" else train)(run))
-    return summarize(runs, cfg.output_root)
+    variants = VARIANTS
+    default_variants = ["sr", "wake_only"]
+    default_seeds = [0, 1]
+
+    def validate(self, variants: list[str]) -> None:
+        check_choices("variants", variants, VARIANTS)
+        if "sr_mt8" in variants and ("sr" not in variants or variants.index("sr") > variants.index("sr_mt8")):
+            raise ValueError("variants: sr_mt8 continues the seed's sr run; list sr before it")
+
+    def plan(self, cfg: GridConfig) -> dict[RunKey, Any]:
+        from sr_imitation.rl.cli import parse
+
+        return {(v, s): parse(run_args(cfg, v, s)) for v in cfg.variants for s in cfg.seeds}
+
+    def fingerprint(self, variant: str, run: Any) -> Any:
+        from sr_imitation.rl.mt_joint import joint_fingerprint
+
+        return joint_fingerprint(run) if variant == "mt_joint" else run.resume_fingerprint()
+
+    def check(self, plan: Mapping[RunKey, Any], archived: Mapping[RunKey, Path | None]) -> None:
+        for (variant, seed), run in plan.items():
+            source = run.stream.extend_from
+            if variant == "sr_mt8" and archived[variant, seed] is None and archived[("sr", seed)] is not None \
+                    and not (Path(source) / "stages").is_dir():
+                raise FileNotFoundError(
+                    f"{source}: sr_mt8 seed {seed} continues this sr run, which is only in the archive "
+                    f"({archived[('sr', seed)]}, report files, no checkpoints); run sr seed {seed} into this "
+                    "output_root first (without --archive), then sr_mt8")
+
+    def after(self, variant: str, seed: int) -> RunKey | None:
+        return ("sr", seed) if variant == "sr_mt8" else None
+
+    def device(self, run: Any) -> str:
+        return str(run.device)
+
+    def run(self, variant: str, run: Any) -> object:
+        from sr_imitation.rl import cli
+        from sr_imitation.rl.mt_joint import run_mt_joint
+
+        return (run_mt_joint if variant == "mt_joint" else cli.train)(run)
+
+    def summarize(self, runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
+        return summarize(runs, output_root)
+
+
+GRID = MT5Grid()
+
+
+def run_compare(cfg: MT5CompareConfig) -> dict[str, Any]:
+    return run_grid(cfg, GRID)
 
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
@@ -150,10 +185,7 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
 
 
 def main(args: list[str] | None = None) -> None:
-    setup_offscreen_rendering()
-    setup_logging()
-    cfg = draccus.parse(MT5CompareConfig, args=list(sys.argv[1:] if args is None else args))
-    print_final_means(run_compare(cfg), [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
+    grid_main(args, MT5CompareConfig, GRID)
 
 
 if __name__ == "__main__":

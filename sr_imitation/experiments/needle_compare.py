@@ -16,10 +16,13 @@ iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamm
 BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the
 union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run of the preset
 (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets (recorded once,
-as by ``sr-main``); the runner skips finished runs (``results.json`` present), resumes killed ones and starts the
-others, one after another, each evaluated on the preset's evaluation seeds. ``--archive=docs/results/<folder>``
-(:mod:`sr_imitation.experiments.archive`) also skips the runs that folder holds with the same settings and copies
-every run finished now into it, so a comparison spread over sessions keeps its raw outputs in one place.
+as by ``sr-main``), each evaluated on the preset's evaluation seeds. The runner is ``sr-grid``'s
+(:mod:`sr_imitation.experiments.grid`; this module is its needle variant table, :data:`GRID`): it skips finished runs
+(``results.json`` and the same settings), resumes killed ones and starts the others, one after another
+(``--runner=loop``, the default here) or as Ray tasks, one per core (``--runner=ray``, ``--ray.*``).
+``--archive=docs/results/<folder>`` (:mod:`sr_imitation.experiments.archive`) also skips the runs that folder holds
+with the same settings and copies every run finished now into it, so a comparison spread over sessions keeps its raw
+outputs in one place.
 
 Written to ``output_root`` (:func:`sr_imitation.stream.summary.write_summary`): ``summary.md`` / ``.json`` /
 ``.png`` (the final AFSR, PRS, BWT against both references and SPI, mean +- SE over training seeds, each seed's
@@ -34,22 +37,19 @@ from __future__ import annotations
 import copy
 import dataclasses
 import logging
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
-import draccus
-
-from sr_imitation.experiments.archive import check_archive, run_plan
+from sr_imitation.experiments.archive import RunKey
+from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
+from sr_imitation.experiments.grid import main as grid_main
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
-from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
-from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
-from sr_imitation.stream.summary import load_groups, print_final_means, write_summary
+from sr_imitation.stream.summary import load_groups, write_summary
 from sr_imitation.stream.summary import summarize as summary_of
 
 logger = logging.getLogger(__name__)
@@ -108,27 +108,28 @@ Our choice: the paper gives no weights for ACT."""
 
 
 @dataclass
-class CompareConfig:
+class CompareConfig(GridConfig):
+    """The needle comparison's command line: :class:`~sr_imitation.experiments.grid.GridConfig` with this module's
+    defaults (and ``--runner=loop``)."""
+
     preset: Path = Path("configs/needle_cpu.json")
     """The sr-main config every run starts from (its record section gives the datasets)."""
-    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
-    """Training seeds."""
     variants: list[str] = field(default_factory=lambda: list(TABLE_2))
     """Variants to run (:data:`VARIANTS`), in this order."""
+    seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
+    """Training seeds."""
     output_root: Path = Path("outputs/needle_compare")
     """Where the runs and the tables go."""
-    extra: list[str] = field(default_factory=list)
-    """sr-train flags added to every run (e.g. ``--eval.episodes=20``)."""
-    archive: Path | None = None
-    """A folder of finished runs' raw outputs (e.g. ``docs/results/needle_cpu_v2_compare``;
-    :mod:`sr_imitation.experiments.archive`): runs it holds with the same settings are skipped and summarized from
-    there, runs finished now are copied into it. ``None``: only ``output_root``."""
+    runner: str = "loop"
+    """``loop``: one run after another in this process (as before sr-grid); ``ray``: every run a Ray task, as many at
+    once as there are cores (``--ray.*``: :mod:`sr_imitation.experiments.grid`)."""
 
     def __post_init__(self) -> None:
-        check_choices("variants", self.variants, VARIANTS)
+        super().__post_init__()
+        GRID.validate(self.variants)
 
 
-def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int) -> TrainStreamConfig:
+def run_config(cfg: GridConfig, base: MainJobConfig, variant: str, seed: int) -> TrainStreamConfig:
     """The ``sr-train`` config of one run: the preset's (with ``extra``) plus the variant's method and sleep."""
     train = copy.deepcopy(base.train)
     spec = VARIANTS[variant]
@@ -138,19 +139,49 @@ def run_config(cfg: CompareConfig, base: MainJobConfig, variant: str, seed: int)
     if spec.policy:
         train.policy = dataclasses.replace(train.policy, **spec.policy)
     train.seed = seed
-    train.output_dir = cfg.output_root / f"{variant}_seed{seed}"
+    train.output_dir = cfg.output_root / run_name(variant, seed)
     train.resume = RunDirectory.occupied(train.output_dir)
     return train
 
 
+class NeedleGrid:
+    """The needle comparison for the grid runner (:class:`~sr_imitation.experiments.grid.GridSubstrate`)."""
+
+    variants = VARIANTS
+    default_variants = TABLE_2
+    default_seeds = [0, 1, 2, 3, 4]
+
+    def validate(self, variants: list[str]) -> None:
+        check_choices("variants", variants, VARIANTS)
+
+    def plan(self, cfg: GridConfig) -> dict[RunKey, TrainStreamConfig]:
+        base = preset_with_datasets(cfg.preset, cfg.extra)  # recorded once, here, before any run starts
+        return {(v, s): run_config(cfg, base, v, s) for v in cfg.variants for s in cfg.seeds}
+
+    def fingerprint(self, variant: str, train: TrainStreamConfig) -> Any:
+        return (joint_fingerprint if variant == "mt_joint" else resume_fingerprint)(train)
+
+    def check(self, plan: Any, archived: Any) -> None:
+        pass
+
+    def after(self, variant: str, seed: int) -> RunKey | None:
+        return None
+
+    def device(self, train: TrainStreamConfig) -> str:
+        return str(train.policy.device)
+
+    def run(self, variant: str, train: TrainStreamConfig) -> object:
+        return (run_mt_joint if variant == "mt_joint" else train_stream)(train)
+
+    def summarize(self, runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
+        return summarize(runs, output_root)
+
+
+GRID = NeedleGrid()
+
+
 def run_compare(cfg: CompareConfig) -> dict:
-    base = preset_with_datasets(cfg.preset, cfg.extra)
-    plan = {(v, s): run_config(cfg, base, v, s) for v in cfg.variants for s in cfg.seeds}
-    archived = check_archive(plan, cfg.archive,
-                             lambda v, train: (joint_fingerprint if v == "mt_joint" else resume_fingerprint)(train))
-    runs = run_plan(plan, archived, cfg.archive,
-                    lambda v, train: (run_mt_joint if v == "mt_joint" else train_stream)(train))
-    return summarize(runs, cfg.output_root)
+    return run_grid(cfg, GRID)
 
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
@@ -163,10 +194,7 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
 
 
 def main(args: list[str] | None = None) -> None:
-    setup_offscreen_rendering()
-    setup_logging()
-    cfg = draccus.parse(CompareConfig, args=list(sys.argv[1:] if args is None else args))
-    print_final_means(run_compare(cfg), [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
+    grid_main(args, CompareConfig, GRID)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,195 @@
+"""sr-grid (sr_imitation.experiments.grid) on a tiny needle preset: a grid on a local Ray gives the plain loop's
+results, a worker killed mid-run is retried and its run resumes to the same results, runs in the archive are never
+submitted. Every test that starts Ray shuts it down (fixture ``local_ray``)."""
+
+from __future__ import annotations
+
+import json
+import logging
+import subprocess
+from pathlib import Path
+
+import draccus
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from sr_imitation.experiments.archive import archive_run
+from sr_imitation.experiments.grid import KILL_HOOK_ENV, GridConfig, run_grid, substrate_of_preset
+from sr_imitation.experiments.mt5_compare import MT5CompareConfig
+from sr_imitation.experiments.needle_compare import CompareConfig
+from sr_imitation.infra.fingerprint import SettingsMismatchError
+from sr_imitation.main_job import preset_with_datasets
+
+CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+VARIANTS = ["sr", "wake_only"]
+
+
+@pytest.fixture(scope="module")
+def preset(tmp_path_factory) -> Path:
+    """A two-skill state-only needle preset of a few seconds a run; its datasets recorded here, once."""
+    tmp = tmp_path_factory.mktemp("grid_preset")
+    config = {
+        "record": {"num_episodes": 2, "root": str(tmp / "datasets"), "image_size": 32},
+        "train": {
+            "policy": {"type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2,
+                       "dim_feedforward": 64, "n_encoder_layers": 1, "n_vae_encoder_layers": 1, "chunk_size": 8,
+                       "n_action_steps": 8},
+            "memory": {"buffer_size": 32},
+            "sleep": {"max_iterations": 4, "batch_size": 4, "early_stop_window": 2},
+            "stream": {"skills": ["approach", "place"]},
+            "wake": {"max_epochs": 2, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 3},
+            "eval": {"episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 0},
+            "progress": False,
+        },
+    }
+    path = tmp / "preset.json"
+    path.write_text(json.dumps(config))
+    preset_with_datasets(path, [])
+    return path
+
+
+@pytest.fixture(scope="module")
+def loop_runs(preset, tmp_path_factory) -> Path:
+    """The reference: the grid run by the plain loop, in this process."""
+    out = tmp_path_factory.mktemp("loop")
+    run_grid(GridConfig(preset=preset, variants=VARIANTS, seeds=[0], output_root=out, runner="loop"))
+    return out
+
+
+def _ray_processes() -> list[str]:
+    ps = subprocess.run(["ps", "-eo", "pid,args"], capture_output=True, text=True, check=True).stdout
+    return [line for line in ps.splitlines() if "raylet" in line or "gcs_server" in line]
+
+
+@pytest.fixture
+def local_ray():
+    """``start()`` starts a local Ray on 2 cores (after the test has set its environment: workers inherit it);
+    shut down, with no Ray process left, after the test."""
+    import ray
+
+    assert not ray.is_initialized() and _ray_processes() == []
+
+    def start() -> None:
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+
+    yield start
+    ray.shutdown()
+    assert _ray_processes() == []
+
+
+def _assert_same_run(reference: Path, run: Path) -> None:
+    """The same numbers (results.json's metrics and success) and bit-identical weights (every checkpoint, memory
+    and statistics file of the run)."""
+    a, b = (json.loads((r / "results.json").read_text()) for r in (reference, run))
+    for key in ("metrics", "success_matrix", "success_after_own_wake", "memory_bytes", "extra"):
+        assert a[key] == b[key], key
+    files = sorted(p.relative_to(reference) for p in reference.rglob("*.safetensors"))
+    assert files and files == sorted(p.relative_to(run) for p in run.rglob("*.safetensors"))
+    assert any(f.parts[0] in ("skill_2_place", "stages") for f in files)  # the last stage's checkpoints
+    for file in files:
+        x, y = load_file(reference / file), load_file(run / file)
+        assert x.keys() == y.keys() and all(torch.equal(x[k], y[k]) for k in x), file
+
+
+def test_a_grid_on_ray_gives_the_loops_results(preset, loop_runs, local_ray, tmp_path, caplog):
+    import ray
+
+    local_ray()
+    out = tmp_path / "ray"
+    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
+        summary = run_grid(GridConfig(preset=preset, variants=VARIANTS, seeds=[0], output_root=out))
+    for variant in VARIANTS:
+        _assert_same_run(loop_runs / f"{variant}_seed0", out / f"{variant}_seed0")
+        assert (out / "logs" / f"{variant}_seed0.log").stat().st_size > 0  # the run's log, not the console's
+    finished = [r.message for r in caplog.records if r.message.startswith("finished ")]
+    assert len(finished) == 2 and all("AFSR" in m and " s (" in m for m in finished)
+    assert set(summary["variants"]) == set(VARIANTS) and (out / "summary.md").is_file()
+    assert ray.is_initialized()  # a Ray the runner did not start is left to its owner
+
+
+def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(preset, loop_runs, local_ray, tmp_path,
+                                                                             monkeypatch, caplog):
+    marker = tmp_path / "killed"
+    monkeypatch.setenv(KILL_HOOK_ENV, f"sr_seed0:1.wake:{marker}")  # the first attempt dies after stage 1's wake
+    local_ray()
+    out = tmp_path / "ray"
+    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
+        run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=out))
+    assert marker.is_file()  # the worker did die
+    finished = [r.message for r in caplog.records if r.message.startswith("finished sr seed 0")]
+    assert len(finished) == 1 and "resumed with 1 phase done" in finished[0]  # the retry continued the killed run
+    _assert_same_run(loop_runs / "sr_seed0", out / "sr_seed0")
+
+
+def test_runs_in_the_archive_are_not_submitted(preset, loop_runs, local_ray, tmp_path, caplog):
+    archive = tmp_path / "archive"
+    archive_run(loop_runs / "sr_seed0", archive, "sr_seed0")
+    # another value of a setting is refused before anything is submitted (Ray not even needed)
+    with pytest.raises(SettingsMismatchError, match=r"sr_seed0/settings_fingerprint.json.*sleep.lr"):
+        run_grid(GridConfig(preset=preset, variants=VARIANTS, seeds=[0], output_root=tmp_path / "other",
+                            archive=archive, extra=["--sleep.lr=0.001"]))
+    assert not (tmp_path / "other").exists()
+    local_ray()
+    out = tmp_path / "ray"
+    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
+        summary = run_grid(GridConfig(preset=preset, variants=VARIANTS, seeds=[0], output_root=out, archive=archive))
+    assert [r.message for r in caplog.records if r.message.startswith("submitted")] == [
+        f"submitted wake_only seed 0 -> {out / 'wake_only_seed0'}"]
+    assert not (out / "sr_seed0").exists()
+    assert summary["variants"]["sr"]["runs"] == {"0": str(archive / "sr_seed0")}
+    assert summary["variants"]["wake_only"]["runs"] == {"0": str(archive / "wake_only_seed0")}  # archived at once
+    _assert_same_run(loop_runs / "wake_only_seed0", out / "wake_only_seed0")
+
+
+def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(local_ray, tmp_path, caplog):
+    from tests.experiments import toy_grid
+
+    local_ray()
+    out, archive = tmp_path / "grid", tmp_path / "archive"
+    cfg = GridConfig(preset=tmp_path / "unused.json", variants=["after_a", "a", "fails", "after_fails", "b"],
+                     seeds=[0], output_root=out, archive=archive)
+    with pytest.raises(RuntimeError, match=r"2 of 5 runs failed .*fails_seed0: .*toy failure; "
+                                           r"after_fails_seed0: not started: fails_seed0 failed"):
+        run_grid(cfg, toy_grid.GRID)
+    results = {v: json.loads((out / f"{v}_seed0" / "results.json").read_text()) for v in ("a", "b", "after_a")}
+    assert results["after_a"]["waited"] and results["after_a"]["start"] >= results["a"]["end"]
+    assert sorted(p.name for p in archive.iterdir()) == ["a_seed0", "after_a_seed0", "b_seed0"]  # the others kept
+    assert not (out / "after_fails_seed0").exists()
+    assert "toy failure" in (out / "logs" / "fails_seed0.log").read_text()  # the traceback in the run's log
+
+
+def test_the_sac_grid_on_ray_gives_the_loops_results(local_ray, tmp_path):
+    from sr_imitation.rl.config import EvalConfig
+    from tests.rl.test_trainer import tiny_config
+
+    stored = tiny_config(tmp_path / "unused", eval=EvalConfig(episodes=1, videos_per_skill=0)).stored_config()
+    stored.pop("output_dir", None)
+    preset = tmp_path / "sac.json"
+    preset.write_text(json.dumps(stored))
+    assert substrate_of_preset(preset) == "sac"
+    run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=tmp_path / "loop", runner="loop"))
+    local_ray()
+    run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=tmp_path / "ray"))
+    _assert_same_run(tmp_path / "loop" / "sr_seed0", tmp_path / "ray" / "sr_seed0")
+
+
+def test_the_command_line_and_the_summary_on_request(loop_runs, preset, caplog):
+    assert substrate_of_preset(CONFIGS / "needle_cpu.json") == "act"
+    assert substrate_of_preset(CONFIGS / "sac_mt5_cpu.json") == "sac"
+    with pytest.raises(ValueError, match="neither an sr-main preset"):
+        substrate_of_preset(loop_runs / "sr_seed0" / "train_config.json")
+    cfg = draccus.parse(GridConfig, args=["--preset=p.json", "--variants=[sr,ewc]", "--seeds=[0,1]",
+                                          "--ray.address=auto", "--ray.num_gpus=1", "--ray.memory_gb=4"])
+    assert (cfg.runner, cfg.ray.address, cfg.ray.num_gpus, cfg.ray.num_cpus) == ("ray", "auto", 1, 1)
+    # the comparison modules keep their defaults, with the loop unless asked
+    assert draccus.parse(CompareConfig, args=[]).runner == "loop"
+    assert draccus.parse(MT5CompareConfig, args=["--runner=ray", "--ray.num_cpus=2"]).ray.num_cpus == 2
+    with pytest.raises(ValueError, match="runner: unknown"):
+        GridConfig(runner="slurm")
+    with pytest.raises(ValueError, match="variants: unknown"):
+        run_grid(GridConfig(preset=preset, variants=["sr_typo"], output_root=loop_runs, summary_only=True))
+    with caplog.at_level(logging.WARNING):
+        summary = run_grid(GridConfig(preset=preset, variants=[*VARIANTS, "sequential_bc"], seeds=[0],
+                                      output_root=loop_runs, summary_only=True))
+    assert set(summary["variants"]) == set(VARIANTS) and "summary without sequential_bc_seed0" in caplog.text

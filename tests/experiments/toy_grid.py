@@ -1,0 +1,68 @@
+"""A toy grid substrate (no training: each run writes its fingerprint and a results.json in a fraction of a second),
+for the grid runner's scheduling: runs that wait for another, runs that fail. Imported by Ray's workers by name
+(``tests.experiments.toy_grid``; the workers start in the driver's directory, the repository root)."""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+from sr_imitation.experiments.grid import GridConfig, run_name
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, settings_fingerprint, write_fingerprint
+from sr_imitation.stream.config import check_choices
+
+AFTER = {"after_a": "a", "after_fails": "fails"}
+
+
+@dataclass
+class ToyRun:
+    output_dir: Path
+    seed: int
+    resume: bool = False
+    torch_threads: int | None = None
+
+
+class ToyGrid:
+    variants = {"a": None, "b": None, "fails": None, **dict.fromkeys(AFTER)}
+    default_variants = ["a", "b"]
+    default_seeds = [0]
+
+    def validate(self, variants: list[str]) -> None:
+        check_choices("variants", variants, self.variants)
+
+    def plan(self, cfg: GridConfig) -> dict[tuple[str, int], ToyRun]:
+        return {(v, s): ToyRun(cfg.output_root / run_name(v, s), s) for v in cfg.variants for s in cfg.seeds}
+
+    def fingerprint(self, variant: str, run: ToyRun) -> Any:
+        return settings_fingerprint({"variant": variant, "seed": run.seed}, ())
+
+    def check(self, plan: Any, archived: Any) -> None:
+        pass
+
+    def after(self, variant: str, seed: int) -> tuple[str, int] | None:
+        return (AFTER[variant], seed) if variant in AFTER else None
+
+    def device(self, run: ToyRun) -> str:
+        return "cpu"
+
+    def run(self, variant: str, run: ToyRun) -> None:
+        out = Path(run.output_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        write_fingerprint(out / FINGERPRINT_FILE, self.fingerprint(variant, run))
+        if variant == "fails":
+            raise ValueError("toy failure")
+        start = time.time()
+        before = AFTER.get(variant)
+        waited = before is None or (out.parent / run_name(before, run.seed) / "results.json").is_file()
+        time.sleep(0.3)
+        results = {"metrics": {"afsr": {"final": 0.5}}, "start": start, "end": time.time(), "waited": waited}
+        (out / "results.json").write_text(json.dumps(results))
+
+    def summarize(self, runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
+        return {"runs": {v: {s: str(p) for s, p in seeds.items()} for v, seeds in runs.items()}}
+
+
+GRID = ToyGrid()
