@@ -47,6 +47,17 @@ def tiny_config(out: Path, skills: list[str] | None = None, extend_from: Path | 
     return RLTrainConfig(**base)
 
 
+def stop_after(out: Path, point: tuple[int, str], **cfg) -> None:
+    """A run of ``tiny_config(out, **cfg)`` killed right after phase ``point`` (stage index, phase) completed."""
+
+    def kill(k, phase):
+        if (k, phase) == point:
+            raise SimulatedKillError
+
+    with pytest.raises(SimulatedKillError):
+        StreamTrainer(tiny_config(out, **cfg), after_phase=kill).run()
+
+
 class SimulatedKillError(RuntimeError):
     pass
 
@@ -186,12 +197,7 @@ def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, un
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
     full_out, full = uninterrupted
 
-    def kill(k, phase):
-        if (k, phase) == point:
-            raise SimulatedKillError
-
-    with pytest.raises(SimulatedKillError):
-        StreamTrainer(tiny_config(tmp_path / "killed", **cfg), after_phase=kill).run()
+    stop_after(tmp_path / "killed", point, **cfg)
     redone = []
     resumed = StreamTrainer(tiny_config(tmp_path / "killed", resume=True, **cfg),
                             after_phase=lambda k, p: redone.append((k, p))).run()
@@ -214,12 +220,7 @@ def test_a_run_that_stored_its_config_as_config_json_resumes_from_it(tmp_path, u
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
     run = tmp_path / "old"
 
-    def kill(k, phase):
-        if (k, phase) == (1, "wake"):
-            raise SimulatedKillError
-
-    with pytest.raises(SimulatedKillError):
-        StreamTrainer(tiny_config(run, **cfg), after_phase=kill).run()
+    stop_after(run, (1, "wake"), **cfg)
     assert (run / "train_config.json").is_file() and not (run / "config.json").exists()
     (run / "train_config.json").rename(run / "config.json")  # the layout of a run from before issue 29
     parsed = parse_args([f"--config_path={run / 'config.json'}", "--resume=true"])
@@ -269,12 +270,7 @@ def test_every_sealed_file_is_verified_before_a_resume_writes(tmp_path, uninterr
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
     stopped = tmp_path / "stopped"
 
-    def kill(k, phase):
-        if (k, phase) == (1, "sleep"):
-            raise SimulatedKillError
-
-    with pytest.raises(SimulatedKillError):
-        StreamTrainer(tiny_config(stopped, **cfg), after_phase=kill).run()
+    stop_after(stopped, (1, "sleep"), **cfg)
     files = ["stages/01_reach/trajectories.safetensors", "stages/02_door-open/sleep/sleep_diagnostics.json",
              "stages/02_door-open/memory.safetensors", "stages/01_reach/wake/agent.safetensors", "progress.json"]
     for name in files:
