@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import logging
+import re
 import subprocess
 from pathlib import Path
 
@@ -15,7 +16,7 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.experiments.archive import archive_run
-from sr_imitation.experiments.grid import KILL_HOOK_ENV, GridConfig, run_grid, substrate_of_preset
+from sr_imitation.experiments.grid import KILL_HOOK_ENV, GridConfig, completed_phases, run_grid, substrate_of_preset
 from sr_imitation.experiments.mt5_compare import MT5CompareConfig
 from sr_imitation.experiments.needle_compare import CompareConfig
 from sr_imitation.infra.fingerprint import SettingsMismatchError
@@ -118,7 +119,11 @@ def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(pres
         run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=out))
     assert marker.is_file()  # the worker did die
     finished = [r.message for r in caplog.records if r.message.startswith("finished sr seed 0")]
-    assert len(finished) == 1 and "resumed with 1 phase done" in finished[0]  # the retry continued the killed run
+    assert len(finished) == 1
+    # the retry continued the killed run: the watcher thread kills the worker once stage 1's wake is recorded, and a
+    # tiny run may record a phase or two more before the kill lands, but never all of them
+    resumed = re.search(r"resumed with (\d+) phases? done", finished[0])
+    assert resumed and 1 <= int(resumed.group(1)) < len(completed_phases(out / "sr_seed0")), finished[0]
     _assert_same_run(loop_runs / "sr_seed0", out / "sr_seed0")
 
 
