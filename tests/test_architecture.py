@@ -36,12 +36,7 @@ ALLOWED: dict[str, set[str]] = {
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""
 
-KNOWN_UPWARD = {
-    # the summary names memory kinds through the substrates' memory classes (they register their descriptions on
-    # import); results written from now on should carry the descriptions themselves (issue 29, open)
-    ("sr_imitation.stream.summary", "sr_imitation.imitation.actor_memory"),
-    ("sr_imitation.stream.summary", "sr_imitation.rl.critic_memory"),
-}
+KNOWN_UPWARD: set[tuple[str, str]] = set()  # none left: a new exception needs its reason here
 
 
 def _modules() -> dict[str, Path]:

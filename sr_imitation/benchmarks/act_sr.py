@@ -24,8 +24,9 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.memory import summed_objective
-from sr_imitation.core.sleep import SleepConfig, sleep_consolidate
+from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.config import SurgicAISleepConfig
 
 STATE_DIM, ACTION_DIM, BATCH, K = 35, 7, 8, 5
 
@@ -119,7 +120,7 @@ def main() -> None:
     params = [p for p in policy.parameters() if p.requires_grad]
     all_memories = [*memories, ActorMemory.from_observations("s4", policy.memory_chunk,
                                                              _observations(256, args.image_size, 4))]
-    sleep_cfg = SleepConfig.surgicai(max_iterations=args.repeats, early_stop_tol=0.0)
+    sleep_cfg = SurgicAISleepConfig(max_iterations=args.repeats, early_stop_tol=0.0)
 
     def k_passes() -> None:
         for m in all_memories:

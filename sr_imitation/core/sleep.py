@@ -38,15 +38,13 @@ class NonFiniteSleepError(FloatingPointError):
 
 @dataclass
 class SleepConfig:
-    """Sleep hyperparameters. Defaults follow the paper's MT5 table ("Sleep-consolidation hyperparameters");
-    :meth:`surgicai` gives the SurgicAI table's values.
+    """Sleep hyperparameters. Defaults follow the paper's MT5 table ("Sleep-consolidation hyperparameters"); the
+    SurgicAI table's values are the ACT substrate's preset (:class:`sr_imitation.imitation.config.SurgicAISleepConfig`)
+    and whether a run sleeps at all is the stream's setting (:class:`sr_imitation.stream.config.StreamSleepConfig`).
 
     Each field is documented below (``sr-train --help`` shows it).
     """
 
-    enabled: bool = True
-    """Sleep at all - false is the paper's SR Wake-Only ablation (read by the continual method; sleep_consolidate
-    ignores it)."""
     lr: float = 5e-4
     """Adam learning rate eta_sleep (MT5 5e-4, SurgicAI 1e-5)."""
     max_iterations: int = 4000
@@ -110,11 +108,6 @@ class SleepConfig:
         """Paper Table "Sleep-consolidation hyperparameters for MT5" (tau = 150, no anchor after the final skill)."""
         return cls(**overrides)
 
-    @classmethod
-    def surgicai(cls, **overrides: Any) -> SleepConfig:
-        """Paper Table "Sleep-consolidation hyperparameters for SurgicAI" (anchor always on, no gate)."""
-        return SurgicAISleepConfig(**overrides)
-
     def make_aggregator(self) -> Aggregator:
         kwargs: dict[str, Any] = {"eps": self.eps}
         if self.aggregator == "nash_fw":
@@ -122,29 +115,6 @@ class SleepConfig:
         elif self.aggregator == "pcgrad":
             kwargs["seed"] = self.seed
         return make_aggregator(self.aggregator, **kwargs)
-
-
-@dataclass
-class SurgicAISleepConfig(SleepConfig):
-    """:class:`SleepConfig` with the defaults of the paper's Table "Sleep-consolidation hyperparameters for
-    SurgicAI" (Adam 1e-5, at most 1000 iterations, batch 8, 5 Frank-Wolfe iterations for ``nash_fw``, window 50,
-    anchor always on, also after the final skill). A class of its own, not a factory: draccus fills the fields a
-    config file or flag leaves out from the class defaults, so ``--sleep.lr=1e-4`` must not bring back MT5's."""
-
-    lr: float = 1e-5
-    """Adam learning rate eta_sleep (SurgicAI table - 1e-5)."""
-    max_iterations: int = 1000
-    """N_sleep, iterations per sleep at most (SurgicAI table - 1000)."""
-    batch_size: int = 8
-    """Samples drawn from each memory per iteration (SurgicAI table - 8)."""
-    fw_iterations: int = 5
-    """Frank-Wolfe iterations per solve of nash_fw (SurgicAI table - 5); nash stops at its tolerance."""
-    early_stop_window: int = 50
-    """Window length in iterations of the plateau rule (SurgicAI table - 50)."""
-    anchor_tau: float | None = None
-    """tau of the anchor gate (Eq. 2); null - always on (the SurgicAI setting)."""
-    anchor_after_final: bool = True
-    """Apply the anchor in the sleep after the final skill (SurgicAI - yes)."""
 
 
 @dataclass
@@ -293,7 +263,8 @@ def sleep_consolidate(
         lam, distances = 0.0, [parameter_distance(params, s) for s in wake_snapshots]
 
     generator = torch.Generator().manual_seed(config.seed)
-    optimizer = torch.optim.Adam(params, lr=config.lr, fused=True)
+    # fused where torch has the kernel (CPU, CUDA); another device (MPS, the meta device of tests) takes foreach
+    optimizer = torch.optim.Adam(params, lr=config.lr, fused=device.type in ("cpu", "cuda"))
     jac = torch.zeros(k, n_params, device=device, dtype=params[0].dtype)
     result = SleepResult(skills, lam, distances, stop_iteration=0, stop_reason="max_iterations")
     window = config.early_stop_window

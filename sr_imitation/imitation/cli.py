@@ -114,6 +114,8 @@ def train_main(args: list[str] | None = None) -> None:
     _setup_logging()
     cfg = parse_train_args(list(sys.argv[1:] if args is None else args))
     results = train_stream(cfg)
+    if "metrics" not in results:  # a process other than the main one of a several-process run: it reports nothing
+        return
     m = results["metrics"]
     if results.get("evaluation") == "none":
         losses = results["losses"]

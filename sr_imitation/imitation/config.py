@@ -20,7 +20,6 @@ import torch
 from lerobot.configs.policies import PreTrainedConfig
 
 from lerobot_policy_act_sr import ACTSRConfig
-from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.data import STATS_SOURCES, cached_dataset_path
 from sr_imitation.imitation.dataset_identity import check_inputs, dataset_inputs
@@ -35,7 +34,13 @@ from sr_imitation.infra.fingerprint import (
 )
 from sr_imitation.record import RecordConfig
 from sr_imitation.stream import method_config, methods_for
-from sr_imitation.stream.config import RunConfig, check_shared_settings, fold_alias_settings
+from sr_imitation.stream.config import (
+    RunConfig,
+    StreamSettings,
+    StreamSleepConfig,
+    check_shared_settings,
+    fold_alias_settings,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -44,7 +49,31 @@ SUBSTRATE = "act"
 
 
 @dataclass
-class StreamConfig:
+class SurgicAISleepConfig(StreamSleepConfig):
+    """The ACT substrate's sleep preset: :class:`~sr_imitation.stream.config.StreamSleepConfig` with the defaults of
+    the paper's Table "Sleep-consolidation hyperparameters for SurgicAI" (Adam 1e-5, at most 1000 iterations, batch
+    8, 5 Frank-Wolfe iterations for ``nash_fw``, window 50, anchor always on, also after the final skill). A class of
+    its own, not a factory: draccus fills the fields a config file or flag leaves out from the class defaults, so
+    ``--sleep.lr=1e-4`` must not bring back MT5's."""
+
+    lr: float = 1e-5
+    """Adam learning rate eta_sleep (SurgicAI table - 1e-5)."""
+    max_iterations: int = 1000
+    """N_sleep, iterations per sleep at most (SurgicAI table - 1000)."""
+    batch_size: int = 8
+    """Samples drawn from each memory per iteration (SurgicAI table - 8)."""
+    fw_iterations: int = 5
+    """Frank-Wolfe iterations per solve of nash_fw (SurgicAI table - 5); nash stops at its tolerance."""
+    early_stop_window: int = 50
+    """Window length in iterations of the plateau rule (SurgicAI table - 50)."""
+    anchor_tau: float | None = None
+    """tau of the anchor gate (Eq. 2); null - always on (the SurgicAI setting)."""
+    anchor_after_final: bool = True
+    """Apply the anchor in the sleep after the final skill (SurgicAI - yes)."""
+
+
+@dataclass
+class StreamConfig(StreamSettings):
     """The skill stream: an ordered list of skills, one LeRobot dataset each.
 
     Each field is documented below (``--help`` shows it).
@@ -71,9 +100,6 @@ class StreamConfig:
     stream's datasets, known before the first skill); see sr_imitation.imitation.data."""
     stats_min_std: float = 1e-2
     """Floor on the fixed stream statistics' standard deviations."""
-    extend_from: Path | None = None
-    """A finished sr-train run with these settings whose skills are this stream's first ones - its stages are
-    copied and the stream continues with the next skill."""
 
     def __post_init__(self) -> None:
         if not self.skills:

@@ -67,9 +67,10 @@ from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.core.memory import load_memory, memory_contents
-from sr_imitation.core.sleep import SleepConfig, SleepResult, SurgicAISleepConfig, sleep_consolidate
+from sr_imitation.core.sleep import SleepConfig, SleepResult, sleep_consolidate
 from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
 from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig, evaluate_skills, needle_env_factory
 from sr_imitation.imitation.substrate import (
     act_sleep_problem,

@@ -16,6 +16,8 @@ recorded phases at the end.
 
 from __future__ import annotations
 
+import copy
+import dataclasses
 import logging
 from collections.abc import Callable
 from typing import Any
@@ -41,8 +43,9 @@ from sr_imitation.imitation.evaluate import (
     resolve_eval_env,
 )
 from sr_imitation.imitation.hub import check_push, push_policy
-from sr_imitation.imitation.substrate import TRAIN_CONFIG_FILE, ACTSubstrate, seed_everything, stage_name
-from sr_imitation.stream import RunDirectory, StreamEngine, make_method
+from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
+from sr_imitation.infra import distributed
+from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.rundir import point_last
 
 __all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "MemoryConfig", "StreamConfig", "StreamTrainer",
@@ -52,60 +55,59 @@ __all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "MemoryConfig", "StreamConfig"
 logger = logging.getLogger(__name__)
 
 
-
-class StreamTrainer:
+class StreamTrainer(StreamRun):
     """Runs (or resumes) one stream: the engine (:class:`~sr_imitation.stream.StreamEngine`) with the ACT substrate
-    and ``cfg.method``. ``after_phase(k, phase)`` (tests) is called after each newly completed phase."""
+    and ``cfg.method`` (:class:`~sr_imitation.stream.run.StreamRun`). Before the first phase every dataset and
+    evaluation environment is checked and ``--policy.push_to_hub`` tried; after each stage's final phase
+    ``<output_dir>/last`` points at its consolidated policy; at the end the policy is pushed if asked.
+    ``after_phase(k, phase)`` (tests) is called after each newly completed phase."""
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None,
                  after_phase: Callable[[int, str], None] | None = None) -> None:
-        self.cfg = cfg
-        self.out = cfg.output_dir
-        self.substrate = ACTSubstrate(cfg, make_env)
-        self.method = make_method(cfg.method, ACTSubstrate.name, self.substrate.method_settings())
+        substrate = ACTSubstrate(cfg, make_env)
         inputs = stream_inputs(cfg)
         stored = stored_config_dict(cfg)
-        self.run_dir = RunDirectory(self.out, resume_fingerprint(cfg, inputs), TRAIN_CONFIG_FILE, stored,
-                                    cfg.resume, cfg.overwrite, check_inputs=inputs_check(cfg, inputs))
-        self.substrate.train_config = stored
-        self.after_phase = after_phase
+        super().__init__(cfg, substrate, fingerprint=resume_fingerprint(cfg, inputs), stored_config=stored,
+                         check_inputs=inputs_check(cfg, inputs), after_phase=after_phase)
+        self.cfg: TrainStreamConfig = cfg
+        self.substrate: ACTSubstrate = substrate
+        substrate.train_config = stored
 
     @property
     def policy(self) -> Any:
         return self.substrate.policy
 
-    def run(self, stop_after: int | None = None) -> dict[str, Any]:
-        """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
-        instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``)."""
-        # before anything is written
+    def preflight(self) -> None:
+        """Before anything is trained or written: the datasets, the evaluation environments, the hub."""
         _, inputs, outputs = check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)
         check_evaluation_envs(self.cfg, inputs, outputs, custom_env=self.substrate._make_env is not None)
         check_push(self.cfg.policy)  # --policy.push_to_hub: reachable, or one line now rather than after training
-        engine = StreamEngine(self.substrate, self.method, self.run_dir, self.cfg.progress, self._after_phase,
-                              wandb=self.cfg.wandb, log_config=stored_config_dict(self.cfg),
-                              extend_from=self.cfg.stream.extend_from)
-        self._final_phase = engine.final_phase
-        results = engine.run(stop_after)
+
+    def run(self, stop_after: int | None = None) -> dict[str, Any]:
+        """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
+        instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``). A process
+        other than the main one of a several-process run (:mod:`sr_imitation.infra.distributed`) returns its
+        progress: the main process evaluates and reports."""
+        if not distributed.current().is_main:
+            return super().run(stop_after, report=False)
+        results = super().run(stop_after)
         self._point_last()  # also when a resume found every phase done (killed between a phase and its pointer)
         if stop_after is None and self.cfg.policy.push_to_hub:
             last = len(self.cfg.stream.skills) - 1
-            pretrained = self.substrate.checkpoint_dir(last, engine.final_phase(last)) / "pretrained_model"
+            pretrained = self.substrate.checkpoint_dir(last, self.final_phase(last)) / "pretrained_model"
             push_policy(self.substrate.policy, pretrained,
                         [self.cfg.stream.repo_id(i) for i in range(len(self.cfg.stream.skills))])
         return results
 
-
-    def _after_phase(self, k: int, phase: str) -> None:
-        if phase == self._final_phase(k):
+    def on_phase(self, k: int, phase: str) -> None:
+        if phase == self.final_phase(k):
             self._point_last()
-        if self.after_phase is not None:
-            self.after_phase(k, phase)
 
     def _point_last(self) -> None:
         """``<output_dir>/last`` -> the newest stage's consolidated checkpoint (its final phase) recorded so far."""
-        done = [k for k in range(len(self.cfg.stream.skills)) if self.run_dir.done(k, self._final_phase(k))]
+        done = [k for k in range(len(self.cfg.stream.skills)) if self.run_dir.done(k, self.final_phase(k))]
         if done:
-            point_last(self.out, self.substrate.checkpoint_dir(done[-1], self._final_phase(done[-1])))
+            point_last(self.out, self.substrate.checkpoint_dir(done[-1], self.final_phase(done[-1])))
 
 
 def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],
@@ -152,5 +154,27 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
 
 
 def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> dict[str, Any]:
-    """Run or resume the stream described by ``cfg``; returns the results dictionary."""
-    return StreamTrainer(cfg, make_env).run()
+    """Run or resume the stream described by ``cfg``; returns the results dictionary.
+
+    Launched as several processes (``torchrun --nproc_per_node=N sr-train ...``), the processes join
+    (:func:`sr_imitation.infra.distributed.start`), the wake's updates are data-parallel and the main process alone
+    writes ``cfg.output_dir``; the others run in a private scratch copy, removed at the end, and return their
+    progress (the main process returns the results)."""
+    processes = distributed.start(cpu=cfg.policy.device == "cpu")
+    if not processes.distributed:
+        return StreamTrainer(cfg, make_env).run()
+    if cfg.wake.batch_size < processes.world_size:
+        raise ValueError(f"wake.batch_size: {cfg.wake.batch_size} rows cannot be split over {processes.world_size} "
+                         "processes (each takes a slice of every batch); use at least one row per process")
+    own = copy.copy(cfg)
+    if not processes.is_main:
+        own.output_dir = distributed.scratch_output(cfg.output_dir, cfg.resume, processes)
+        own.progress, own.wandb = False, dataclasses.replace(cfg.wandb, enable=False)
+        logging.getLogger().setLevel(logging.WARNING)  # the main process logs the run
+    distributed.barrier()  # every copy is taken before the main process touches the run directory
+    try:
+        results = StreamTrainer(own, make_env).run()
+        distributed.barrier()
+    finally:
+        distributed.remove_scratch(own.output_dir, processes)
+    return results

@@ -49,6 +49,7 @@ from sr_imitation.imitation.data import (
 from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, make_env_factory
 from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
 from sr_imitation.imitation.wake import validation_l1, wake_train
+from sr_imitation.infra import distributed
 from sr_imitation.io import (
     CorruptFileError,
     atomic_write_json,
@@ -355,6 +356,8 @@ class ACTSubstrate:
         return list(range(k + 1))  # every learned skill: the after-wake success matrix is reported too
 
     def evaluate(self, k: int, phase: str, skills: Sequence[int]) -> dict[str, Any]:
+        if not distributed.current().is_main:  # several processes: the main one evaluates (infra.distributed)
+            return {"seconds": 0.0, "skipped": "evaluated by the main process"}
         if self.make_env is None:  # --eval.env=none
             return self._evaluate_offline(k, phase, skills)
         names = [self.skills[i] for i in skills]

@@ -25,6 +25,7 @@ from torch.utils.data import DataLoader, Subset
 from tqdm.auto import tqdm
 
 from sr_imitation.imitation.data import SkillData
+from sr_imitation.infra.distributed import Processes, average_gradients, average_scalar, current, shard
 
 logger = logging.getLogger(__name__)
 
@@ -136,6 +137,46 @@ def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.T
     return tracker, output
 
 
+class _NoHooks:
+    """The identity hooks (a method without wake hooks) for :func:`parallel_update`."""
+
+    def batch(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return batch
+
+    def loss(self, loss: torch.Tensor) -> torch.Tensor:
+        return loss
+
+    def adjust(self) -> None:
+        return None
+
+
+def parallel_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
+                    grad_clip_norm: float, hooks: Any, processes: Processes) -> tuple[MetricsTracker, dict]:
+    """:func:`hooked_update` with the batch split over the run's processes (:mod:`sr_imitation.infra.distributed`):
+    the method's batch (``hooks.batch``: stored frames appended, the same on every process) is cut into one
+    contiguous slice per process, each process's loss is the mean over its slice plus the terms every process
+    computes alike, and the gradients are averaged with each process's share of the rows before the method adjusts
+    them, so the step is the one-process step on the whole batch up to float summation order. The logged loss and
+    outputs are the batch's (share-weighted sums)."""
+    start = time.perf_counter()
+    policy.train()
+    batch, share = shard(hooks.batch(batch), processes)
+    loss, output = policy.forward(batch)
+    loss = hooks.loss(loss)
+    loss.backward()
+    average_gradients(list(policy.parameters()), share)
+    hooks.adjust()
+    limit = grad_clip_norm if grad_clip_norm > 0 else float("inf")
+    grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), limit, error_if_nonfinite=False)
+    optimizer.step()
+    optimizer.zero_grad()
+    tracker.loss = average_scalar(loss.item(), share)
+    tracker.grad_norm = grad_norm.item()
+    tracker.lr = optimizer.param_groups[0]["lr"]
+    tracker.update_s = time.perf_counter() - start
+    return tracker, {key: average_scalar(float(value), share) for key, value in output.items()}
+
+
 def wake_train(
     policy: Any,
     preprocessor: Any,
@@ -149,6 +190,7 @@ def wake_train(
     """Train ``policy`` in place on one skill; returns the history and the restored best epoch."""
     device = policy.config.device
     accelerator = Accelerator(cpu=device == "cpu")
+    processes = current()
     optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
     train_loader = _loader(data, data.train_indices, cfg.batch_size, True, seed, cfg.num_workers)
     val_indices = data.val_indices or data.train_indices  # a one-episode dataset validates on its training data
@@ -170,7 +212,10 @@ def wake_train(
                 break
             batch = preprocessor(raw)
             try:
-                if hooks is None:
+                if processes.distributed:
+                    tracker, out = parallel_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm,
+                                                   hooks or _NoHooks(), processes)
+                elif hooks is None:
                     tracker, out = update_policy(tracker, policy, batch, optimizer, cfg.grad_clip_norm, accelerator)
                 else:
                     tracker, out = hooked_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm, hooks)

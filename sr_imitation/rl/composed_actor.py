@@ -73,6 +73,7 @@ class ComposedActor(Actor):
         frozen.mean.copy_(self.norm_mean[j])
         frozen.var.copy_(self.norm_var[j])
         frozen.count.copy_(self.norm_count[j])
+        frozen.refresh_seen()
         return frozen
 
     def attention_weights(self, obs: Tensor) -> Tensor:

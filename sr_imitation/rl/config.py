@@ -14,7 +14,6 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.core.excitability import ExcitabilityConfig
-from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra.fingerprint import (
     RUN_DIRECTORY,
     SettingsFingerprint,
@@ -24,7 +23,7 @@ from sr_imitation.infra.fingerprint import (
 )
 from sr_imitation.rl.envs import STREAMS
 from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
-from sr_imitation.stream.config import RunConfig, check_shared_settings
+from sr_imitation.stream.config import RunConfig, StreamSettings, StreamSleepConfig, check_shared_settings
 
 
 @dataclass
@@ -239,16 +238,13 @@ class EvalConfig:
 
 
 @dataclass
-class StreamConfig:
+class StreamConfig(StreamSettings):
     """The Meta-World skill stream (paper Appendix A.1: MT5, its reverse, and MT8 continuing MT5)."""
 
     name: str = "mt5"
     """A named stream - mt5, mt5-reverse or mt8 (``sr_imitation.rl.envs.STREAMS``)."""
     skills: list[str] | None = None
     """Explicit skill list (Meta-World v3 ids); overrides ``name``."""
-    extend_from: Path | None = None
-    """A finished run with these settings whose skills are this stream's first ones (MT8 from MT5): its stages are
-    copied and the stream continues with the next skill."""
 
     def __post_init__(self) -> None:
         if self.skills is None and self.name not in STREAMS:
@@ -283,7 +279,7 @@ class RLTrainConfig(RunConfig):
     """Wake budgets and early stopping (Table "Wake-phase budgets")."""
     excitability: ExcitabilityConfig = field(default_factory=ExcitabilityConfig)
     """Homeostatic excitability of the actor (Eq. 3)."""
-    sleep: SleepConfig = field(default_factory=SleepConfig)
+    sleep: StreamSleepConfig = field(default_factory=StreamSleepConfig)
     """Sleep consolidation (defaults - the paper's MT5 table; --sleep.enabled=false is SR wake-only)."""
     memory: CriticMemoryConfig = field(default_factory=CriticMemoryConfig)
     """The frozen critic memories."""

@@ -80,15 +80,23 @@ class CriticMemory(Memory):
 
     def q_value(self, states: Tensor, actions: Tensor) -> Tensor:
         """min(Q_i^1, Q_i^2)(nu_i(s), a) with the frozen weights (differentiable in ``actions`` only)."""
-        t = self.tensors
-        device = actions.device
-        x = states.to(device, torch.float32)
+        t = self._frozen_on(actions.device)
+        x = states.to(actions.device, torch.float32)
         if self.config["normalize"]:
-            x = normalize(x, t["normalizer.mean"].to(device), t["normalizer.var"].to(device),
-                          float(self.config["clip"]), float(self.config["eps"])).float()
-        params = {k.removeprefix(CRITIC_PREFIX): v.to(device) for k, v in t.items() if k.startswith(CRITIC_PREFIX)}
+            x = normalize(x, t["normalizer.mean"], t["normalizer.var"], float(self.config["clip"]),
+                          float(self.config["eps"])).float()
+        params = {k.removeprefix(CRITIC_PREFIX): v for k, v in t.items() if k.startswith(CRITIC_PREFIX)}
         q1, q2 = torch.func.functional_call(self._skeleton, params, (x, actions))
         return torch.min(q1, q2)
+
+    def _frozen_on(self, device: torch.device) -> dict[str, Tensor]:
+        """The frozen critic and normalizer tensors on ``device``, copied there once (the memory is immutable), not
+        at every sleep iteration."""
+        cache: dict[torch.device, dict[str, Tensor]] = self.__dict__.setdefault("_on_device", {})
+        if device not in cache:
+            cache[device] = {k: v.to(device) for k, v in self.tensors.items()
+                             if k.startswith(CRITIC_PREFIX) or k.startswith("normalizer.")}
+        return cache[device]
 
     def loss(self, policy: Callable[[Tensor], Tensor], batch: Mapping[str, Tensor]) -> Tensor:
         states = batch["state"]

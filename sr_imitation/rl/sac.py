@@ -45,21 +45,28 @@ class RunningNormalizer(nn.Module):
         self.register_buffer("mean", torch.zeros(dim, dtype=torch.float64))
         self.register_buffer("var", torch.ones(dim, dtype=torch.float64))
         self.register_buffer("count", torch.zeros((), dtype=torch.float64))
+        # whether count > 0, kept on the host so that forward never reads the device (a sync per call on a GPU)
+        self._seen = False
+        self.register_load_state_dict_post_hook(lambda module, _keys: module.refresh_seen())
+
+    def refresh_seen(self) -> None:
+        self._seen = bool(self.count != 0)
 
     @torch.no_grad()
     def update(self, x: np.ndarray) -> None:
         if not self.enabled:
             return
-        x = torch.as_tensor(np.atleast_2d(x), dtype=torch.float64)
+        x = torch.as_tensor(np.atleast_2d(x), dtype=torch.float64, device=self.mean.device)
         n, mean, var = x.shape[0], x.mean(0), x.var(0, unbiased=False)
         total = self.count + n
         delta = mean - self.mean
         self.mean += delta * n / total
         self.var.copy_((self.var * self.count + var * n + delta.pow(2) * self.count * n / total) / total)
         self.count.copy_(total)
+        self._seen = self._seen or n > 0
 
     def forward(self, x: Tensor) -> Tensor:
-        if not self.enabled or self.count == 0:
+        if not self.enabled or not self._seen:
             return x
         return normalize(x, self.mean, self.var, self.clip, self.eps)
 
@@ -99,7 +106,9 @@ class Actor(nn.Module):
     def sample(self, obs: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         """Reparameterized tanh-Gaussian action, its log-probability, and the deterministic action tanh(mean)."""
         mean, log_std = self(obs)
-        normal = torch.distributions.Normal(mean, log_std.exp())
+        # no argument validation: it reads every value back to the host (a sync per call on a GPU); the actor's
+        # outputs are finite by construction (tanh-bounded log std), non-finite losses are caught by the trainer
+        normal = torch.distributions.Normal(mean, log_std.exp(), validate_args=False)
         u = normal.rsample()
         action = torch.tanh(u)
         log_prob = normal.log_prob(u) - torch.log(1.0 - action.pow(2) + 1e-6)

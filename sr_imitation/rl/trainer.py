@@ -20,14 +20,13 @@ from __future__ import annotations
 import logging
 from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
+from sr_imitation.infra.distributed import launched_world_size
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.results import prs_pairs, write_results
 from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SACSubstrate, stage_seed
-from sr_imitation.stream import RunDirectory, StreamEngine, make_method
 from sr_imitation.stream.results import RESULTS_VERSION
-from sr_imitation.stream.rundir import RUN_CONFIG_FILE
+from sr_imitation.stream.run import StreamRun
 
 logger = logging.getLogger(__name__)
 
@@ -46,8 +45,9 @@ def check_skill_names(skills: list[str]) -> None:
                          "'reach-v3')")
 
 
-class StreamTrainer:
-    """Runs (or resumes) one seed of the stream described by ``cfg`` on the stream engine.
+class StreamTrainer(StreamRun):
+    """Runs (or resumes) one seed of the stream described by ``cfg`` (:class:`~sr_imitation.stream.run.StreamRun`
+    with the SAC substrate); the skills are checked to be Meta-World environments before anything is written.
 
     ``after_stage`` (tests) is called with the stage index after each completed stage; raising there simulates
     a killed run (``after_phase(k, phase)``: after each phase).
@@ -55,27 +55,22 @@ class StreamTrainer:
 
     def __init__(self, cfg: RLTrainConfig, after_stage: Callable[[int], None] | None = None,
                  after_phase: Callable[[int, str], None] | None = None) -> None:
-        self.cfg = cfg
+        if launched_world_size() > 1:
+            raise ValueError("several processes (torchrun / accelerate launch): the SAC substrate trains in one "
+                             "process (its updates are single small batches); run seeds in parallel with sr-grid")
         self.skills = cfg.stream_skills
         check_skill_names(self.skills)  # before the run directory is touched and the first gradient
-        self.out = Path(cfg.output_dir)
-        self.substrate = SACSubstrate(cfg)
-        self.method = make_method(cfg.method, SACSubstrate.name, self.substrate.method_settings())
+        substrate = SACSubstrate(cfg)
         # Runs from before the engine (one checkpoint per stage) cannot be resumed by it: no legacy settings.
-        self.run_dir = RunDirectory(self.out, cfg.resume_fingerprint(), RUN_CONFIG_FILE, cfg.stored_config(),
-                                    cfg.resume, cfg.overwrite)
-        self.engine = StreamEngine(self.substrate, self.method, self.run_dir, cfg.progress, self._after_phase,
-                                   wandb=cfg.wandb, log_config=cfg.stored_config(), extend_from=cfg.stream.extend_from)
-        self.after_stage, self.after_phase = after_stage, after_phase
+        super().__init__(cfg, substrate, fingerprint=cfg.resume_fingerprint(), stored_config=cfg.stored_config(),
+                         after_phase=after_phase)
+        self.cfg: RLTrainConfig = cfg
+        self.substrate: SACSubstrate = substrate
+        self.after_stage = after_stage
 
-    def _after_phase(self, k: int, phase: str) -> None:
-        if self.after_phase is not None:
-            self.after_phase(k, phase)
+    def on_phase(self, k: int, phase: str) -> None:
         if self.after_stage is not None and phase == self.engine.phases(k)[-1]:
             self.after_stage(k)
 
     def stage_dir(self, k: int) -> Path:
         return self.substrate.stage_dir(k)
-
-    def run(self) -> dict[str, Any]:
-        return self.engine.run()

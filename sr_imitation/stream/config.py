@@ -32,7 +32,27 @@ import draccus
 from draccus.cfgparsing import parse_string
 from draccus.utils import DecodingError
 
+from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra.runlog import WandbConfig
+
+
+@dataclass
+class StreamSleepConfig(SleepConfig):
+    """``--sleep.*`` of a run: the core's sleep hyperparameters (:class:`~sr_imitation.core.sleep.SleepConfig`, the
+    MT5 table's defaults) and whether the run sleeps at all, which the continual method reads (the core's
+    ``sleep_consolidate`` has no such switch)."""
+
+    enabled: bool = True
+    """Sleep at all - false is the paper's SR Wake-Only ablation (read by the continual method)."""
+
+
+@dataclass
+class StreamSettings:
+    """``--stream.*`` on every substrate; each substrate's stream configuration adds its skills and their data."""
+
+    extend_from: Path | None = None
+    """A finished run with these settings whose skills are this stream's first ones (e.g. MT8 from MT5): its stages
+    are copied and the stream continues with the next skill."""
 
 
 @dataclass
@@ -58,6 +78,8 @@ class RunConfig:
     """Console progress bars."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
     """Mirror the run log (log.jsonl) to Weights & Biases (--wandb.enable=true; offline by default)."""
+    stream: StreamSettings = field(default_factory=StreamSettings)
+    """The skills, in order, and their data (each substrate's stream configuration)."""
 
 RENAMED_FLAGS: dict[str, str] = {
     "--policy.sleep_lr": "--sleep.lr",

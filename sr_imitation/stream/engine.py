@@ -100,9 +100,10 @@ class StreamEngine:
         """The phase whose checkpoint ends stage ``k``: its sleep if it slept, else its wake."""
         return "sleep" if self.run_dir.done(k, "sleep") else "wake"
 
-    def run(self, stop_after: int | None = None) -> dict[str, Any]:
+    def run(self, stop_after: int | None = None, report: bool = True) -> dict[str, Any]:
         """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return the progress
-        record instead of the results (partial runs)."""
+        record instead of the results (partial runs); ``report=False``: the progress record, never the results (a
+        process that does not evaluate, :mod:`sr_imitation.infra.distributed`)."""
         last = len(self.skills) if stop_after is None else stop_after
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
@@ -115,11 +116,11 @@ class StreamEngine:
         self.log = RunLog(self.run_dir.path, self.wandb, self.log_config)
         self.substrate.run_log = self.log
         try:
-            return self._run(last)
+            return self._run(last, report)
         finally:
             self.log.close()
 
-    def _run(self, last: int) -> dict[str, Any]:
+    def _run(self, last: int, report: bool = True) -> dict[str, Any]:
         self.substrate.setup()
         self.method.setup(self.substrate)
         pending_load: tuple[int, str] | None = None
@@ -145,7 +146,7 @@ class StreamEngine:
                 logger.info("stage %d (%s): %s done in %.1f s", k + 1, self.skills[k], phase, record["seconds"])
                 if self.after_phase is not None:
                     self.after_phase(k, phase)
-        if last < len(self.skills):
+        if last < len(self.skills) or not report:
             return dict(self.run_dir.progress)
         kept = self.memories + self.method.extra_memories(self.substrate, len(self.skills))
         return self.substrate.report(self.run_dir.progress, kept,

@@ -42,6 +42,7 @@ from typing import Any
 
 import numpy as np
 
+from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
 from sr_imitation.infra.provenance import process_code_version
 from sr_imitation.io import JSON_CHECKSUM, atomic_write_bytes, read_checked_json, read_json, write_checked_json
@@ -154,6 +155,8 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "memory_bytes": {k: int(v) for k, v in memory_bytes.items()},
         "memory_bytes_total": int(sum(memory_bytes.values())),
         "memory_kinds": {k: int(v) for k, v in (memory_kinds or {}).items()},
+        # what each kind holds, in words, from the memory classes that wrote them (summaries read it from here)
+        "memory_contents": {k: memory_contents(k) for k in (memory_kinds or {})},
         "stages": stages,
         "config": dict(config),
         "extra": dict(extra or {}),

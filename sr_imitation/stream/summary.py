@@ -23,7 +23,6 @@ from typing import Any
 
 import numpy as np
 
-from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.stream.results import METRICS, load_results
@@ -112,6 +111,8 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "memory_bytes_total": mean_sem_dict([r["memory_bytes_total"] for r in runs]),
             # None: the run predates per-kind memory accounting (results.json without "memory_kinds")
             "memory_kinds": None if runs[0].get("memory_kinds") is None else dict(runs[0]["memory_kinds"]),
+            # what each kind holds, in words (results.json since session 27; older runs: LEGACY_MEMORY_CONTENTS)
+            **({"memory_contents": dict(runs[0]["memory_contents"])} if runs[0].get("memory_contents") else {}),
             "oracle": bool((runs[0].get("extra") or {}).get("oracle")),
             "curves": {m: _curve_stats([r["metrics"][m].get("curve") for r in runs]) for m in METRICS},
         }
@@ -319,20 +320,30 @@ def plot_dynamics(summary: Mapping[str, Any], path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
+LEGACY_MEMORY_CONTENTS = {
+    "act_actor": "observations (state; wrist images as uint8) + the actor's action chunks on them",
+    "act_demonstrations": "demonstration frames (normalized observations + target action chunks and padding masks)",
+    "componet_module": "a frozen module per skill (Gaussian head + attention weights)",
+    "ewc_fisher": "parameter snapshot theta* + diagonal Fisher",
+    "output_distillation": "inputs (states or observations) + the policy's outputs on them",
+    "policy_snapshot": "the policy before this skill's wake (one rolling copy of its weights)",
+    "sac_critic": "states + the frozen twin critic + the observation normalizer's snapshot",
+    "transitions": "transitions (s, a, r, s', done) + the actor's Gaussian on s (behaviour-cloning targets)",
+}
+"""What each memory kind held, in words, for runs whose results.json predates ``memory_contents`` (frozen: the
+memory classes' ``contents`` when those runs were written; a newer run's results carry their own words)."""
+
+
 def memory_table(summary: Mapping[str, Any], paper_mb: Mapping[str, float] | None = None) -> str:
     """Markdown: per variant the bytes its continual-learning mechanism stores at the end of the stream (first
     seed's run) and what, by memory kind, next to the paper's number where it gives one. A run recorded before
     per-kind accounting says so instead of "nothing"."""
-    # the substrates' memory classes describe their kinds (they register on import); a summary read only from
-    # archived runs has imported neither
-    import sr_imitation.imitation.actor_memory  # noqa: F401
-    import sr_imitation.rl.critic_memory  # noqa: F401
-
     lines = ["| variant | ours (MB) | what it stores (MB) | paper (MB) |", "|---|---|---|---|"]
     for variant, row in summary["variants"].items():
         kinds = row.get("memory_kinds")
+        words = {**LEGACY_MEMORY_CONTENTS, **(row.get("memory_contents") or {})}
         stored = ("not recorded (the run predates per-kind memory accounting)" if kinds is None else
-                  "; ".join(f"{memory_contents(k)} ({v / 1e6:.2f})" for k, v in sorted(kinds.items())) or "nothing")
+                  "; ".join(f"{words.get(k, k)} ({v / 1e6:.2f})" for k, v in sorted(kinds.items())) or "nothing")
         paper = (paper_mb or {}).get(variant)
         lines.append(f"| {variant} | {row['memory_bytes_total']['mean'] / 1e6:.2f} | {stored} | "
                      f"{'-' if paper is None else f'{paper:.1f}'} |")

@@ -223,7 +223,6 @@ def test_invalid_configs_are_rejected():
         SleepConfig(lr=0)
     with pytest.raises(ValueError, match="unknown aggregator"):
         SleepConfig(aggregator="sum")
-    assert SleepConfig.surgicai().lr == 1e-5 and SleepConfig.surgicai().fw_iterations == 5
     assert SleepConfig.mt5().anchor_tau == 150.0 and SleepConfig.mt5().max_iterations == 4000
 
 

@@ -9,7 +9,7 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_policy_act_sr import ACTSRConfig
-from sr_imitation.core.sleep import SurgicAISleepConfig
+from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.evaluate import EvalConfig
 from sr_imitation.imitation.stream import MemoryConfig, StreamConfig, TrainStreamConfig
 from sr_imitation.imitation.wake import WakeConfig

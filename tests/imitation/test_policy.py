@@ -13,8 +13,8 @@ from lerobot.policies.factory import get_policy_class
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from sr_imitation.core.memory import load_memory
-from sr_imitation.core.sleep import SurgicAISleepConfig
 from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.stream import TrainStreamConfig
 from tests.imitation.helpers import ACTION_DIM, IMAGE, STATE_DIM, tiny_policy
 

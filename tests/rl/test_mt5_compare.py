@@ -75,6 +75,12 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
     row = {"memory_bytes_total": {"mean": 2_000_000}, "memory_kinds": {"sac_critic": 2_000_000}}
     assert ("| sr | 2.00 | states + the frozen twin critic + the observation normalizer's snapshot (2.00) | 3.7 |"
             in memory_table({"variants": {"sr": row}}, {"sr": 3.7}))
+    # results.json carries each kind's words (the summary imports no substrate); a kind's own words win
+    assert summary["variants"]["der"]["memory_contents"] == {
+        "output_distillation": "inputs (states or observations) + the policy's outputs on them"}
+    new_kind = {"memory_bytes_total": {"mean": 1_000_000}, "memory_kinds": {"prototypes": 1_000_000},
+                "memory_contents": {"prototypes": "one mean feature per class"}}
+    assert "| x | 1.00 | one mean feature per class (1.00) | - |" in memory_table({"variants": {"x": new_kind}})
     legacy = {"memory_bytes_total": {"mean": 3_916_600}, "memory_kinds": None}  # results.json of older code
     assert "| sr | 3.92 | not recorded (the run predates per-kind memory accounting) | 3.7 |" in memory_table(
         {"variants": {"sr": legacy}}, {"sr": 3.7})

@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.rl import substrate as substrate_module
 from sr_imitation.rl.config import (
     CriticMemoryConfig,
@@ -24,6 +23,7 @@ from sr_imitation.rl.config import (
 )
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream import engine as engine_module
+from sr_imitation.stream.config import StreamSleepConfig
 from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder
 
 SKILLS = ["reach-v3", "door-open-v3", "drawer-open-v3"]
@@ -35,7 +35,7 @@ def _config(out: Path) -> RLTrainConfig:
         sac=SACConfig(hidden_dim=16, batch_size=16, utd_ratio=0.5, warmup_steps=20, buffer_size=2000),
         wake=WakeConfig(budget_scale=0.002),
         # tau = 150 (MT5): the gate is on for these small networks; 10 iterations, the plateau rule cannot fire.
-        sleep=SleepConfig.mt5(max_iterations=10, early_stop_window=10, batch_size=16),
+        sleep=StreamSleepConfig.mt5(max_iterations=10, early_stop_window=10, batch_size=16),
         memory=CriticMemoryConfig(buffer_size=16, validation_chunk=5, validation_max_rounds=1),
         eval=EvalConfig(episodes=1, videos_per_skill=0), progress=False, plots=False,
     )

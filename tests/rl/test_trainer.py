@@ -12,7 +12,6 @@ import draccus
 import pytest
 import torch
 
-from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.rl.config import (
@@ -26,6 +25,7 @@ from sr_imitation.rl.config import (
 from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.stream.config import StreamSleepConfig
 from sr_imitation.stream.results import RESULTS_VERSION
 from sr_imitation.stream.summary import group_runs, render_markdown, summarize
 
@@ -39,7 +39,7 @@ def tiny_config(out: Path, skills: list[str] | None = None, extend_from: Path | 
         "output_dir": out, "seed": 3, "stream": stream, "max_episode_steps": 30,
         "sac": SACConfig(hidden_dim=32, batch_size=16, utd_ratio=0.5, warmup_steps=40, buffer_size=5000),
         "wake": WakeConfig(budget_scale=0.002),
-        "sleep": SleepConfig.mt5(max_iterations=12, early_stop_window=5, fw_iterations=5, batch_size=16),
+        "sleep": StreamSleepConfig.mt5(max_iterations=12, early_stop_window=5, fw_iterations=5, batch_size=16),
         "memory": CriticMemoryConfig(buffer_size=32, validation_chunk=5, validation_max_rounds=1),
         "eval": EvalConfig(episodes=2, video_height=64, video_width=64), "progress": False, "plots": False,
     }

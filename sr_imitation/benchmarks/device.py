@@ -1,0 +1,220 @@
+"""The hot paths of both substrates on whatever device is present: one wake step, one sleep iteration, one SAC update.
+
+    python -m sr_imitation.benchmarks.device [--device auto|cpu|cuda|mps] [--repeats 20] [--threads N]
+
+Rows, each the median wall time of one call in milliseconds (CUDA synchronized before and after each call):
+
+- ACT wake step, the CPU needle preset's state-only policy (dim 128, 2 encoder layers, chunk 16, batch 32):
+  forward (L1), backward, AdamW step;
+- ACT wake step, the vision preset's policy (a 64x64 wrist camera through a GroupNorm ResNet-18, batch 8);
+- ACT-SR sleep iteration, k = 5 actor memories of 1024 observations (state-only policy, batch 8 per memory, the
+  SurgicAI table's settings): k per-memory gradients, the Gram matrix, the exact Nash solve, the Adam step;
+- SAC update (the MT5 preset's networks, batch 128): critic, actor and temperature steps;
+- SAC sleep iteration, k = 5 critic memories (batch 64 per memory, the MT5 table's settings).
+
+Everything is created on the device (policy, optimizer state, memories' frozen models); the memories' buffers stay
+on the host and each iteration's sampled batch is copied to the device, as a data loader's would be. The Nash solve
+runs on the host on the k x k Gram matrix (a 5 x 5 copy per iteration). Run it on a GPU machine and record the table
+in docs/BENCHMARKS.md next to a CPU run of the same command.
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import statistics
+import time
+from collections.abc import Callable
+
+import numpy as np
+import torch
+from lerobot.configs.types import FeatureType, PolicyFeature
+
+from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.core.sleep import sleep_consolidate
+from sr_imitation.imitation.actor_memory import ActorMemory
+from sr_imitation.imitation.config import SurgicAISleepConfig
+from sr_imitation.rl.config import SACConfig
+from sr_imitation.rl.critic_memory import CriticMemory
+from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
+from sr_imitation.rl.sac import ReplayBuffer, SACAgent
+from sr_imitation.stream.config import StreamSleepConfig
+
+STATE_DIM, ACTION_DIM, CHUNK, K = 35, 7, 16, 5
+
+
+def resolve_device(name: str) -> torch.device:
+    """``auto``: CUDA if present, then MPS, else the CPU; a named device must be available (one-line error)."""
+    if name == "auto":
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        return torch.device("mps" if torch.backends.mps.is_available() else "cpu")
+    device = torch.device(name)
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise SystemExit("--device=cuda: no CUDA device here (torch.cuda.is_available() is false)")
+    if device.type == "mps" and not torch.backends.mps.is_available():
+        raise SystemExit("--device=mps: no MPS device here")
+    return device
+
+
+def timed_ms(fn: Callable[[], object], repeats: int, device: torch.device, warmup: int = 3) -> float:
+    """Median milliseconds of ``fn()`` with the device synchronized around each call."""
+
+    def sync() -> None:
+        if device.type == "cuda":
+            torch.cuda.synchronize(device)
+        elif device.type == "mps":
+            torch.mps.synchronize()
+
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(repeats):
+        sync()
+        t0 = time.perf_counter()
+        fn()
+        sync()
+        times.append(time.perf_counter() - t0)
+    return 1e3 * statistics.median(times)
+
+
+def act_policy(device: torch.device, vision: bool) -> ACTSRPolicy:
+    """The CPU needle presets' ACT-SR (``configs/needle_cpu.json``, ``needle_cpu_vision.json``) on ``device``."""
+    cfg = ACTSRConfig(device=device.type, dim_model=128, n_heads=4, dim_feedforward=512, n_encoder_layers=2,
+                      n_decoder_layers=1, chunk_size=CHUNK, n_action_steps=8, use_vae=False, dropout=0.0,
+                      backbone_norm="group", pretrained_backbone_weights=None)
+    cfg.input_features = {"observation.state": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    if vision:
+        cfg.input_features["observation.images.wrist"] = PolicyFeature(FeatureType.VISUAL, (3, 64, 64))
+    else:
+        cfg.input_features["observation.environment_state"] = PolicyFeature(FeatureType.ENV, (STATE_DIM,))
+    cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
+    return ACTSRPolicy(cfg).to(device)
+
+
+def act_batch(n: int, vision: bool, device: torch.device, seed: int = 0) -> dict[str, torch.Tensor]:
+    g = torch.Generator().manual_seed(seed)
+    batch = {"observation.state": torch.randn(n, STATE_DIM, generator=g),
+             "action": torch.randn(n, CHUNK, ACTION_DIM, generator=g),
+             "action_is_pad": torch.zeros(n, CHUNK, dtype=torch.bool)}
+    if vision:
+        batch["observation.images.wrist"] = torch.rand(n, 3, 64, 64, generator=g)
+    else:
+        batch["observation.environment_state"] = batch["observation.state"].clone()
+    return {k: v.to(device) for k, v in batch.items()}
+
+
+def bench_act_wake(device: torch.device, vision: bool, repeats: int) -> float:
+    torch.manual_seed(0)
+    policy = act_policy(device, vision)
+    policy.train()
+    optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
+    batch = act_batch(8 if vision else 32, vision, device)
+
+    def step() -> None:
+        loss, _ = policy.forward(dict(batch))
+        loss.backward()
+        optimizer.step()
+        optimizer.zero_grad()
+
+    return timed_ms(step, repeats, device)
+
+
+def bench_act_sleep(device: torch.device, repeats: int) -> float:
+    torch.manual_seed(0)
+    policy = act_policy(device, vision=False)
+    policy.eval()
+
+    def to_device(raw: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:  # the substrate's preprocessor's move
+        state = raw["observation.state"].to(device)
+        return {"observation.state": state, "observation.environment_state": state}
+
+    policy.set_observation_normalizer(to_device)
+    g = torch.Generator().manual_seed(1)
+    memories = []
+    for i in range(K):
+        state = torch.randn(1024, STATE_DIM, generator=g)
+        memories.append(ActorMemory.from_observations(f"skill{i}", policy.memory_chunk, {"observation.state": state}))
+        with torch.no_grad():
+            for p in policy.parameters():
+                p.add_(0.01 * torch.randn_like(p))
+    params = [p for p in policy.parameters() if p.requires_grad]
+    anchor = [p.detach().clone() for p in params]
+    cfg = SurgicAISleepConfig(max_iterations=repeats + 3, early_stop_tol=0.0)
+    t0 = _sync_time(device)
+    result = sleep_consolidate(params, policy.memory_chunk, memories, cfg, anchor_params=anchor, progress=False)
+    return 1e3 * (_sync_time(device) - t0) / result.stop_iteration
+
+
+def _sync_time(device: torch.device) -> float:
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    return time.perf_counter()
+
+
+def bench_sac_update(device: torch.device, repeats: int) -> float:
+    torch.manual_seed(0)
+    rng = np.random.default_rng(0)
+    replay = ReplayBuffer(10_000)
+    for _ in range(2_000):
+        replay.add(rng.normal(size=OBS_DIM), rng.uniform(-1, 1, ACT_DIM), rng.uniform(0, 10), rng.normal(size=OBS_DIM),
+                   False)
+    cfg = SACConfig()
+    agent = SACAgent(cfg, ExcitabilityConfig(), device=device)
+    agent.normalizer.update(replay.obs[:1000])
+    return timed_ms(lambda: agent.update(replay.batch(replay.indices(cfg.batch_size, rng), device), 1e-3), repeats,
+                    device)
+
+
+def bench_sac_sleep(device: torch.device, repeats: int) -> float:
+    torch.manual_seed(0)
+    agent = SACAgent(SACConfig(), ExcitabilityConfig(), device=device)
+    agent.normalizer.update(np.random.default_rng(0).normal(size=(100, OBS_DIM)))
+    memories = []
+    for i in range(K):
+        with torch.no_grad():
+            for p in agent.critic.parameters():
+                p.add_(0.01 * torch.randn_like(p))
+        states = np.random.default_rng(i).normal(size=(1000, OBS_DIM))
+        memories.append(CriticMemory.from_agent(f"skill{i}", agent, states))
+    params = agent.actor_parameters()
+    cfg = StreamSleepConfig.mt5(max_iterations=repeats + 3, early_stop_tol=0.0, anchor_tau=None)
+    anchor = [p.detach().clone() for p in params]
+    t0 = _sync_time(device)
+    result = sleep_consolidate(params, agent.policy_fn, memories, cfg, anchor_params=anchor, progress=False)
+    return 1e3 * (_sync_time(device) - t0) / result.stop_iteration
+
+
+def device_name(device: torch.device) -> str:
+    if device.type == "cuda":
+        return f"{torch.cuda.get_device_name(device)} (CUDA {torch.version.cuda})"
+    return f"{device.type} ({platform.processor() or platform.machine()}, {torch.get_num_threads()} threads)"
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    device = resolve_device(args.device)
+    rows = [
+        ("ACT wake step, state-only preset (batch 32)", lambda: bench_act_wake(device, False, args.repeats)),
+        ("ACT wake step, vision preset (64x64 wrist camera, batch 8)", lambda: bench_act_wake(device, True,
+                                                                                             args.repeats)),
+        (f"ACT-SR sleep iteration (k = {K} actor memories, batch 8 each)", lambda: bench_act_sleep(device,
+                                                                                                   args.repeats)),
+        ("SAC update (MT5 preset, batch 128)", lambda: bench_sac_update(device, args.repeats)),
+        (f"SAC sleep iteration (k = {K} critic memories, batch 64 each)", lambda: bench_sac_sleep(device,
+                                                                                                  args.repeats)),
+    ]
+    print(f"device: {device_name(device)}; torch {torch.__version__}; median of {args.repeats}\n")
+    print("| hot path | ms per call |\n|---|---|")
+    for name, fn in rows:
+        print(f"| {name} | {fn():.2f} |", flush=True)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,153 @@
+"""Several processes for one run: the wake's updates data-parallel, the main process the only writer of the run.
+
+``torchrun --nproc_per_node=N -m sr_imitation.cli ...`` (on GPUs also ``accelerate launch --multi_gpu
+--num_processes=N -m sr_imitation.cli ...``; ``accelerate launch --cpu`` starts one process) starts N copies of
+``sr-train``; :func:`start` joins them through accelerate's ``PartialState`` (gloo on CPU, NCCL
+on CUDA), the way ``lerobot-train`` does. Every process runs the whole stream engine, because what each phase
+needs (the policy, the earlier skills' memories, the sleep's anchor) is the same on every process and cheaper to
+recompute than to send:
+
+- **wake**: every process draws the same global batch (the same data loader, seeded alike) and trains on its own
+  contiguous slice of it (:func:`shard`); after the backward pass the gradients are averaged over the processes,
+  each weighted by its share of the batch (:func:`average_gradients`, one all-reduce of the flattened gradients),
+  so each optimizer step sees the gradient of the whole batch: a one-process run with the same batch size, up to
+  float summation order. Terms every process computes alike (the distillation loss on stored memories, a method's
+  penalty) keep their full weight. Random draws inside the forward pass (dropout, ACT's VAE) differ from a
+  one-process run's, so its results are equal only without them (they are equal in distribution).
+- **sleep**: on every process, identically (the same memories, seeds and weights give the same steps; the other
+  processes would otherwise wait for the main one).
+- **evaluation**: on the main process only; the others wait at the next collective.
+- **files**: the main process writes the run directory (checkpoints, memories, logs, results, videos). The others
+  keep their own copy of the run's state in a private scratch folder (:func:`scratch_output`, removed at the end),
+  so that the engine's loads and a resume work unchanged; a resume first copies the run directory there.
+"""
+
+from __future__ import annotations
+
+import logging
+import os
+import shutil
+import tempfile
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import torch
+
+logger = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Processes:
+    """Where this process stands among the run's processes (one process: rank 0 of 1)."""
+
+    rank: int = 0
+    world_size: int = 1
+
+    @property
+    def is_main(self) -> bool:
+        return self.rank == 0
+
+    @property
+    def distributed(self) -> bool:
+        return self.world_size > 1
+
+
+def launched_world_size() -> int:
+    """The number of processes a launcher (``torchrun``, ``accelerate launch``) started, from its environment."""
+    return int(os.environ.get("WORLD_SIZE", "1"))
+
+
+def start(cpu: bool) -> Processes:
+    """Join the other processes of a launched run (accelerate's ``PartialState``: gloo on CPU); one process: nothing
+    to join. ``cpu``: the run's device is the CPU (CUDA processes take the GPU of their local rank)."""
+    if launched_world_size() <= 1:
+        return Processes()
+    from accelerate import PartialState
+
+    state = PartialState(cpu=cpu)
+    logger.info("process %d of %d (%s, backend %s)", state.process_index, state.num_processes,
+                state.distributed_type, state.backend)
+    return Processes(state.process_index, state.num_processes)
+
+
+def current() -> Processes:
+    """This process's place, once :func:`start` has joined the group (otherwise: one process)."""
+    if torch.distributed.is_available() and torch.distributed.is_initialized():
+        return Processes(torch.distributed.get_rank(), torch.distributed.get_world_size())
+    return Processes()
+
+
+def barrier() -> None:
+    """Wait for every process (nothing to wait for with one)."""
+    if current().distributed:
+        torch.distributed.barrier()
+
+
+def shard(batch: Mapping[str, Any], processes: Processes) -> tuple[dict[str, Any], float]:
+    """This process's contiguous slice of a global batch (every tensor and list cut along its first dimension, as
+    ``torch.tensor_split`` cuts: sizes differ by at most one) and its share of the batch's rows. A batch with fewer
+    rows than processes (an epoch's last one) is not cut: every process takes all of it with share 1 / N, so that
+    every process runs the same forward passes (and draws from the same generators). One process: the batch
+    itself, share 1."""
+    if not processes.distributed:
+        return dict(batch), 1.0
+    sizes = {len(v) for v in batch.values() if isinstance(v, torch.Tensor | list)}
+    if len(sizes) != 1:
+        raise ValueError(f"shard: a batch's fields have different lengths {sorted(sizes)}")
+    n = sizes.pop()
+    if n < processes.world_size:
+        return dict(batch), 1.0 / processes.world_size
+    bounds = [len(part) for part in torch.tensor_split(torch.arange(n), processes.world_size)]
+    start = sum(bounds[: processes.rank])
+    stop = start + bounds[processes.rank]
+    out = {k: v[start:stop] if isinstance(v, torch.Tensor | list) else v for k, v in batch.items()}
+    return out, (stop - start) / n
+
+
+def average_gradients(params: Sequence[torch.nn.Parameter], share: float) -> None:
+    """Replace every parameter's gradient by the share-weighted sum over the processes, sum_r share_r * g_r, i.e. the
+    gradient of the whole batch when each process's loss is a mean over its slice. One all-reduce of the flattened
+    gradients (a parameter without a gradient counts as zero and keeps ``None`` if it has none anywhere)."""
+    if not current().distributed:
+        return
+    params = list(params)
+    present = torch.tensor([p.grad is not None for p in params], dtype=torch.int32)
+    torch.distributed.all_reduce(present, op=torch.distributed.ReduceOp.MAX)
+    used = [p for p, flag in zip(params, present.tolist(), strict=True) if flag]
+    if not used:
+        return
+    flat = torch.cat([(p.grad if p.grad is not None else torch.zeros_like(p)).reshape(-1) for p in used]) * share
+    torch.distributed.all_reduce(flat, op=torch.distributed.ReduceOp.SUM)
+    offset = 0
+    for p in used:
+        n = p.numel()
+        p.grad = flat[offset : offset + n].view_as(p).clone()
+        offset += n
+
+
+def average_scalar(value: float, share: float) -> float:
+    """The share-weighted sum of a per-process number (a slice's mean loss -> the batch's)."""
+    if not current().distributed:
+        return value
+    t = torch.tensor([value * share], dtype=torch.float64)
+    torch.distributed.all_reduce(t, op=torch.distributed.ReduceOp.SUM)
+    return float(t)
+
+
+def scratch_output(output_dir: Path, resume: bool, processes: Processes) -> Path:
+    """Where a process other than the main one keeps its copy of the run (a fresh private folder; on ``resume`` a
+    copy of the run directory, taken before any process touches it). The main process: ``output_dir`` itself."""
+    if processes.is_main:
+        return output_dir
+    scratch = Path(tempfile.mkdtemp(prefix=f"sr-train-rank{processes.rank}-")) / Path(output_dir).name
+    if resume and Path(output_dir).is_dir():
+        shutil.copytree(output_dir, scratch, symlinks=True)
+    return scratch
+
+
+def remove_scratch(path: Path, processes: Processes) -> None:
+    """Remove a non-main process's scratch folder (:func:`scratch_output`); the main process's output stays."""
+    if not processes.is_main:
+        shutil.rmtree(Path(path).parent, ignore_errors=True)
