@@ -9,7 +9,7 @@ Rows, each the median wall time of one call in milliseconds (CUDA synchronized b
 - ACT wake step, the vision preset's policy (a 64x64 wrist camera through a GroupNorm ResNet-18, batch 8);
 - ACT-SR sleep iteration, k = 5 actor memories of 1024 observations (state-only policy, batch 8 per memory, the
   SurgicAI table's settings): k per-memory gradients, the Gram matrix, the exact Nash solve, the Adam step;
-- SAC update (the MT5 preset's networks, batch 128): critic, actor and temperature steps;
+- SAC update (the paper's MT5 networks, batch 256): critic, actor and temperature steps;
 - SAC sleep iteration, k = 5 critic memories (batch 64 per memory, the MT5 table's settings).
 
 Everything is created on the device (policy, optimizer state, memories' frozen models); the memories' buffers stay
@@ -206,7 +206,7 @@ def main() -> None:
                                                                                              args.repeats)),
         (f"ACT-SR sleep iteration (k = {K} actor memories, batch 8 each)", lambda: bench_act_sleep(device,
                                                                                                    args.repeats)),
-        ("SAC update (MT5 preset, batch 128)", lambda: bench_sac_update(device, args.repeats)),
+        ("SAC update (the paper's MT5 networks, batch 256)", lambda: bench_sac_update(device, args.repeats)),
         (f"SAC sleep iteration (k = {K} critic memories, batch 64 each)", lambda: bench_sac_sleep(device,
                                                                                                   args.repeats)),
     ]
