@@ -105,10 +105,10 @@ def run_probe(base: TrainStreamConfig, skill: str, stats: str, seed: int, out: P
     substrate = ProbeSubstrate(cfg, [(stream.dataset_path(i), stream.repo_id(i)) for i in sources], make_env)
     out.mkdir(parents=True, exist_ok=True)
     substrate.setup()
-    substrate.begin_phase(0, "wake")
+    substrate.begin_phase(0, "wake", substrate.phase_seed(0, "wake"))
     wake, files = substrate.wake(0, [], 0.0)
     substrate.save_policy(0, "wake", files)
-    substrate.begin_phase(0, "wake.eval")
+    substrate.begin_phase(0, "wake.eval", substrate.phase_seed(0, "wake.eval"))
     evaluation = evaluate_skills(substrate.policy, substrate.preprocessor, substrate.postprocessor, [skill],
                                  [position], substrate.make_env, cfg.eval, out / "videos", cfg.progress)[skill]
     failures = [final_errors(t[-1]) for t, n in zip(evaluation.trajectories, evaluation.episode_lengths, strict=True)

@@ -112,7 +112,7 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
     substrate.setup()
     skills = substrate.skills
     if not run.done(0, "wake"):
-        substrate.begin_phase(0, "wake")
+        substrate.begin_phase(0, "wake", substrate.phase_seed(0, "wake"))
         t0 = time.perf_counter()
         result = wake_train(substrate.policy, substrate.preprocessor, union_data(substrate), joint_wake(cfg),
                             substrate.phase_seed(0, "wake"), cfg.progress)
@@ -124,7 +124,7 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
     else:
         substrate.load_policy(0, "wake")
     if not run.done(0, "wake.eval"):
-        substrate.begin_phase(0, "wake.eval")
+        substrate.begin_phase(0, "wake.eval", substrate.phase_seed(0, "wake.eval"))
         run.mark(0, "wake.eval", substrate.evaluate(0, "wake.eval", list(range(len(skills)))))
     evals = substrate.read_eval(0, "wake")
     per_seed = np.array([evals[s]["success_per_seed"] for s in skills]).T  # (evaluation seeds, skills)

@@ -18,7 +18,7 @@ What the stream knows from its run directory is taken here from the inputs:
   deployed policy itself (our choice: a deployed policy has no recorded predecessor, and anchored at itself the
   proximal term keeps the consolidated policy near what is deployed). With ``--anchor.path`` set to stage k-1's
   final checkpoint, sleeping an ``sr-train`` run's stage-k wake checkpoint with its memories 1..k,
-  ``--sleep.seed`` = that stage's sleep seed (:func:`~sr_imitation.imitation.substrate.phase_seed`:
+  ``--sleep.seed`` = that stage's sleep seed (:func:`~sr_imitation.stream.substrate.phase_seed`:
   1000 x run seed + 10 k + 3) and ``--final_skill`` as in the run gives the run's own sleep, bit for bit.
 - **gate snapshots** theta_i^wake, i < k, of Eq. 2: the checkpoint each of the first k-1 memories names as its
   snapshot (``config["snapshot"]``: an ``sr-train`` memory names its stage checkpoint relative to the run

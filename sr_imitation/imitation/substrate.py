@@ -62,7 +62,7 @@ from sr_imitation.io import (
 )
 from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE
-from sr_imitation.stream.substrate import PHASE_IDS, MethodSettings, SleepProblem
+from sr_imitation.stream.substrate import MethodSettings, SleepProblem, phase_seed
 
 logger = logging.getLogger(__name__)
 
@@ -82,13 +82,6 @@ def seed_everything(seed: int) -> None:
 
 def stage_name(index: int, skill: str) -> str:
     return f"skill_{index + 1}_{skill}"
-
-
-def phase_seed(seed: int, index: int, phase: str) -> int:
-    """The seed of ``phase`` of stage ``index`` (0-based) in a run with ``--seed=seed`` (our choice:
-    ``seed * 1000 + 10 * stage + phase id``); e.g. the ``--sleep.seed`` with which ``sr-sleep`` repeats a run's
-    sleep."""
-    return seed * 1000 + 10 * (index + 1) + PHASE_IDS[phase]
 
 
 def normalize_raw_observations(preprocessor: Any, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
@@ -127,6 +120,7 @@ class ACTSubstrate:
     """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
 
     name: ClassVar[str] = SUBSTRATE
+    seed_scheme: ClassVar[str] = "decimal"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})  # hooked_update
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.repo_ids",
                                                  "stream.extend_from", *PER_SKILL_EVAL_KEYS)
@@ -182,11 +176,17 @@ class ACTSubstrate:
     def _normalize_raw(self, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return normalize_raw_observations(self.preprocessor, raw)
 
-    def phase_seed(self, index: int, phase: str) -> int:
-        return phase_seed(self.cfg.seed, index, phase)
+    @property
+    def run_seed(self) -> int:
+        return self.cfg.seed
 
-    def begin_phase(self, k: int, phase: str) -> None:
-        seed_everything(self.phase_seed(k, phase))
+    def phase_seed(self, index: int, phase: str) -> int:
+        """The seed the engine hands ``phase`` of stage ``index`` (the generators of this substrate that belong to
+        another phase, e.g. the wake's data split during an evaluation, use that phase's)."""
+        return phase_seed(self.seed_scheme, self.cfg.seed, index, phase)
+
+    def begin_phase(self, k: int, phase: str, seed: int) -> None:
+        seed_everything(seed)
 
     # -- files -------------------------------------------------------------------------------------------
     def stage_dir_name(self, index: int) -> str:

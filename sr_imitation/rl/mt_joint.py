@@ -33,10 +33,10 @@ from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
 from sr_imitation.rl.evaluate import evaluate_policy, evaluation_configurations
 from sr_imitation.rl.results import prs_pairs
 from sr_imitation.rl.sac import SACAgent
-from sr_imitation.rl.substrate import stage_seed
 from sr_imitation.rl.wake import train_skill
 from sr_imitation.stream.results import build_results, write_results
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, RunDirectory
+from sr_imitation.stream.substrate import seed_sequence
 
 logger = logging.getLogger(__name__)
 
@@ -104,13 +104,13 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
     run.prepare()
     log_code_version(logger)
     torch.set_num_threads(cfg.torch_threads)
-    torch.manual_seed(stage_seed(cfg.seed, len(cfg.stream_skills), 1))
+    torch.manual_seed(seed_sequence(cfg.seed, len(cfg.stream_skills), 1))
     agent = SACAgent(cfg.sac, cfg.excitability, device=cfg.device)
     skills = cfg.stream_skills
     checkpoint = out / "agent.safetensors"
     header = {"format": "sr_imitation.rl.mt_joint", "seed": cfg.seed, "skills": list(skills)}
     if not run.done(0, "train"):
-        seed = stage_seed(cfg.seed, 0)
+        seed = seed_sequence(cfg.seed, 0)
         torch.manual_seed(seed % (2**63))
         np.random.seed(seed % (2**32))
         t0 = time.perf_counter()

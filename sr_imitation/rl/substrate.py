@@ -13,7 +13,7 @@ Per stage k, under ``stages/<k+1:02d>_<skill>/`` (every file written atomically;
 
 Evaluation is paired (common random numbers): skill i is evaluated on the same Meta-World configurations after its
 wake and after every stage (:func:`~sr_imitation.rl.evaluate.evaluation_configurations`). Seeds: the network from
-``stage_seed(seed, K, 1)``, stage k's wake from ``stage_seed(seed, k)``, its sleep from salts 2 (sleep sampling)
+``seed_sequence(seed, K, 1)``, stage k's wake from ``seed_sequence(seed, k)``, its sleep from salts 2 (sleep sampling)
 and 3 (excitability batches), every other phase from salt ``10 + phase id``.
 """
 
@@ -47,7 +47,7 @@ from sr_imitation.rl.results import SUBSTRATE, write_results
 from sr_imitation.rl.sac import SACAgent, TwinQ
 from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
-from sr_imitation.stream.substrate import PHASE_IDS, MethodSettings, SleepProblem
+from sr_imitation.stream.substrate import MethodSettings, SleepProblem, seed_sequence
 
 logger = logging.getLogger(__name__)
 
@@ -57,15 +57,13 @@ CHECKPOINT_VERSION = 3
 the wake snapshot inside; 1: per-stage evaluation draws)."""
 
 
-def stage_seed(seed: int, stage: int, salt: int = 0) -> int:
-    """Deterministic per-stage seed (independent of whether earlier stages ran in this process)."""
-    return int(np.random.SeedSequence([seed, stage, salt]).generate_state(1)[0])
 
 
 class SACSubstrate:
     """SAC with an excitability-gated actor on a Meta-World stream."""
 
     name: ClassVar[str] = SUBSTRATE
+    seed_scheme: ClassVar[str] = "seed_sequence"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.name", "stream.skills", "stream.extend_from")
 
@@ -85,15 +83,18 @@ class SACSubstrate:
     # -- set-up and seeding ---------------------------------------------------------------------------------
     def setup(self) -> None:
         torch.set_num_threads(self.cfg.torch_threads)
-        torch.manual_seed(stage_seed(self.cfg.seed, len(self.skills), 1))  # network initialization
+        torch.manual_seed(seed_sequence(self.cfg.seed, len(self.skills), 1))  # network initialization
         self.agent = SACAgent(self.cfg.sac, self.cfg.excitability, device=self.cfg.device)
         if self._videos and (reason := rendering_unavailable()) is not None:
             logger.warning("no evaluation videos: offscreen rendering is unavailable (%s); set MUJOCO_GL=egl "
                            "or eval.videos_per_skill=0", reason)
             self._videos = False
 
-    def begin_phase(self, k: int, phase: str) -> None:
-        seed = stage_seed(self.cfg.seed, k) if phase == "wake" else stage_seed(self.cfg.seed, k, 10 + PHASE_IDS[phase])
+    @property
+    def run_seed(self) -> int:
+        return self.cfg.seed
+
+    def begin_phase(self, k: int, phase: str, seed: int) -> None:
         torch.manual_seed(seed % (2**63))
         np.random.seed(seed % (2**32))
 
@@ -149,7 +150,7 @@ class SACSubstrate:
             raise ValueError("the SAC wake has no distillation term (the paper's wake is plain SAC); methods shape "
                              "it through their wake hooks")
         cfg = self.cfg
-        seed = stage_seed(cfg.seed, k)
+        seed = seed_sequence(cfg.seed, k)
         with SkillEnv(self.skills[k], seed=seed % (2**31), max_episode_steps=cfg.max_episode_steps) as env:
             wake, memory = train_skill(self.agent, env, k, cfg.sac, cfg.wake, cfg.excitability, cfg.memory,
                                        seed=seed, progress=cfg.progress, method=method)
@@ -197,7 +198,7 @@ class SACSubstrate:
         """Freshly initialized actor, critic, target critic and temperature (Reset & Distill's network for skill k),
         seeded from (run seed, k); the observation normalizer is kept. The global random state is left as it was."""
         saved = torch.random.get_rng_state()
-        torch.manual_seed(stage_seed(self.cfg.seed, k, 20) % (2**63))
+        torch.manual_seed(seed_sequence(self.cfg.seed, k, 20) % (2**63))
         fresh = SACAgent(self.cfg.sac, self.cfg.excitability, device=self.cfg.device)
         torch.random.set_rng_state(saved)
         fresh.normalizer.load_state_dict(self.agent.normalizer.state_dict())
@@ -208,7 +209,7 @@ class SACSubstrate:
         """Put ``build(sac_config, n_skills)`` in place of the actor (seeded from the run seed; fresh optimizers):
         a method's architecture (CompoNet). Called before any checkpoint is loaded."""
         saved = torch.random.get_rng_state()
-        torch.manual_seed(stage_seed(self.cfg.seed, len(self.skills), 21) % (2**63))
+        torch.manual_seed(seed_sequence(self.cfg.seed, len(self.skills), 21) % (2**63))
         self.agent.actor = build(self.cfg.sac, len(self.skills)).to(self.agent.device)
         torch.random.set_rng_state(saved)
         self.agent.reset_optimizers()
@@ -221,7 +222,7 @@ class SACSubstrate:
         """A freshly initialized twin critic and target for skill k (CompoNet's critic per skill), seeded from
         (run seed, k); actor, normalizer and temperature are kept. The global random state is left alone."""
         saved = torch.random.get_rng_state()
-        torch.manual_seed(stage_seed(self.cfg.seed, k, 22) % (2**63))
+        torch.manual_seed(seed_sequence(self.cfg.seed, k, 22) % (2**63))
         fresh = TwinQ(self.cfg.sac).to(self.agent.device)
         torch.random.set_rng_state(saved)
         self.agent.critic.load_state_dict(fresh.state_dict())
@@ -320,9 +321,9 @@ class SACSubstrate:
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         cfg, agent = self.cfg, self.agent
-        sleep_cfg = dataclasses.replace(cfg.sleep, seed=stage_seed(cfg.seed, k, 2) % (2**31))
+        sleep_cfg = dataclasses.replace(cfg.sleep, seed=seed_sequence(cfg.seed, k, 2) % (2**31))
         rate = cfg.excitability.rate("sleep")
-        gen = torch.Generator().manual_seed(stage_seed(cfg.seed, k, 3) % (2**31))
+        gen = torch.Generator().manual_seed(seed_sequence(cfg.seed, k, 3) % (2**31))
 
         def excitability_step(_iteration: int) -> None:
             # Eq. 3 at the sleep rate, from the actor's activity on a batch of every memory's states

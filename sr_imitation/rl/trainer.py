@@ -24,13 +24,13 @@ from pathlib import Path
 from sr_imitation.infra.distributed import launched_world_size
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.results import prs_pairs, write_results
-from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SACSubstrate, stage_seed
+from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SACSubstrate
 from sr_imitation.stream.results import RESULTS_VERSION
 from sr_imitation.stream.run import StreamRun
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "RESULTS_VERSION", "StreamTrainer", "prs_pairs", "stage_seed",
+__all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "RESULTS_VERSION", "StreamTrainer", "prs_pairs",
            "write_results"]
 
 

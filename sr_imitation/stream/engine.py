@@ -40,7 +40,7 @@ from sr_imitation.io import read_checked_json
 from sr_imitation.stream.capabilities import missing_capabilities
 from sr_imitation.stream.methods import ContinualMethod
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
-from sr_imitation.stream.substrate import Substrate
+from sr_imitation.stream.substrate import Substrate, phase_seed
 
 logger = logging.getLogger(__name__)
 
@@ -86,6 +86,10 @@ class StreamEngine:
         self.log: RunLog | None = None
 
     # -- the algorithm --------------------------------------------------------------------------------------
+    def phase_seed(self, k: int, phase: str) -> int:
+        """The seed handed to ``phase`` of stage ``k`` (0-based): the substrate's scheme of the run seed."""
+        return phase_seed(self.substrate.seed_scheme, self.substrate.run_seed, k, phase)
+
     def phases(self, k: int) -> list[str]:
         """The phases of stage ``k`` (0-based) for this method."""
         out = ["wake"]
@@ -136,7 +140,7 @@ class StreamEngine:
                     logger.info("resuming from stage %d %s", pending_load[0] + 1, pending_load[1])
                     self.substrate.load_policy(*pending_load)
                     pending_load = None
-                self.substrate.begin_phase(k, phase)
+                self.substrate.begin_phase(k, phase, self.phase_seed(k, phase))
                 logger.info("stage %d (%s): %s", k + 1, self.skills[k], phase)
                 t0 = time.perf_counter()
                 record = self._run_phase(k, phase)

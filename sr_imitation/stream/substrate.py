@@ -16,6 +16,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar, Protocol, runtime_checkable
 
+import numpy as np
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
@@ -25,8 +26,31 @@ from sr_imitation.infra.runlog import RunLog
 PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
 """Every phase of a stage, in the engine's order (a stage without sleep has the first three)."""
 PHASE_IDS: dict[str, int] = {phase: i for i, phase in enumerate(PHASES)}
-"""Each phase's number (wake 0 ... sleep.eval 4): what a substrate's per-phase seed is derived from, with the run
-seed and the stage (the formula is the substrate's, fixed since its first runs)."""
+"""Each phase's number (wake 0 ... sleep.eval 4): what a phase's seed is derived from, with the run seed and the
+stage (:func:`phase_seed`)."""
+
+
+def seed_sequence(seed: int, stage: int, salt: int = 0) -> int:
+    """numpy's ``SeedSequence([seed, stage, salt])``'s first word: a per-stage seed independent of whether earlier
+    stages ran in this process (the SAC substrate's generators within a phase use their own salts)."""
+    return int(np.random.SeedSequence([seed, stage, salt]).generate_state(1)[0])
+
+
+SEED_SCHEMES: dict[str, Callable[[int, int, str], int]] = {
+    # seed * 1000 + 10 * stage + phase id (stage 1-based): the ACT substrate's (and the toy's) since its first runs
+    "decimal": lambda seed, k, phase: seed * 1000 + 10 * (k + 1) + PHASE_IDS[phase],
+    # SeedSequence([seed, k, 0]) for the wake, salt 10 + phase id for the others: the SAC substrate's
+    "seed_sequence": lambda seed, k, phase: seed_sequence(seed, k, 0 if phase == "wake" else 10 + PHASE_IDS[phase]),
+}
+"""How a phase's seed follows from the run seed, the stage (0-based) and the phase, by name. Two schemes, because the
+two substrates' archived results were produced with them and must stay reproducible bit for bit; a new substrate
+picks one (our choice: either; they differ only in how the numbers are spread)."""
+
+
+def phase_seed(scheme: str, seed: int, k: int, phase: str) -> int:
+    """The seed the engine hands phase ``phase`` of stage ``k`` (0-based) of a run with training seed ``seed``
+    (:data:`SEED_SCHEMES`); e.g. the ``--sleep.seed`` with which ``sr-sleep`` repeats a run's sleep."""
+    return SEED_SCHEMES[scheme](seed, k, phase)
 
 
 @dataclass
@@ -94,9 +118,17 @@ class Substrate(Protocol):
     def setup(self) -> None:
         """Build the policy, its statistics and environments (after the run directory is prepared)."""
 
-    def begin_phase(self, k: int, phase: str) -> None:
-        """Seed every random generator for ``phase`` of stage ``k`` (from the run seed, independent of whether
-        earlier phases ran in this process: a resumed run continues with the same numbers)."""
+    seed_scheme: ClassVar[str]
+    """How the engine derives each phase's seed from the run seed (a key of :data:`SEED_SCHEMES`)."""
+
+    @property
+    def run_seed(self) -> int:
+        """The run's training seed (``--seed``)."""
+
+    def begin_phase(self, k: int, phase: str, seed: int) -> None:
+        """Seed every random generator for ``phase`` of stage ``k`` from ``seed``, the seed the engine hands the
+        phase (:func:`phase_seed`: from the run seed, stage and phase only, so a resumed run continues with the same
+        numbers)."""
 
     wake_hooks: ClassVar[frozenset[str]]
     """Which of the method's wake hooks (``wake_batch``, ``wake_loss``, ``adjust_gradients``) :meth:`wake` calls at

@@ -36,9 +36,9 @@ from sr_imitation.imitation.offline_sleep import (
     run_offline_sleep,
 )
 from sr_imitation.imitation.stream import StreamTrainer
-from sr_imitation.imitation.substrate import phase_seed
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.io import CorruptFileError, read_checked_json, verify_manifest
+from sr_imitation.stream.substrate import phase_seed
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_policy, tiny_stream_config
 
@@ -76,7 +76,7 @@ def test_sleeping_a_runs_wake_checkpoint_with_its_anchor_and_seed_gives_the_runs
     anchor = _stage(out, k - 1, "wake" if k == 2 else "sleep")  # theta_{k-1}^sleep: stage 1 has no sleep
     cfg = OfflineSleepConfig(policy=PolicyPathConfig(path=_stage(out, k, "wake")), memories=_memories(out, k),
                              anchor=AnchorConfig(path=anchor), final_skill=k == len(SKILLS),
-                             sleep=dataclasses.replace(sleep, seed=phase_seed(SEED, k - 1, "sleep")),
+                             sleep=dataclasses.replace(sleep, seed=phase_seed("decimal", SEED, k - 1, "sleep")),
                              output_dir=tmp_path / "slept", progress=False)
     record = run_offline_sleep(cfg)
     assert record["gate_snapshots"] == k - 1 and record["sleep"]["anchor_lambda"] == 1.0

@@ -141,7 +141,7 @@ def test_shipped_configs_parse(name):
 
 def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch):
     """Skill i is evaluated on the same Meta-World configurations at stage i, at stage i + 1 and right after its
-    wake (common random numbers). With the old per-stage seed (stage_seed(seed, k, 100 + i)) the reach episodes at
+    wake (common random numbers). With the old per-stage seed (seed_sequence(seed, k, 100 + i)) the reach episodes at
     stage 2 drew different configurations than at stage 1, and this test failed."""
     cfg = tiny_config(tmp_path / "paired", eval=EvalConfig(episodes=6, videos_per_skill=0), max_episode_steps=10)
     trainer = StreamTrainer(cfg)
@@ -233,7 +233,7 @@ def test_a_run_that_stored_its_config_as_config_json_resumes_from_it(tmp_path, u
 def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
     """MT8 from MT5 in miniature: a finished one-skill run is extended by a second skill; stage 1 is imported (its
     evaluation and checkpoint are the source's), only stage 2 runs. Not equal to a two-skill run from scratch: the
-    network initialization seed depends on the stream length (stage_seed(seed, K, 1)), as the paper's MT8 continues
+    network initialization seed depends on the stream length (seed_sequence(seed, K, 1)), as the paper's MT8 continues
     from MT5's weights rather than re-running them."""
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
     source = StreamTrainer(tiny_config(tmp_path / "mt1", skills=["reach-v3"], **cfg)).run()

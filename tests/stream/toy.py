@@ -16,11 +16,11 @@ from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
 from sr_imitation.stream import MethodSettings, SleepProblem
 from sr_imitation.stream.methods.base import WakeStep
-from sr_imitation.stream.substrate import PHASE_IDS
 
 
 class ToySubstrate:
     name: ClassVar[str] = "toy"
+    seed_scheme: ClassVar[str] = "decimal"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
 
     extension_keys: ClassVar[tuple[str, ...]] = ("skills", "extend_from")
@@ -46,8 +46,12 @@ class ToySubstrate:
     def policy_fn(self, obs: dict[str, torch.Tensor]) -> torch.Tensor:
         return self.policy(obs["x"])
 
-    def begin_phase(self, k: int, phase: str) -> None:
-        torch.manual_seed(self.seed * 1000 + 10 * (k + 1) + PHASE_IDS[phase])
+    @property
+    def run_seed(self) -> int:
+        return self.seed
+
+    def begin_phase(self, k: int, phase: str, seed: int) -> None:
+        torch.manual_seed(seed)
 
     def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
              ) -> tuple[dict[str, Any], dict[str, Any]]:
