@@ -196,9 +196,9 @@ class TrainStreamConfig(RunConfig):
         self.output_dir = Path(self.output_dir)
         check_finite(self)  # every numeric setting (policy, wake, eval), before anything is written
         check_policy_ranges(self.policy)
-        if self.policy.use_amp:  # LeRobot itself refuses it on CPU at parse time; on a GPU it would be ignored
-            raise ValueError("policy.use_amp: mixed precision is not implemented in sr-train's wake and sleep yet "
-                             "(it would be silently ignored); run without it")
+        if self.policy.use_amp and str(self.policy.device).startswith("cuda") and not torch.cuda.is_bf16_supported():
+            raise ValueError("policy.use_amp: sr-train's mixed precision is bfloat16 autocast (no fp16 loss scaling) "
+                             "and this GPU has no bfloat16; run without it")
         self.eval.check_skills(self.stream.skills)  # one gym id / LeRobot task per skill
         methods = methods_for(SUBSTRATE)
         if self.method not in methods:

@@ -8,11 +8,12 @@ Each step is LeRobot's own ``update_policy`` (forward, backward, gradient clippi
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import logging
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -112,18 +113,34 @@ def _loader(data: SkillData, indices: list[int], batch_size: int, shuffle: bool,
     )
 
 
+@contextlib.contextmanager
+def mixed_precision(policy: Any) -> Iterator[None]:
+    """``--policy.use_amp``: the wake's forward passes (and a method's loss terms) under bfloat16 autocast, as
+    accelerate's ``mixed_precision="bf16"`` runs them (``torch.autocast``; on CPU and on GPUs with bfloat16, no loss
+    scaling needed); the backward pass, gradients, optimizer state and weights stay float32, and so do the
+    validation l1, the sleep and the evaluation (our choice: the sleep's Gram matrix and Nash weights want float32).
+    Without ``use_amp``: nothing."""
+    if not policy.config.use_amp:
+        yield
+        return
+    with torch.autocast(device_type=torch.device(policy.config.device).type, dtype=torch.bfloat16):
+        yield
+
+
 def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
                   grad_clip_norm: float, hooks: Any) -> tuple[MetricsTracker, dict]:
     """LeRobot's ``update_policy`` step (forward, backward, gradient clipping, optimizer step) with a continual
     method's hooks between: ``hooks.batch(batch)`` gives the batch the update trains on (experience replay mixes in
     stored frames), ``hooks.loss(loss)`` replaces the loss before the backward pass and ``hooks.adjust()`` may
-    change the gradients before clipping. Used only when the method has hooks (CPU, no mixed precision: LeRobot's
-    accelerator calls reduce to these); other methods keep ``update_policy`` itself."""
+    change the gradients before clipping; the forward pass under :func:`mixed_precision`. Used when the method has
+    hooks or ``--policy.use_amp`` is on (without either, LeRobot's ``update_policy`` itself: its CPU accelerator's
+    calls reduce to these)."""
     start = time.perf_counter()
     policy.train()
     batch = hooks.batch(batch)
-    loss, output = policy.forward(batch)
-    loss = hooks.loss(loss)
+    with mixed_precision(policy):
+        loss, output = policy.forward(batch)
+        loss = hooks.loss(loss)
     loss.backward()
     hooks.adjust()
     limit = grad_clip_norm if grad_clip_norm > 0 else float("inf")
@@ -161,8 +178,9 @@ def parallel_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch
     start = time.perf_counter()
     policy.train()
     batch, share = shard(hooks.batch(batch), processes)
-    loss, output = policy.forward(batch)
-    loss = hooks.loss(loss)
+    with mixed_precision(policy):
+        loss, output = policy.forward(batch)
+        loss = hooks.loss(loss)
     loss.backward()
     average_gradients(list(policy.parameters()), share)
     hooks.adjust()
@@ -215,10 +233,11 @@ def wake_train(
                 if processes.distributed:
                     tracker, out = parallel_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm,
                                                    hooks or _NoHooks(), processes)
-                elif hooks is None:
+                elif hooks is None and not policy.config.use_amp:
                     tracker, out = update_policy(tracker, policy, batch, optimizer, cfg.grad_clip_norm, accelerator)
                 else:
-                    tracker, out = hooked_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm, hooks)
+                    tracker, out = hooked_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm,
+                                                 hooks or _NoHooks())
             except FloatingPointError as exc:
                 raise NonFiniteLossError(
                     f"wake on skill {data.skill!r} ({data.root}): epoch {epoch} step {step}: {exc}"

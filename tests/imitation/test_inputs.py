@@ -107,10 +107,35 @@ def test_sleep_and_sac_range_errors_name_the_key_with_its_prefix():
         SACConfig(actor_lr=-1.0)
 
 
-def test_use_amp_is_refused_instead_of_silently_ignored(tmp_path):
-    """``--policy.use_amp=true`` was stored and ignored; sr-train has no mixed-precision path yet."""
-    with pytest.raises(ValueError, match=r"^policy.use_amp: mixed precision is not implemented"):
-        tiny_stream_config(tmp_path, tmp_path / "out", SKILLS, use_images=False, use_amp=True)
+def test_use_amp_runs_the_wake_under_bfloat16_autocast(state_datasets, tmp_path, monkeypatch):
+    """``--policy.use_amp=true`` was stored and ignored, then refused; now the wake's forward passes run under
+    bfloat16 autocast (the validation l1 and the sleep in float32) and the weights stay float32."""
+    import torch
+    from safetensors.torch import load_file
+
+    from lerobot_policy_act_sr import ACTSRPolicy
+
+    seen: list[tuple[bool, bool]] = []
+    forward = ACTSRPolicy.forward
+
+    def spy(self, batch, *args, **kwargs):
+        seen.append((self.training, torch.is_autocast_enabled("cpu")))
+        return forward(self, batch, *args, **kwargs)
+
+    monkeypatch.setattr(ACTSRPolicy, "forward", spy)
+    runs = {}
+    for amp in (False, True):
+        cfg = tiny_stream_config(_copy(state_datasets, tmp_path / f"d{amp}"), tmp_path / f"out{amp}", SKILLS[:2],
+                                 use_images=False, use_amp=amp)
+        seen.clear()
+        results = train_stream(cfg, fake_env_factory)
+        assert {autocast for training, autocast in seen if training} == {amp}  # every wake update, and only then
+        runs[amp] = results
+    assert all(r["metrics"]["afsr"]["final"] is not None for r in runs.values())
+    final = "skill_2_place/sleep/pretrained_model/model.safetensors"
+    plain, amp = load_file(tmp_path / "outFalse" / final), load_file(tmp_path / "outTrue" / final)
+    assert all(t.dtype == torch.float32 for t in amp.values())
+    assert any(not torch.equal(plain[k], amp[k]) for k in plain)
 
 
 def test_push_to_hub_is_checked_before_training_and_pushes_the_final_policy(state_datasets, tmp_path, monkeypatch):

@@ -103,8 +103,6 @@ SKIP: dict[str, str] = {
                      "parse time; test_a_run_made_on_another_device_is_refused covers it",
     "substrate": "sr-train dispatches on it; TrainStreamConfig refuses any other value than act at parse time",
     "sleep.seed": "set per stage from --seed by the substrate; any other value than 0 is refused at parse time",
-    "policy.use_amp": "LeRobot refuses use_amp on cpu at parse time (nothing else is valid here); like device, a "
-                      "run stored with it is refused by the same key comparison",
 }
 ALLOWED_CHANGES: dict[str, Any] = {
     # one changed value per allow-list entry (the test fails if an entry has none)
