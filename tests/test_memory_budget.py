@@ -31,5 +31,12 @@ def test_the_curve_pairs_seeds_per_budget_and_checks_the_budget(tmp_path):
     assert summary["budgets"]["8"]["wake_only"]["paired_to_sr"]["afsr"]["mean"] == pytest.approx(0.1)
     assert summary["budgets"]["64"]["wake_only"]["paired_to_sr"]["afsr"]["mean"] == pytest.approx(0.02)
     assert (out / "memory_budget.png").stat().st_size > 1000 and "| 8 |" in (out / "memory_budget.md").read_text()
+    # --seeds: every point averages the same training seeds
+    main([f"--points=[8={a},64={b}]", "--variants=[sr,wake_only]", "--seeds=[1]", f"--output={out}"])
+    summary = json.loads((out / "memory_budget.json").read_text())
+    assert summary["budgets"]["8"]["wake_only"]["paired_to_sr"]["seeds"] == [1]
+    assert summary["budgets"]["8"]["wake_only"]["paired_to_sr"]["afsr"]["mean"] == pytest.approx(0.1)
+    assert summary["budgets"]["64"]["wake_only"]["afsr"]["mean"] == pytest.approx(
+        summary["budgets"]["64"]["sr"]["afsr"]["mean"] - 0.03)
     with pytest.raises(ValueError, match="memory.buffer_size 8, but its point says 16"):
         main([f"--points=[16={a}]", "--variants=[sr,wake_only]"])

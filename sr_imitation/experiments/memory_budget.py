@@ -37,6 +37,9 @@ class BudgetConfig:
     """``<frames per skill>=<archive folder>`` per budget."""
     variants: list[str] = field(default_factory=lambda: ["sr", "wake_only", "replay"])
     """Variants drawn (the first is the paired reference)."""
+    seeds: list[int] | None = None
+    """Training seeds drawn at every point (e.g. [0,1,2], so that every budget averages the same seeds); null: every
+    archived seed of each point."""
     output: Path | None = None
     """Where memory_budget.md / .json / .png go (none: print only)."""
 
@@ -63,7 +66,8 @@ def collect(cfg: BudgetConfig) -> dict[str, Any]:
     for point in cfg.points:
         budget_text, _, folder = point.partition("=")
         budget = int(budget_text)
-        runs = {v: _runs(Path(folder), v, budget) for v in cfg.variants}
+        runs = {v: {s: r for s, r in _runs(Path(folder), v, budget).items() if cfg.seeds is None or s in cfg.seeds}
+                for v in cfg.variants}
         row: dict[str, Any] = {"archive": folder}
         for v in cfg.variants:
             row[v] = {m: mean_sem_dict([r["metrics"][m]["final"] for r in runs[v].values()]) for m, _ in PANELS}
