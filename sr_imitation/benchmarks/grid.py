@@ -1,17 +1,20 @@
 """Throughput of a grid of runs: the plain loop (one run after another, as the comparison drivers ran them before
-``sr-grid``) against ``sr-grid`` on a local Ray, the same runs.
+``sr-grid``) against ``sr-grid`` on a local Ray and against the machine's ceiling, the same runs.
 
     python -m sr_imitation.benchmarks.grid [--variants sr wake_only] [--seeds 0 1] [--cpus 2] [--root DIR]
+                                           [--wake_epochs 80] [--runners loop ray processes]
 
 A small state-only needle preset (two skills, about 1000 wake steps each, 100 sleep iterations, 3 evaluation
 episodes per skill; about half a minute a run on one core) is written under ``--root`` and its datasets recorded
-first (not timed). Then the grid of ``variants x seeds`` runs twice, each into a fresh folder: with the loop in this
-process (one torch thread, as ``OMP_NUM_THREADS=1``), then with ``sr-grid`` on a Ray started for it with ``--cpus``
-cores (one run per core, one thread each). Each time is the wall time of the whole grid, end to end: for Ray it
-includes starting and stopping Ray and a fresh worker process (with its imports) per run. The two grids' results
-are compared (every run's results.json metrics and every checkpoint's weights, bit for bit). Prints a markdown
-table for docs/BENCHMARKS.md with the load average before and after and the runs' own phase seconds
-(``progress.json``) under each runner: their ratio says whether the grid had the cores to itself.
+first (not timed). Then the grid of ``variants x seeds`` runs once per runner, each into a fresh folder: ``loop``, in
+this process (one torch thread, as ``OMP_NUM_THREADS=1``); ``ray``, ``sr-grid`` on a Ray started for it with
+``--cpus`` cores (one run per core, one thread each); ``processes``, ``--cpus`` plain processes started together,
+each running its share of the runs one after another (no scheduler: what the cores give at best, the ceiling for
+``ray``). Each time is the wall time of the whole grid, end to end (for Ray: starting and stopping it, a fresh worker
+process with its imports per run). The grids' results are compared (every run's results.json metrics and every
+checkpoint's weights, bit for bit). Prints a markdown table for docs/BENCHMARKS.md with the load average before each
+runner and the runs' own phase seconds (``progress.json``) under each runner: their ratio says how much the runs
+slowed each other down.
 """
 
 from __future__ import annotations
@@ -22,6 +25,8 @@ import logging
 import os
 import platform
 import shutil
+import subprocess
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -69,6 +74,26 @@ def _phase_seconds(root: Path) -> float:
     return total
 
 
+RUNNERS = ("loop", "ray", "processes")
+
+
+def _side_by_side(preset: Path, runs: list[tuple[str, int]], cpus: int, out: Path) -> None:
+    """The runs in ``cpus`` plain processes started together, each ``sr-grid --runner=loop`` over its share of the
+    runs in turn (round robin), one torch thread each: what the cores give without any scheduler."""
+    shares = [runs[i::cpus] for i in range(cpus)]
+    procs = []
+    for share in shares:
+        if not share:
+            continue
+        steps = [f"{sys.executable} -m sr_imitation.experiments.grid --preset={preset} --variants=[{v}] "
+                 f"--seeds=[{s}] --output_root={out} --runner=loop" for v, s in share]
+        procs.append(subprocess.Popen(["bash", "-c", " && ".join(steps)], stdout=subprocess.DEVNULL,
+                                      stderr=subprocess.DEVNULL, env={**os.environ, "OMP_NUM_THREADS": "1"}))
+    codes = [p.wait() for p in procs]
+    if any(codes):
+        raise RuntimeError(f"side-by-side processes failed with exit codes {codes}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--variants", nargs="+", default=["sr", "wake_only"])
@@ -77,6 +102,10 @@ def main() -> None:
     parser.add_argument("--root", type=Path, default=None, help="working folder (default: a temporary one)")
     parser.add_argument("--wake_epochs", type=int, default=PRESET["train"]["wake"]["max_epochs"],
                         help="wake epochs per skill (the runs' length; about 12 steps an epoch)")
+    parser.add_argument("--runners", nargs="+", default=["loop", "ray", "processes"], choices=RUNNERS,
+                        help="loop: one process, one run at a time; ray: sr-grid on a local Ray; processes: the "
+                             "machine's ceiling, --cpus plain processes side by side, each a loop over its share of "
+                             "the runs (no Ray)")
     args = parser.parse_args()
     os.environ["OMP_NUM_THREADS"] = "1"  # the loop's process and, inherited, Ray's workers
     from sr_imitation.infra.cli_errors import setup_logging
@@ -99,33 +128,40 @@ def main() -> None:
     preset_with_datasets(preset, [])  # recorded before any timing
     runs = len(args.variants) * len(args.seeds)
     times, loads = {}, {}
-    for runner in ("loop", "ray"):
+    runners = [r for r in RUNNERS if r in args.runners]
+    for runner in runners:
         out = root / runner
         shutil.rmtree(out, ignore_errors=True)
         loads[runner] = os.getloadavg()[0]
         start = time.perf_counter()
-        run_grid(GridConfig(preset=preset, variants=list(args.variants), seeds=list(args.seeds), output_root=out,
-                            runner=runner, ray=RayOptions(local_cpus=args.cpus)))
+        if runner == "processes":
+            _side_by_side(preset, [(v, s) for v in args.variants for s in args.seeds], args.cpus, out)
+        else:
+            run_grid(GridConfig(preset=preset, variants=list(args.variants), seeds=list(args.seeds), output_root=out,
+                                runner=runner, ray=RayOptions(local_cpus=args.cpus)))
         times[runner] = time.perf_counter() - start
     loads["end"] = os.getloadavg()[0]
-    same = _same_results(root / "loop", root / "ray")
+    base = runners[0]
+    same = all(_same_results(root / base, root / r) for r in runners[1:])
     print(f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, torch {torch.__version__}, "
           f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; {runs} runs ({' '.join(args.variants)} x seeds "
-          f"{' '.join(map(str, args.seeds))}); Ray on {args.cpus} cores; load average (1 min) before the loop "
-          f"{loads['loop']:.1f}, before Ray {loads['ray']:.1f}, at the end {loads['end']:.1f}")
+          f"{' '.join(map(str, args.seeds))}); {args.cpus} cores; load average (1 min) before each runner "
+          + ", ".join(f"{r} {loads[r]:.1f}" for r in runners) + f", at the end {loads['end']:.1f}")
     print()
     phases = {runner: _phase_seconds(root / runner) for runner in times}
-    print("| runner | wall s (grid) | runs per hour | throughput | the runs' phases, s (summed) |")
+    labels = {"loop": "loop (one process, one run at a time)", "ray": f"sr-grid, local Ray on {args.cpus} cores",
+              "processes": f"{args.cpus} plain processes side by side, no Ray (the machine's ceiling)"}
+    print(f"| runner | wall s (grid) | runs per hour | throughput (vs {base}) | the runs' phases, s (summed) |")
     print("|---|---|---|---|---|")
-    for runner, label in (("loop", "loop (one process, one run at a time)"),
-                          ("ray", f"sr-grid, local Ray on {args.cpus} cores")):
-        print(f"| {label} | {times[runner]:.1f} | {3600 * runs / times[runner]:.0f} | "
-              f"{times['loop'] / times[runner]:.2f}x | {phases[runner]:.1f} |")
+    for runner in runners:
+        print(f"| {labels[runner]} | {times[runner]:.1f} | {3600 * runs / times[runner]:.0f} | "
+              f"{times[base] / times[runner]:.2f}x | {phases[runner]:.1f} |")
     print()
-    print(f"each run's phases took {phases['ray'] / phases['loop']:.2f}x as long under Ray as in the loop (1.0 on "
-          "cores the grid has to itself; more: the runs shared the cores with other work); the rest of the grid's "
-          f"wall time under Ray, {times['ray'] - phases['ray'] / min(args.cpus, runs):.1f} s, is starting Ray, "
-          "fresh worker processes (imports) and the runs' set-up outside their phases")
+    for runner in runners[1:]:
+        print(f"{runner}: each run's phases took {phases[runner] / phases[base]:.2f}x as long as under {base} (1.0: "
+              f"the runs do not slow each other); the rest of the wall time, "
+              f"{times[runner] - phases[runner] / min(args.cpus, runs):.1f} s, is start-up (Ray, fresh processes and "
+              "their imports) and the runs' set-up outside their phases")
     print()
     print(f"results identical (metrics and every checkpoint's weights): {'yes' if same else 'NO'}")
 
