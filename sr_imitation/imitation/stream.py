@@ -83,16 +83,17 @@ class StreamTrainer(StreamRun):
         check_evaluation_envs(self.cfg, inputs, outputs, custom_env=self.substrate._make_env is not None)
         check_push(self.cfg.policy)  # --policy.push_to_hub: reachable, or one line now rather than after training
 
-    def run(self, stop_after: int | None = None) -> dict[str, Any]:
-        """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return ``progress``
-        instead of the final report (partial runs, e.g. the sleep replays of ``experiments.sleep_replay``). A process
-        other than the main one of a several-process run (:mod:`sr_imitation.infra.distributed`) returns its
-        progress: the main process evaluates and reports."""
+    def run(self, stop_after: int | None = None, report: bool = True) -> dict[str, Any]:
+        """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based), or with ``report=False``,
+        return ``progress`` instead of the final report (partial runs, e.g. the sleep replays of
+        ``experiments.sleep_replay``). A process other than the main one of a several-process run
+        (:mod:`sr_imitation.infra.distributed`) always returns its progress: the main process evaluates and
+        reports."""
         if not distributed.current().is_main:
             return super().run(stop_after, report=False)
-        results = super().run(stop_after)
+        results = super().run(stop_after, report)
         self._point_last()  # also when a resume found every phase done (killed between a phase and its pointer)
-        if stop_after is None and self.cfg.policy.push_to_hub:
+        if stop_after is None and report and self.cfg.policy.push_to_hub:
             last = len(self.cfg.stream.skills) - 1
             pretrained = self.substrate.checkpoint_dir(last, self.final_phase(last)) / "pretrained_model"
             push_policy(self.substrate.policy, pretrained,
