@@ -31,14 +31,14 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from sr_imitation.benchmarks.sac import critic_memories, replay_buffer
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
-from sr_imitation.rl.sac import ReplayBuffer, SACAgent
+from sr_imitation.rl.envs import OBS_DIM
+from sr_imitation.rl.sac import SACAgent
 from sr_imitation.stream.config import StreamSleepConfig
 
 STATE_DIM, ACTION_DIM, CHUNK, K = 35, 7, 16, 5
@@ -58,24 +58,24 @@ def resolve_device(name: str) -> torch.device:
     return device
 
 
+def synchronized_clock(device: torch.device) -> float:
+    """``time.perf_counter()`` once the device has finished its queued work."""
+    if device.type == "cuda":
+        torch.cuda.synchronize(device)
+    elif device.type == "mps":
+        torch.mps.synchronize()
+    return time.perf_counter()
+
+
 def timed_ms(fn: Callable[[], object], repeats: int, device: torch.device, warmup: int = 3) -> float:
     """Median milliseconds of ``fn()`` with the device synchronized around each call."""
-
-    def sync() -> None:
-        if device.type == "cuda":
-            torch.cuda.synchronize(device)
-        elif device.type == "mps":
-            torch.mps.synchronize()
-
     for _ in range(warmup):
         fn()
     times = []
     for _ in range(repeats):
-        sync()
-        t0 = time.perf_counter()
+        t0 = synchronized_clock(device)
         fn()
-        sync()
-        times.append(time.perf_counter() - t0)
+        times.append(synchronized_clock(device) - t0)
     return 1e3 * statistics.median(times)
 
 
@@ -142,24 +142,15 @@ def bench_act_sleep(device: torch.device, repeats: int) -> float:
     params = [p for p in policy.parameters() if p.requires_grad]
     anchor = [p.detach().clone() for p in params]
     cfg = SurgicAISleepConfig(max_iterations=repeats + 3, early_stop_tol=0.0)
-    t0 = _sync_time(device)
+    t0 = synchronized_clock(device)
     result = sleep_consolidate(params, policy.memory_chunk, memories, cfg, anchor_params=anchor, progress=False)
-    return 1e3 * (_sync_time(device) - t0) / result.stop_iteration
-
-
-def _sync_time(device: torch.device) -> float:
-    if device.type == "cuda":
-        torch.cuda.synchronize(device)
-    return time.perf_counter()
+    return 1e3 * (synchronized_clock(device) - t0) / result.stop_iteration
 
 
 def bench_sac_update(device: torch.device, repeats: int) -> float:
     torch.manual_seed(0)
     rng = np.random.default_rng(0)
-    replay = ReplayBuffer(10_000)
-    for _ in range(2_000):
-        replay.add(rng.normal(size=OBS_DIM), rng.uniform(-1, 1, ACT_DIM), rng.uniform(0, 10), rng.normal(size=OBS_DIM),
-                   False)
+    replay = replay_buffer(2_000)
     cfg = SACConfig()
     agent = SACAgent(cfg, ExcitabilityConfig(), device=device)
     agent.normalizer.update(replay.obs[:1000])
@@ -171,19 +162,13 @@ def bench_sac_sleep(device: torch.device, repeats: int) -> float:
     torch.manual_seed(0)
     agent = SACAgent(SACConfig(), ExcitabilityConfig(), device=device)
     agent.normalizer.update(np.random.default_rng(0).normal(size=(100, OBS_DIM)))
-    memories = []
-    for i in range(K):
-        with torch.no_grad():
-            for p in agent.critic.parameters():
-                p.add_(0.01 * torch.randn_like(p))
-        states = np.random.default_rng(i).normal(size=(1000, OBS_DIM))
-        memories.append(CriticMemory.from_agent(f"skill{i}", agent, states))
+    memories = critic_memories(agent, K)
     params = agent.actor_parameters()
     cfg = StreamSleepConfig.mt5(max_iterations=repeats + 3, early_stop_tol=0.0, anchor_tau=None)
     anchor = [p.detach().clone() for p in params]
-    t0 = _sync_time(device)
+    t0 = synchronized_clock(device)
     result = sleep_consolidate(params, agent.policy_fn, memories, cfg, anchor_params=anchor, progress=False)
-    return 1e3 * (_sync_time(device) - t0) / result.stop_iteration
+    return 1e3 * (synchronized_clock(device) - t0) / result.stop_iteration
 
 
 def device_name(device: torch.device) -> str:

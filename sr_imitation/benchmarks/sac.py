@@ -27,7 +27,8 @@ from sr_imitation.rl.evaluate import evaluate_policy, random_policy, scripted_po
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent
 
 
-def _replay(n: int = 20_000) -> ReplayBuffer:
+def replay_buffer(n: int = 20_000) -> ReplayBuffer:
+    """``n`` random MT5-shaped transitions (seeded)."""
     rng = np.random.default_rng(0)
     rb = ReplayBuffer(n)
     for _ in range(n):
@@ -37,7 +38,7 @@ def _replay(n: int = 20_000) -> ReplayBuffer:
 
 
 def bench_updates(batch_size: int, hidden: int, iters: int, repeats: int = 3) -> dict[str, float]:
-    rb = _replay()
+    rb = replay_buffer()
     rng = np.random.default_rng(0)
     cfg = SACConfig(batch_size=batch_size, hidden_dim=hidden)
     plain_cfg = dataclasses.replace(cfg, normalize_observations=False)
@@ -76,17 +77,23 @@ def bench_env(steps: int) -> dict[str, float]:
     return out
 
 
-def bench_sleep(k: int, iters: int, batch_size: int = 64) -> dict[str, float]:
-    torch.manual_seed(0)
-    agent = SACAgent(SACConfig(), ExcitabilityConfig())
-    agent.normalizer.update(np.random.default_rng(0).normal(size=(100, OBS_DIM)))
+def critic_memories(agent: SACAgent, k: int, states: int = 1000) -> list[CriticMemory]:
+    """``k`` distinct critic memories of ``agent`` (its critic nudged by 0.01 x noise before each; seeded states)."""
     memories = []
     for i in range(k):
         with torch.no_grad():
             for p in agent.critic.parameters():
                 p.add_(0.01 * torch.randn_like(p))
         memories.append(CriticMemory.from_agent(f"skill{i}", agent,
-                                                np.random.default_rng(i).normal(size=(1000, OBS_DIM))))
+                                                np.random.default_rng(i).normal(size=(states, OBS_DIM))))
+    return memories
+
+
+def bench_sleep(k: int, iters: int, batch_size: int = 64) -> dict[str, float]:
+    torch.manual_seed(0)
+    agent = SACAgent(SACConfig(), ExcitabilityConfig())
+    agent.normalizer.update(np.random.default_rng(0).normal(size=(100, OBS_DIM)))
+    memories = critic_memories(agent, k)
     params = agent.actor_parameters()
     gen = torch.Generator().manual_seed(0)
     # k plain forward+backward passes of the memory objectives

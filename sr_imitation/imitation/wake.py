@@ -26,7 +26,7 @@ from torch.utils.data import DataLoader, Subset
 from tqdm.auto import tqdm
 
 from sr_imitation.imitation.data import SkillData
-from sr_imitation.infra.distributed import Processes, average_gradients, average_scalar, current, shard
+from sr_imitation.infra.distributed import Processes, average_gradients, average_scalars, current, shard
 
 logger = logging.getLogger(__name__)
 
@@ -127,35 +127,8 @@ def mixed_precision(policy: Any) -> Iterator[None]:
         yield
 
 
-def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
-                  grad_clip_norm: float, hooks: Any) -> tuple[MetricsTracker, dict]:
-    """LeRobot's ``update_policy`` step (forward, backward, gradient clipping, optimizer step) with a continual
-    method's hooks between: ``hooks.batch(batch)`` gives the batch the update trains on (experience replay mixes in
-    stored frames), ``hooks.loss(loss)`` replaces the loss before the backward pass and ``hooks.adjust()`` may
-    change the gradients before clipping; the forward pass under :func:`mixed_precision`. Used when the method has
-    hooks or ``--policy.use_amp`` is on (without either, LeRobot's ``update_policy`` itself: its CPU accelerator's
-    calls reduce to these)."""
-    start = time.perf_counter()
-    policy.train()
-    batch = hooks.batch(batch)
-    with mixed_precision(policy):
-        loss, output = policy.forward(batch)
-        loss = hooks.loss(loss)
-    loss.backward()
-    hooks.adjust()
-    limit = grad_clip_norm if grad_clip_norm > 0 else float("inf")
-    grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), limit, error_if_nonfinite=False)
-    optimizer.step()
-    optimizer.zero_grad()
-    tracker.loss = loss.item()
-    tracker.grad_norm = grad_norm.item()
-    tracker.lr = optimizer.param_groups[0]["lr"]
-    tracker.update_s = time.perf_counter() - start
-    return tracker, output
-
-
 class _NoHooks:
-    """The identity hooks (a method without wake hooks) for :func:`parallel_update`."""
+    """The identity hooks (a method without wake hooks) for :func:`hooked_update`."""
 
     def batch(self, batch: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return batch
@@ -167,32 +140,46 @@ class _NoHooks:
         return None
 
 
-def parallel_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
-                    grad_clip_norm: float, hooks: Any, processes: Processes) -> tuple[MetricsTracker, dict]:
-    """:func:`hooked_update` with the batch split over the run's processes (:mod:`sr_imitation.infra.distributed`):
-    the method's batch (``hooks.batch``: stored frames appended, the same on every process) is cut into one
-    contiguous slice per process, each process's loss is the mean over its slice plus the terms every process
-    computes alike, and the gradients are averaged with each process's share of the rows before the method adjusts
-    them, so the step is the one-process step on the whole batch up to float summation order. The logged loss and
-    outputs are the batch's (share-weighted sums)."""
+def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.Tensor], optimizer: Any,
+                  grad_clip_norm: float, hooks: Any, processes: Processes | None = None
+                  ) -> tuple[MetricsTracker, dict]:
+    """LeRobot's ``update_policy`` step (forward, backward, gradient clipping, optimizer step) with a continual
+    method's hooks between: ``hooks.batch(batch)`` gives the batch the update trains on (experience replay mixes in
+    stored frames), ``hooks.loss(loss)`` replaces the loss before the backward pass and ``hooks.adjust()`` may
+    change the gradients before clipping; the forward pass under :func:`mixed_precision`. Used when the method has
+    hooks, ``--policy.use_amp`` is on or the run has several processes (without any, LeRobot's ``update_policy``
+    itself: its CPU accelerator's calls reduce to these).
+
+    Several ``processes`` (:mod:`sr_imitation.infra.distributed`): the method's batch (the same on every process) is
+    cut into one contiguous slice per process, each process's loss is the mean over its slice plus the terms every
+    process computes alike, and the gradients are averaged with each process's share of the rows before the method
+    adjusts them, so the step is the one-process step on the whole batch up to float summation order; the logged
+    loss and outputs are the batch's (share-weighted sums, one all-reduce)."""
     start = time.perf_counter()
+    processes = processes or Processes()
     policy.train()
     batch, share = shard(hooks.batch(batch), processes)
     with mixed_precision(policy):
         loss, output = policy.forward(batch)
         loss = hooks.loss(loss)
     loss.backward()
-    average_gradients(list(policy.parameters()), share)
+    if processes.distributed:
+        average_gradients(list(policy.parameters()), share)
     hooks.adjust()
     limit = grad_clip_norm if grad_clip_norm > 0 else float("inf")
     grad_norm = torch.nn.utils.clip_grad_norm_(policy.parameters(), limit, error_if_nonfinite=False)
     optimizer.step()
     optimizer.zero_grad()
-    tracker.loss = average_scalar(loss.item(), share)
+    loss_value = loss.item()
+    if processes.distributed:
+        keys = list(output)
+        loss_value, *values = average_scalars([loss_value, *(float(output[k]) for k in keys)], share)
+        output = dict(zip(keys, values, strict=True))
+    tracker.loss = loss_value  # a MetricsTracker records what is set (reading it back gives its AverageMeter)
     tracker.grad_norm = grad_norm.item()
     tracker.lr = optimizer.param_groups[0]["lr"]
     tracker.update_s = time.perf_counter() - start
-    return tracker, {key: average_scalar(float(value), share) for key, value in output.items()}
+    return tracker, output
 
 
 def wake_train(
@@ -230,14 +217,11 @@ def wake_train(
                 break
             batch = preprocessor(raw)
             try:
-                if processes.distributed:
-                    tracker, out = parallel_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm,
-                                                   hooks or _NoHooks(), processes)
-                elif hooks is None and not policy.config.use_amp:
+                if hooks is None and not policy.config.use_amp and not processes.distributed:
                     tracker, out = update_policy(tracker, policy, batch, optimizer, cfg.grad_clip_norm, accelerator)
                 else:
                     tracker, out = hooked_update(tracker, policy, batch, optimizer, cfg.grad_clip_norm,
-                                                 hooks or _NoHooks())
+                                                 hooks or _NoHooks(), processes)
             except FloatingPointError as exc:
                 raise NonFiniteLossError(
                     f"wake on skill {data.skill!r} ({data.root}): epoch {epoch} step {step}: {exc}"

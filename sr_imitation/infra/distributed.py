@@ -109,16 +109,13 @@ def shard(batch: Mapping[str, Any], processes: Processes) -> tuple[dict[str, Any
 def average_gradients(params: Sequence[torch.nn.Parameter], share: float) -> None:
     """Replace every parameter's gradient by the share-weighted sum over the processes, sum_r share_r * g_r, i.e. the
     gradient of the whole batch when each process's loss is a mean over its slice. One all-reduce of the flattened
-    gradients (a parameter without a gradient counts as zero and keeps ``None`` if it has none anywhere)."""
+    gradients; which parameters have a gradient is the same on every process (the same model and forward pass)."""
     if not current().distributed:
         return
-    params = list(params)
-    present = torch.tensor([p.grad is not None for p in params], dtype=torch.int32)
-    torch.distributed.all_reduce(present, op=torch.distributed.ReduceOp.MAX)
-    used = [p for p, flag in zip(params, present.tolist(), strict=True) if flag]
+    used = [p for p in params if p.grad is not None]
     if not used:
         return
-    flat = torch.cat([(p.grad if p.grad is not None else torch.zeros_like(p)).reshape(-1) for p in used]) * share
+    flat = torch.cat([p.grad.reshape(-1) for p in used]) * share
     torch.distributed.all_reduce(flat, op=torch.distributed.ReduceOp.SUM)
     offset = 0
     for p in used:
@@ -127,13 +124,13 @@ def average_gradients(params: Sequence[torch.nn.Parameter], share: float) -> Non
         offset += n
 
 
-def average_scalar(value: float, share: float) -> float:
-    """The share-weighted sum of a per-process number (a slice's mean loss -> the batch's)."""
+def average_scalars(values: Sequence[float], share: float) -> list[float]:
+    """The share-weighted sums of per-process numbers (slices' mean losses -> the batch's), in one all-reduce."""
     if not current().distributed:
-        return value
-    t = torch.tensor([value * share], dtype=torch.float64)
+        return list(values)
+    t = torch.tensor([v * share for v in values], dtype=torch.float64)
     torch.distributed.all_reduce(t, op=torch.distributed.ReduceOp.SUM)
-    return float(t)
+    return t.tolist()
 
 
 def scratch_output(output_dir: Path, resume: bool, processes: Processes) -> Path:

@@ -58,8 +58,7 @@ class StreamTrainer(StreamRun):
         if launched_world_size() > 1:
             raise ValueError("several processes (torchrun / accelerate launch): the SAC substrate trains in one "
                              "process (its updates are single small batches); run seeds in parallel with sr-grid")
-        self.skills = cfg.stream_skills
-        check_skill_names(self.skills)  # before the run directory is touched and the first gradient
+        check_skill_names(cfg.stream_skills)  # before the run directory is touched and the first gradient
         substrate = SACSubstrate(cfg)
         # Runs from before the engine (one checkpoint per stage) cannot be resumed by it: no legacy settings.
         super().__init__(cfg, substrate, fingerprint=cfg.resume_fingerprint(), stored_config=cfg.stored_config(),

@@ -52,7 +52,6 @@ class StreamRun:
         self.method: ContinualMethod = make_method(cfg.method, substrate.name, substrate.method_settings())
         self.run_dir = RunDirectory(self.out, fingerprint, RUN_CONFIG_FILE, stored_config, cfg.resume, cfg.overwrite,
                                     check_inputs=check_inputs)
-        self.stored_config = stored_config
         self.after_phase = after_phase
         self.engine = StreamEngine(substrate, self.method, self.run_dir, cfg.progress, self._after_phase,
                                    wandb=cfg.wandb, log_config=stored_config,
