@@ -1,0 +1,41 @@
+#!/usr/bin/env bash
+# One GPU session's checks, on the device machine (after tools/gpu/prepare.sh here):
+#   1. the environment: wheels into /tmp/site, GL loaders, PyAV stubbed (videos off), the image's transformers set
+#      aside (LeRobot imports it when present and it needs huggingface_hub 1.x; we carry our pin, 0.35.3);
+#   2. python -m sr_imitation.benchmarks.device --device=cuda  -> $OUT/bench_cuda.txt;
+#   3. the two-minute preset as a CUDA stream, state-only and with the camera (ResNet-18), side by side
+#      -> $OUT/try_{state,vision}_cuda.{txt,tgz} (run directories without weights).
+# Everything is written under $OUT; each step has its own time limit, so one failure leaves the others' output.
+cd "$(dirname "$0")/../.."
+OUT=${OUT:-/tmp/gpu_out}; mkdir -p "$OUT"
+t0=$(date +%s); stamp() { echo "=== $(( $(date +%s) - t0 )) s: $*"; }
+export PYTHONUNBUFFERED=1 MUJOCO_GL=egl WANDB_MODE=offline HF_HUB_OFFLINE=1
+for f in .gl/*.deb; do dpkg -x "$f" /; done; ldconfig
+export __EGL_VENDOR_LIBRARY_FILENAMES=/usr/local/nvidia/share/glvnd/egl_vendor.d/10_nvidia.json
+[ -d /tmp/site/lerobot ] || python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade \
+  --target /tmp/site .whl/*.whl || exit 3
+mkdir -p /tmp/site/av && printf '%s\n' '"""Stub: PyAV is not carried to the GPU machine; videos are off there."""' 'import types' \
+  'logging = types.SimpleNamespace(WARNING=30, ERROR=40, INFO=20, DEBUG=10, set_level=lambda *a: None, restore_default_callback=lambda: None)' \
+  > /tmp/site/av/__init__.py
+tf=$(python3 -c "import transformers, os; print(os.path.dirname(transformers.__file__))" 2>/dev/null) && mv "$tf" /tmp/transformers_off
+export PYTHONPATH=/tmp/site:$PWD:$PWD/policies/lerobot_policy_act_sr
+stamp environment
+nvidia-smi -L
+python3 -c "import sys, torch, mujoco; print(sys.version.split()[0], 'torch', torch.__version__, 'cuda', torch.cuda.is_available(), 'mujoco', mujoco.__version__)" || exit 4
+stamp benchmark
+OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.device --device=cuda --threads=4 2>&1 | tee "$OUT/bench_cuda.txt"
+MAIN='import sys; from sr_imitation.main_job import entry; sys.argv = ["sr-main"] + sys.argv[1:]; entry()'
+NOVID="--expert_video=false --train.eval.videos_per_skill=0"
+stamp "needle_try on cuda: state-only and vision side by side"
+OMP_NUM_THREADS=4 timeout 150 python3 -c "$MAIN" --config_path=configs/needle_try.json $NOVID --train.policy.device=cuda \
+  --train.output_dir=/tmp/try_state_cuda > "$OUT/try_state_cuda.txt" 2>&1 &
+p1=$!
+OMP_NUM_THREADS=4 timeout 150 python3 -c "$MAIN" --config_path=configs/needle_try.json $NOVID --train.policy.device=cuda \
+  --train.policy.use_images=true --train.policy.vision_backbone=resnet18 \
+  --train.output_dir=/tmp/try_vision_cuda > "$OUT/try_vision_cuda.txt" 2>&1 &
+p2=$!
+wait $p1; stamp "state rc=$?"; wait $p2; stamp "vision rc=$?"   # wait by pid: a bare wait also waits for tee
+for d in /tmp/try_*; do
+  [ -d "$d" ] && tar -czf "$OUT/$(basename "$d").tgz" --exclude='*.safetensors' --exclude='*.mp4' -C /tmp "$(basename "$d")"
+done
+grep -h "^final\|Error" "$OUT"/try_*.txt | tail -n 6
