@@ -277,17 +277,25 @@ def sleep_consolidate(
         if config.joint_forward:
             # One forward per memory kind on the concatenated batches, then k backward passes through it.
             loss_list = per_memory_losses(memories, policy, batches)
-            losses = [float(x.detach()) for x in loss_list]
             for i, loss in enumerate(loss_list):
                 _flat_grads(loss, params, jac[i], retain_graph=i < k - 1)
+            loss_list = [loss.detach() for loss in loss_list]
         else:
-            losses = [0.0] * k
-            for i, (memory, batch) in enumerate(zip(memories, batches, strict=True)):
+            loss_list = []
+            for memory, batch, row in zip(memories, batches, jac, strict=True):
                 loss = memory.loss(policy, batch)
-                losses[i] = float(loss.detach())
-                if math.isfinite(losses[i]):
-                    _flat_grads(loss, params, jac[i])
-        gram = (jac @ jac.T).double().cpu().numpy()
+                _flat_grads(loss, params, row)  # a non-finite loss gives a non-finite row: caught below
+                loss_list.append(loss.detach())
+        # The iteration's one device-to-host copy (no stall between the k backward passes on a GPU): the k x k
+        # Gram matrix for the host's solver, the k losses and the anchor's squared distance for the record.
+        with torch.no_grad():
+            parts = [(jac @ jac.T).reshape(-1), torch.stack(loss_list).reshape(-1)]
+            if lam > 0.0:
+                diffs = torch._foreach_sub(params, anchor_params)
+                parts.append(torch.stack(torch._foreach_norm(diffs)).pow(2).sum().reshape(1))
+            host = torch.cat([part.double() for part in parts]).cpu().numpy()
+        gram = host[: k * k].reshape(k, k)
+        losses = [float(x) for x in host[k * k : k * k + k]]
         # A NaN or Inf anywhere in g_i makes ||g_i||^2 = G_ii non-finite: one check on k numbers, not k x P.
         finite_rows = np.isfinite(losses) & np.isfinite(np.diag(gram))
         if not finite_rows.all():
@@ -316,9 +324,8 @@ def sleep_consolidate(
             grads = [g if r is None else g + r for g, r in zip(grads, reg_grads, strict=True)]
         anchor_term = 0.0
         if lam > 0.0:
+            anchor_term = float(host[-1])
             with torch.no_grad():
-                diffs = torch._foreach_sub(params, anchor_params)
-                anchor_term = float(torch.stack(torch._foreach_norm(diffs)).pow(2).sum())
                 torch._foreach_add_(grads, diffs, alpha=lam)
         for p, g in zip(params, grads, strict=True):
             p.grad = g
