@@ -8,7 +8,8 @@ Rows, each the median wall time of one call in milliseconds (CUDA synchronized b
   forward (L1), backward, AdamW step;
 - ACT wake step, the vision preset's policy (a 64x64 wrist camera through a GroupNorm ResNet-18, batch 8);
 - ACT-SR sleep iteration, k = 5 actor memories of 1024 observations (state-only policy, batch 8 per memory, the
-  SurgicAI table's settings): k per-memory gradients, the Gram matrix, the exact Nash solve, the Adam step;
+  SurgicAI table's settings): k per-memory gradients, the Gram matrix, the exact Nash solve, the Adam step; the same
+  with ``joint_forward`` (one forward over the k batches, k backward passes); the same on the vision preset;
 - SAC update (the paper's MT5 networks, batch 256): critic, actor and temperature steps;
 - SAC sleep iteration, k = 5 critic memories (batch 64 per memory, the MT5 table's settings).
 
@@ -121,27 +122,37 @@ def bench_act_wake(device: torch.device, vision: bool, repeats: int) -> float:
     return timed_ms(step, repeats, device)
 
 
-def bench_act_sleep(device: torch.device, repeats: int) -> float:
+def bench_act_sleep(device: torch.device, repeats: int, vision: bool = False, joint_forward: bool = False) -> float:
+    """One ACT-SR sleep iteration over K memories of 1024 observations (mean over ``repeats`` + 3 iterations).
+
+    ``vision``: the vision preset's policy and memories (64x64 uint8 wrist images, as the memories store them);
+    ``joint_forward``: :class:`~sr_imitation.core.sleep.SleepConfig`'s one forward over the K batches, K backward
+    passes (same values)."""
     torch.manual_seed(0)
-    policy = act_policy(device, vision=False)
+    policy = act_policy(device, vision=vision)
     policy.eval()
 
     def to_device(raw: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:  # the substrate's preprocessor's move
         state = raw["observation.state"].to(device)
+        if vision:
+            return {"observation.state": state,
+                    "observation.images.wrist": raw["observation.images.wrist"].to(device).float() / 255.0}
         return {"observation.state": state, "observation.environment_state": state}
 
     policy.set_observation_normalizer(to_device)
     g = torch.Generator().manual_seed(1)
     memories = []
     for i in range(K):
-        state = torch.randn(1024, STATE_DIM, generator=g)
-        memories.append(ActorMemory.from_observations(f"skill{i}", policy.memory_chunk, {"observation.state": state}))
+        obs = {"observation.state": torch.randn(1024, STATE_DIM, generator=g)}
+        if vision:
+            obs["observation.images.wrist"] = torch.randint(0, 256, (1024, 3, 64, 64), generator=g, dtype=torch.uint8)
+        memories.append(ActorMemory.from_observations(f"skill{i}", policy.memory_chunk, obs))
         with torch.no_grad():
             for p in policy.parameters():
                 p.add_(0.01 * torch.randn_like(p))
     params = [p for p in policy.parameters() if p.requires_grad]
     anchor = [p.detach().clone() for p in params]
-    cfg = SurgicAISleepConfig(max_iterations=repeats + 3, early_stop_tol=0.0)
+    cfg = SurgicAISleepConfig(max_iterations=repeats + 3, early_stop_tol=0.0, joint_forward=joint_forward)
     t0 = synchronized_clock(device)
     result = sleep_consolidate(params, policy.memory_chunk, memories, cfg, anchor_params=anchor, progress=False)
     return 1e3 * (synchronized_clock(device) - t0) / result.stop_iteration
@@ -191,6 +202,10 @@ def main() -> None:
                                                                                              args.repeats)),
         (f"ACT-SR sleep iteration (k = {K} actor memories, batch 8 each)", lambda: bench_act_sleep(device,
                                                                                                    args.repeats)),
+        (f"ACT-SR sleep iteration, joint forward (k = {K}, one forward, {K} backward passes)",
+         lambda: bench_act_sleep(device, args.repeats, joint_forward=True)),
+        (f"ACT-SR sleep iteration, vision preset (k = {K} memories of 64x64 images, batch 8 each)",
+         lambda: bench_act_sleep(device, args.repeats, vision=True)),
         ("SAC update (the paper's MT5 networks, batch 256)", lambda: bench_sac_update(device, args.repeats)),
         (f"SAC sleep iteration (k = {K} critic memories, batch 64 each)", lambda: bench_sac_sleep(device,
                                                                                                   args.repeats)),
