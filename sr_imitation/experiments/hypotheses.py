@@ -1,7 +1,7 @@
 """The pre-registered tests of a comparison, computed from its archived raw results (docs/RESULTS.md, issue 28).
 
     python -m sr_imitation.experiments.hypotheses --archive=docs/results/needle_cpu_m16_compare \\
-        --tests=[sr>wake_only,sr!=replay] --metric=afsr --output=docs/results/needle_cpu_m16_compare/hypotheses
+        '--tests=[sr>wake_only,sr!=replay]' --metric=afsr --output=docs/results/needle_cpu_m16_compare/hypotheses
 
 A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0, ``A!=B`` the two-sided one
 (:func:`sr_imitation.stream.stats.paired_test`), over the training seeds both variants have in the archive
@@ -53,6 +53,8 @@ class HypothesesConfig:
             raise ValueError(f"metric: {self.metric!r} is not one of {list(METRICS)}")
         if not 0 < self.alpha < 1:
             raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
+        if not Path(self.archive).is_dir():
+            raise FileNotFoundError(f"archive: {self.archive} is not a folder")
 
 
 def archived_runs(archive: Path, variant: str) -> dict[int, dict[str, Any]]:
@@ -76,6 +78,9 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     for test in cfg.tests:
         a, op, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked in __post_init__)
         va, vb = archived_values(cfg.archive, a, cfg.metric), archived_values(cfg.archive, b, cfg.metric)
+        for variant, values in ((a, va), (b, vb)):
+            if not values:
+                logger.warning("%s: no finished %s runs in %s (yet)", test, variant, cfg.archive)
         seeds = sorted(set(va) & set(vb))
         result = paired_test([va[s] for s in seeds], [vb[s] for s in seeds], _ALTERNATIVE[op])
         rows.append({"test": test, "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,

@@ -42,10 +42,21 @@ def _user_error(exc: BaseException) -> BaseException | None:
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
-        if isinstance(exc, USER_ERRORS) or type(exc).__module__.startswith("draccus"):
+        if isinstance(exc, USER_ERRORS) or type(exc).__module__.startswith(("draccus", "yaml")):
             found = exc
         exc = _next(exc)
     return found
+
+
+def _yaml_message(exc: BaseException) -> str | None:
+    """A flag value draccus could not read as YAML (``--tests=[sr`` after the shell took ``>wake_only]`` as a
+    redirection): the value and what the YAML parser expected, instead of its multi-line report."""
+    if not type(exc).__module__.startswith("yaml"):
+        return None
+    mark = getattr(exc, "problem_mark", None)
+    value = str(getattr(mark, "buffer", "") or "").rstrip("\0")
+    return (f"a flag value is not valid YAML: {value!r} ({getattr(exc, 'problem', None) or exc}); quote a value "
+            "that holds shell characters (> < ! | & ; or spaces), e.g. '--tests=[sr>wake_only]'")
 
 
 def _decoding_key(exc: BaseException | None) -> str | None:
@@ -123,7 +134,7 @@ def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | Non
         user = _user_error(exc)
         if user is None or debug:
             raise
-        message = " ".join(str(user).split())  # one line
+        message = " ".join((_yaml_message(user) or str(user)).split())  # one line
         key = _decoding_key(exc)
         if key and not message.startswith(("`", key)):
             message = f"{key}: {message}"  # draccus knew which setting it was decoding

@@ -79,3 +79,18 @@ def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
     assert "sr>wake_only (greater)" in capsys.readouterr().out
     with pytest.raises(ValueError, match="not of the form"):
         HypothesesConfig(tests=["sr=wake_only"])
+    with pytest.raises(FileNotFoundError, match="is not a folder"):
+        HypothesesConfig(archive=tmp_path / "typo")
+
+
+def test_a_flag_value_the_shell_cut_short_is_one_line_naming_the_value(tmp_path, capsys):
+    """``--tests=[sr>wake_only]`` unquoted: the shell redirects at ``>`` and draccus gets ``[sr``."""
+    from sr_imitation.experiments.hypotheses import main
+    from sr_imitation.infra.cli_errors import run_cli
+
+    with pytest.raises(SystemExit) as stop:
+        run_cli("hypotheses", main, [f"--archive={tmp_path}", "--tests=[sr"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not valid YAML: '[sr'" in err and "quote" in err
+
