@@ -117,3 +117,10 @@ def test_a_sac_update_stays_on_the_device_but_for_its_logged_numbers():
     agent.normalizer.update(replay.obs[:100])  # host observations (an environment's) into device statistics
     traffic = _per_call(lambda: agent.update(replay.batch(replay.indices(16, rng), META), 1e-3), 3)
     assert traffic == {"item": 6}  # the six numbers of UpdateInfo, for the log
+
+
+def test_the_vectorized_per_memory_gradients_the_benchmark_times_are_the_sleep_s_gradients():
+    from sr_imitation.benchmarks.per_memory_grads import per_memory_gradients
+
+    loop_ms, vmap_ms, diff = per_memory_gradients(torch.device("cpu"), vision=False, repeats=1)
+    assert loop_ms > 0 and vmap_ms > 0 and diff < 1e-4

@@ -2,7 +2,8 @@
 # One GPU session's checks, on the device machine (after tools/gpu/prepare.sh here):
 #   1. the environment: wheels into /tmp/site, GL loaders, PyAV stubbed (videos off), the image's transformers set
 #      aside (LeRobot imports it when present and it needs huggingface_hub 1.x; we carry our pin, 0.35.3);
-#   2. python -m sr_imitation.benchmarks.device --device=cuda  -> $OUT/bench_cuda.txt;
+#   2. python -m sr_imitation.benchmarks.device --device=cuda  -> $OUT/bench_cuda.txt, and
+#      python -m sr_imitation.benchmarks.per_memory_grads --device=cuda -> $OUT/per_memory_grads_cuda.txt;
 #   3. the two-minute preset as a CUDA stream, state-only and with the camera (ResNet-18), side by side
 #      -> $OUT/try_{state,vision}_cuda.{txt,tgz} (run directories without weights).
 # Everything is written under $OUT; each step has its own time limit, so one failure leaves the others' output.
@@ -24,6 +25,8 @@ nvidia-smi -L
 python3 -c "import sys, torch, mujoco; print(sys.version.split()[0], 'torch', torch.__version__, 'cuda', torch.cuda.is_available(), 'mujoco', mujoco.__version__)" || exit 4
 stamp benchmark
 OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.device --device=cuda --threads=4 2>&1 | tee "$OUT/bench_cuda.txt"
+OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.per_memory_grads --device=cuda --threads=4 2>&1 \
+  | tee "$OUT/per_memory_grads_cuda.txt"
 MAIN='import sys; from sr_imitation.main_job import entry; sys.argv = ["sr-main"] + sys.argv[1:]; entry()'
 NOVID="--expert_video=false --train.eval.videos_per_skill=0"
 stamp "needle_try on cuda: state-only and vision side by side"

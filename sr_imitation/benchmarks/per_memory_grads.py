@@ -1,0 +1,96 @@
+"""Per-memory gradients of a sleep iteration: k backward passes (what the sleep does) against one vectorized pass.
+
+    python -m sr_imitation.benchmarks.per_memory_grads [--device auto|cpu|cuda] [--repeats 10] [--threads N]
+
+A sleep iteration needs the k per-memory gradients g_i = grad L_i(theta) (the rows of the Gram matrix, Eq. 5). The
+sleep computes them with k forward/backward passes of batch 8 (:func:`sr_imitation.core.sleep.sleep_consolidate`);
+``torch.func.vmap(torch.func.grad(L))`` over the k memories' batches computes the same k gradients in one batched
+pass. This benchmark times both on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8, random
+targets) and reports the largest difference between them relative to the largest gradient entry (float summation
+order only). It decides whether a
+vectorized sleep is worth adding: on the VM's CPU it is for the state-only policy and is not for the vision one; on a
+GPU, where the k passes are launch-bound, it is to be measured (``docs/BENCHMARKS.md``).
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import torch
+from torch.func import functional_call, grad, vmap
+
+from sr_imitation.benchmarks.device import (
+    ACTION_DIM,
+    CHUNK,
+    STATE_DIM,
+    K,
+    act_policy,
+    device_name,
+    resolve_device,
+    timed_ms,
+)
+
+BATCH = 8
+
+
+def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> tuple[float, float, float]:
+    """(loop ms, vmap ms, largest difference relative to the largest gradient entry) of the k per-memory gradients
+    of the ACT-SR chunk loss."""
+    torch.manual_seed(0)
+    policy = act_policy(device, vision)
+    policy.eval()
+    model = policy.model
+    g = torch.Generator().manual_seed(0)
+    obs = {"observation.state": torch.randn(K, BATCH, STATE_DIM, generator=g)}
+    if vision:
+        obs["observation.images.wrist"] = torch.rand(K, BATCH, 3, 64, 64, generator=g)
+    else:
+        obs["observation.environment_state"] = obs["observation.state"].clone()
+    obs = {k: v.to(device) for k, v in obs.items()}
+    target = torch.randn(K, BATCH, CHUNK, ACTION_DIM, generator=g).to(device)
+    names = [n for n, p in model.named_parameters() if p.requires_grad]
+    buffers = dict(model.named_buffers())
+
+    def loss(params: dict[str, torch.Tensor], o: dict[str, torch.Tensor], t: torch.Tensor) -> torch.Tensor:
+        batch = dict(o)
+        if vision:
+            batch["observation.images"] = [o["observation.images.wrist"]]
+        chunk = functional_call(model, (params, buffers), (batch,))[0]
+        return (chunk - t).pow(2).mean()
+
+    live = dict(model.named_parameters())
+    frozen = {n: live[n].detach() for n in names}
+
+    def loop() -> list[tuple[torch.Tensor, ...]]:
+        return [torch.autograd.grad(loss(live, {k: v[i] for k, v in obs.items()}, target[i]),
+                                    [live[n] for n in names]) for i in range(K)]
+
+    def vectorized() -> dict[str, torch.Tensor]:
+        return vmap(grad(loss), in_dims=(None, 0, 0))(frozen, obs, target)
+
+    ref, vec = loop(), vectorized()
+    scale = max(float(r.abs().max()) for grads in ref for r in grads)
+    diff = max(float((vec[n][i] - ref[i][j]).abs().max()) for i in range(K) for j, n in enumerate(names)) / scale
+    return timed_ms(loop, repeats, device), timed_ms(vectorized, repeats, device), diff
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--device", default="auto")
+    parser.add_argument("--repeats", type=int, default=10)
+    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    device = resolve_device(args.device)
+    print(f"device: {device_name(device)}; torch {torch.__version__}; k = {K} memories, batch {BATCH}; "  # noqa: T201
+          f"median of {args.repeats}\n")
+    print("| policy | k backward passes (ms) | one vmap pass (ms) | ratio | max difference / max entry |")  # noqa: T201
+    print("|---|---|---|---|---|")  # noqa: T201
+    for vision in (False, True):
+        loop_ms, vmap_ms, diff = per_memory_gradients(device, vision, args.repeats)
+        print(f"| ACT-SR {'vision' if vision else 'state-only'} | {loop_ms:.2f} | {vmap_ms:.2f} | "  # noqa: T201
+              f"{loop_ms / vmap_ms:.2f}x | {diff:.1e} |")
+
+
+if __name__ == "__main__":
+    main()
