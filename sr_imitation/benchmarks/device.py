@@ -188,14 +188,20 @@ def device_name(device: torch.device) -> str:
     return f"{device.type} ({platform.processor() or platform.machine()}, {torch.get_num_threads()} threads)"
 
 
-def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+def parse_device_args(description: str, repeats: int) -> tuple[torch.device, argparse.Namespace]:
+    """The device benchmarks' flags (``--device``, ``--repeats``, ``--threads``): the device, the arguments; sets
+    torch's thread count."""
+    parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="auto")
-    parser.add_argument("--repeats", type=int, default=20)
+    parser.add_argument("--repeats", type=int, default=repeats)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
-    device = resolve_device(args.device)
+    return resolve_device(args.device), args
+
+
+def main() -> None:
+    device, args = parse_device_args(__doc__, repeats=20)
     rows = [
         ("ACT wake step, state-only preset (batch 32)", lambda: bench_act_wake(device, False, args.repeats)),
         ("ACT wake step, vision preset (64x64 wrist camera, batch 8)", lambda: bench_act_wake(device, True,

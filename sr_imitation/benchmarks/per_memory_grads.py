@@ -14,8 +14,6 @@ GPU, where the k passes are launch-bound, it is to be measured (``docs/BENCHMARK
 
 from __future__ import annotations
 
-import argparse
-
 import torch
 from torch.func import functional_call, grad, vmap
 
@@ -26,7 +24,7 @@ from sr_imitation.benchmarks.device import (
     K,
     act_policy,
     device_name,
-    resolve_device,
+    parse_device_args,
     timed_ms,
 )
 
@@ -75,13 +73,7 @@ def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> tu
 
 
 def main() -> None:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--device", default="auto")
-    parser.add_argument("--repeats", type=int, default=10)
-    parser.add_argument("--threads", type=int, default=torch.get_num_threads())
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    device = resolve_device(args.device)
+    device, args = parse_device_args(__doc__, repeats=10)
     print(f"device: {device_name(device)}; torch {torch.__version__}; k = {K} memories, batch {BATCH}; "  # noqa: T201
           f"median of {args.repeats}\n")
     print("| policy | k backward passes (ms) | one vmap pass (ms) | ratio | max difference / max entry |")  # noqa: T201
