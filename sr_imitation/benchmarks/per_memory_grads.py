@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import torch
 from torch.func import functional_call, grad, vmap
+from torch.utils._python_dispatch import TorchDispatchMode
 
 from sr_imitation.benchmarks.device import (
     ACTION_DIM,
@@ -31,9 +32,29 @@ from sr_imitation.benchmarks.device import (
 BATCH = 8
 
 
-def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> tuple[float, float, float]:
-    """(loop ms, vmap ms, largest difference relative to the largest gradient entry) of the k per-memory gradients
-    of the ACT-SR chunk loss."""
+class OpCount(TorchDispatchMode):
+    """Counts the ATen operations that reach the kernels (after autograd and vmap's batching): on a GPU at these sizes
+    each is a kernel launch or a view, so the count is the launch-bound cost, measured without a GPU."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.ops = 0
+
+    def __torch_dispatch__(self, func, types, args=(), kwargs=None):
+        self.ops += 1
+        return func(*args, **(kwargs or {}))
+
+
+def count_ops(fn) -> int:
+    with OpCount() as counter:
+        fn()
+    return counter.ops
+
+
+def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> dict[str, float]:
+    """Milliseconds and ATen operations of the k per-memory gradients of the ACT-SR chunk loss, by k backward passes
+    (``loop_*``) and by one vmap pass (``vmap_*``), and their largest difference relative to the largest gradient
+    entry (``difference``)."""
     torch.manual_seed(0)
     policy = act_policy(device, vision)
     policy.eval()
@@ -69,19 +90,21 @@ def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> tu
     ref, vec = loop(), vectorized()
     scale = max(float(r.abs().max()) for grads in ref for r in grads)
     diff = max(float((vec[n][i] - ref[i][j]).abs().max()) for i in range(K) for j, n in enumerate(names)) / scale
-    return timed_ms(loop, repeats, device), timed_ms(vectorized, repeats, device), diff
+    return {"loop_ms": timed_ms(loop, repeats, device), "vmap_ms": timed_ms(vectorized, repeats, device),
+            "loop_ops": count_ops(loop), "vmap_ops": count_ops(vectorized), "difference": diff}
 
 
 def main() -> None:
     device, args = parse_device_args(__doc__, repeats=10)
     print(f"device: {device_name(device)}; torch {torch.__version__}; k = {K} memories, batch {BATCH}; "  # noqa: T201
           f"median of {args.repeats}\n")
-    print("| policy | k backward passes (ms) | one vmap pass (ms) | ratio | max difference / max entry |")  # noqa: T201
-    print("|---|---|---|---|---|")  # noqa: T201
+    print("| policy | k backward passes (ms) | one vmap pass (ms) | ratio | ATen ops: k passes / vmap | "  # noqa: T201
+          "max difference / max entry |\n|---|---|---|---|---|---|")
     for vision in (False, True):
-        loop_ms, vmap_ms, diff = per_memory_gradients(device, vision, args.repeats)
-        print(f"| ACT-SR {'vision' if vision else 'state-only'} | {loop_ms:.2f} | {vmap_ms:.2f} | "  # noqa: T201
-              f"{loop_ms / vmap_ms:.2f}x | {diff:.1e} |")
+        r = per_memory_gradients(device, vision, args.repeats)
+        print(f"| ACT-SR {'vision' if vision else 'state-only'} | {r['loop_ms']:.2f} | {r['vmap_ms']:.2f} | "  # noqa: T201
+              f"{r['loop_ms'] / r['vmap_ms']:.2f}x | {r['loop_ops']:.0f} / {r['vmap_ops']:.0f} | "
+              f"{r['difference']:.1e} |")
 
 
 if __name__ == "__main__":
