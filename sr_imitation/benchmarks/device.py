@@ -9,7 +9,8 @@ Rows, each the median wall time of one call in milliseconds (CUDA synchronized b
 - ACT wake step, the vision preset's policy (a 64x64 wrist camera through a GroupNorm ResNet-18, batch 8);
 - ACT-SR sleep iteration, k = 5 actor memories of 1024 observations (state-only policy, batch 8 per memory, the
   SurgicAI table's settings): k per-memory gradients, the Gram matrix, the exact Nash solve, the Adam step; the same
-  with ``joint_forward`` (one forward over the k batches, k backward passes); the same on the vision preset;
+  with ``joint_forward`` (one forward over the k batches, one backward batched over the k losses); the same on the
+  vision preset;
 - SAC update (the paper's MT5 networks, batch 256): critic, actor and temperature steps;
 - SAC sleep iteration, k = 5 critic memories (batch 64 per memory, the MT5 table's settings).
 
@@ -126,8 +127,8 @@ def bench_act_sleep(device: torch.device, repeats: int, vision: bool = False, jo
     """One ACT-SR sleep iteration over K memories of 1024 observations (mean over ``repeats`` + 3 iterations).
 
     ``vision``: the vision preset's policy and memories (64x64 uint8 wrist images, as the memories store them);
-    ``joint_forward``: :class:`~sr_imitation.core.sleep.SleepConfig`'s one forward over the K batches, K backward
-    passes (same values)."""
+    ``joint_forward``: :class:`~sr_imitation.core.sleep.SleepConfig`'s one forward over the K batches and one backward
+    batched over the K losses (same values up to float order)."""
     torch.manual_seed(0)
     policy = act_policy(device, vision=vision)
     policy.eval()
@@ -208,7 +209,7 @@ def main() -> None:
                                                                                              args.repeats)),
         (f"ACT-SR sleep iteration (k = {K} actor memories, batch 8 each)", lambda: bench_act_sleep(device,
                                                                                                    args.repeats)),
-        (f"ACT-SR sleep iteration, joint forward (k = {K}, one forward, {K} backward passes)",
+        (f"ACT-SR sleep iteration, joint forward (k = {K}, one forward, one batched backward)",
          lambda: bench_act_sleep(device, args.repeats, joint_forward=True)),
         (f"ACT-SR sleep iteration, vision preset (k = {K} memories of 64x64 images, batch 8 each)",
          lambda: bench_act_sleep(device, args.repeats, vision=True)),

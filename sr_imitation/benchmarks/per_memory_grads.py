@@ -1,15 +1,14 @@
-"""Per-memory gradients of a sleep iteration: k backward passes (what the sleep does) against one vectorized pass.
+"""Per-memory gradients of a sleep iteration: k backward passes, one batched backward, one vmap pass.
 
     python -m sr_imitation.benchmarks.per_memory_grads [--device auto|cpu|cuda] [--repeats 10] [--threads N]
 
 A sleep iteration needs the k per-memory gradients g_i = grad L_i(theta) (the rows of the Gram matrix, Eq. 5). The
-sleep computes them with k forward/backward passes of batch 8 (:func:`sr_imitation.core.sleep.sleep_consolidate`);
-``torch.func.vmap(torch.func.grad(L))`` over the k memories' batches computes the same k gradients in one batched
-pass. This benchmark times both on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8, random
-targets) and reports the largest difference between them relative to the largest gradient entry (float summation
-order only). It decides whether a
-vectorized sleep is worth adding: on the VM's CPU it is for the state-only policy and is not for the vision one; on a
-GPU, where the k passes are launch-bound, it is to be measured (``docs/BENCHMARKS.md``).
+sleep computes them with k forward/backward passes of batch 8 (:func:`sr_imitation.core.sleep.sleep_consolidate`),
+or with ``joint_forward`` from one forward over the k batches and one backward batched over the k losses;
+``torch.func.vmap(torch.func.grad(L))`` over the k memories' batches is a third way. This benchmark times the three
+on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8, random targets), counts the ATen
+operations each launches (on a GPU at these sizes, the cost) and reports the largest difference to the k passes
+relative to the largest gradient entry (float summation order only), on any device (``docs/BENCHMARKS.md``).
 """
 
 from __future__ import annotations
@@ -51,10 +50,16 @@ def count_ops(fn) -> int:
     return counter.ops
 
 
-def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> dict[str, float]:
-    """Milliseconds and ATen operations of the k per-memory gradients of the ACT-SR chunk loss, by k backward passes
-    (``loop_*``) and by one vmap pass (``vmap_*``), and their largest difference relative to the largest gradient
-    entry (``difference``)."""
+METHODS = {
+    "loop": "k forward + k backward passes (the sleep's default)",
+    "joint": "one forward + one backward batched over the k losses (sleep.joint_forward)",
+    "vmap": "torch.func.vmap(torch.func.grad(...)) over the k batches",
+}
+
+
+def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> dict[str, dict[str, float]]:
+    """For each of :data:`METHODS`: milliseconds, ATen operations and largest difference to ``loop`` (relative to the
+    largest gradient entry) of the k per-memory gradients of the ACT-SR chunk loss."""
     torch.manual_seed(0)
     policy = act_policy(device, vision)
     policy.eval()
@@ -70,41 +75,55 @@ def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> di
     names = [n for n, p in model.named_parameters() if p.requires_grad]
     buffers = dict(model.named_buffers())
 
-    def loss(params: dict[str, torch.Tensor], o: dict[str, torch.Tensor], t: torch.Tensor) -> torch.Tensor:
+    def chunk(params: dict[str, torch.Tensor], o: dict[str, torch.Tensor]) -> torch.Tensor:
         batch = dict(o)
         if vision:
             batch["observation.images"] = [o["observation.images.wrist"]]
-        chunk = functional_call(model, (params, buffers), (batch,))[0]
-        return (chunk - t).pow(2).mean()
+        return functional_call(model, (params, buffers), (batch,))[0]
+
+    def loss(params: dict[str, torch.Tensor], o: dict[str, torch.Tensor], t: torch.Tensor) -> torch.Tensor:
+        return (chunk(params, o) - t).pow(2).mean()
 
     live = dict(model.named_parameters())
     frozen = {n: live[n].detach() for n in names}
+    eye = torch.eye(K, device=device)
 
-    def loop() -> list[tuple[torch.Tensor, ...]]:
+    def loop() -> list[tuple[torch.Tensor, ...]]:  # [memory][parameter]
         return [torch.autograd.grad(loss(live, {k: v[i] for k, v in obs.items()}, target[i]),
                                     [live[n] for n in names]) for i in range(K)]
 
-    def vectorized() -> dict[str, torch.Tensor]:
+    def joint() -> tuple[torch.Tensor, ...]:  # [parameter][memory, ...]
+        flat = {k: v.reshape(K * BATCH, *v.shape[2:]) for k, v in obs.items()}
+        losses = (chunk(live, flat) - target.reshape(K * BATCH, CHUNK, ACTION_DIM)).pow(2).reshape(K, -1).mean(1)
+        return torch.autograd.grad(losses, [live[n] for n in names], grad_outputs=eye, is_grads_batched=True)
+
+    def vectorized() -> dict[str, torch.Tensor]:  # {parameter: [memory, ...]}
         return vmap(grad(loss), in_dims=(None, 0, 0))(frozen, obs, target)
 
-    ref, vec = loop(), vectorized()
+    ref = loop()
     scale = max(float(r.abs().max()) for grads in ref for r in grads)
-    diff = max(float((vec[n][i] - ref[i][j]).abs().max()) for i in range(K) for j, n in enumerate(names)) / scale
-    return {"loop_ms": timed_ms(loop, repeats, device), "vmap_ms": timed_ms(vectorized, repeats, device),
-            "loop_ops": count_ops(loop), "vmap_ops": count_ops(vectorized), "difference": diff}
+    as_ref = {"loop": lambda got: got, "joint": lambda got: [[gr[i] for gr in got] for i in range(K)],
+              "vmap": lambda got: [[got[n][i] for n in names] for i in range(K)]}
+    out = {}
+    for name, fn in (("loop", loop), ("joint", joint), ("vmap", vectorized)):
+        got = as_ref[name](fn())
+        diff = max(float((a - b).abs().max()) for ga, gb in zip(got, ref, strict=True)
+                   for a, b in zip(ga, gb, strict=True))
+        out[name] = {"ms": timed_ms(fn, repeats, device), "ops": count_ops(fn), "difference": diff / scale}
+    return out
 
 
 def main() -> None:
     device, args = parse_device_args(__doc__, repeats=10)
     print(f"device: {device_name(device)}; torch {torch.__version__}; k = {K} memories, batch {BATCH}; "  # noqa: T201
           f"median of {args.repeats}\n")
-    print("| policy | k backward passes (ms) | one vmap pass (ms) | ratio | ATen ops: k passes / vmap | "  # noqa: T201
-          "max difference / max entry |\n|---|---|---|---|---|---|")
+    print("| policy | method | ms | vs loop | ATen ops | max difference / max entry |\n"  # noqa: T201
+          "|---|---|---|---|---|---|")
     for vision in (False, True):
-        r = per_memory_gradients(device, vision, args.repeats)
-        print(f"| ACT-SR {'vision' if vision else 'state-only'} | {r['loop_ms']:.2f} | {r['vmap_ms']:.2f} | "  # noqa: T201
-              f"{r['loop_ms'] / r['vmap_ms']:.2f}x | {r['loop_ops']:.0f} / {r['vmap_ops']:.0f} | "
-              f"{r['difference']:.1e} |")
+        rows = per_memory_gradients(device, vision, args.repeats)
+        for name, r in rows.items():
+            print(f"| ACT-SR {'vision' if vision else 'state-only'} | {METHODS[name]} | {r['ms']:.2f} | "  # noqa: T201
+                  f"{rows['loop']['ms'] / r['ms']:.2f}x | {r['ops']:.0f} | {r['difference']:.1e} |")
 
 
 if __name__ == "__main__":
