@@ -73,8 +73,9 @@ def test_an_act_wake_step_stays_on_the_device_but_for_four_numbers():
     assert all(p.device == META for p in policy.parameters())
 
 
+@pytest.mark.parametrize("joint_forward", [False, True])
 @pytest.mark.parametrize("substrate", ["act", "sac"])
-def test_a_sleep_iteration_moves_the_k_losses_and_the_k_by_k_gram_to_the_host_in_one_copy(substrate):
+def test_a_sleep_iteration_moves_the_k_losses_and_the_k_by_k_gram_to_the_host_in_one_copy(substrate, joint_forward):
     k = 3
     if substrate == "act":
         policy = act_policy(torch.device("cpu"), vision=False)
@@ -88,7 +89,7 @@ def test_a_sleep_iteration_moves_the_k_losses_and_the_k_by_k_gram_to_the_host_in
                                                        "observation.environment_state":
                                                            raw["observation.state"].to(META)})
         params, fn = [p for p in policy.parameters() if p.requires_grad], policy.memory_chunk
-        cfg = SurgicAISleepConfig(max_iterations=4, early_stop_tol=0.0, batch_size=4)
+        cfg = SurgicAISleepConfig(max_iterations=4, early_stop_tol=0.0, batch_size=4, joint_forward=joint_forward)
     else:
         agent = SACAgent(SACConfig(hidden_dim=32), ExcitabilityConfig())
         agent.normalizer.update(np.random.default_rng(0).normal(size=(10, OBS_DIM)))
@@ -96,7 +97,8 @@ def test_a_sleep_iteration_moves_the_k_losses_and_the_k_by_k_gram_to_the_host_in
                     for i in range(k)]
         agent = SACAgent(SACConfig(hidden_dim=32), ExcitabilityConfig(), device=META)
         params, fn = agent.actor_parameters(), agent.policy_fn
-        cfg = StreamSleepConfig.mt5(max_iterations=4, early_stop_tol=0.0, batch_size=4, anchor_tau=None)
+        cfg = StreamSleepConfig.mt5(max_iterations=4, early_stop_tol=0.0, batch_size=4, anchor_tau=None,
+                                    joint_forward=joint_forward)
     anchor = [p.detach().clone() for p in params]
     with HostTraffic() as traffic:
         result = sleep_consolidate(params, fn, memories, cfg, anchor_params=anchor, progress=False)
