@@ -4,8 +4,9 @@
 #      aside (LeRobot imports it when present and it needs huggingface_hub 1.x; we carry our pin, 0.35.3);
 #   2. python -m sr_imitation.benchmarks.device --device=cuda  -> $OUT/bench_cuda.txt, and
 #      python -m sr_imitation.benchmarks.per_memory_grads --device=cuda -> $OUT/per_memory_grads_cuda.txt;
-#   3. the two-minute preset as a CUDA stream, state-only and with the camera (ResNet-18), side by side
-#      -> $OUT/try_{state,vision}_cuda.{txt,tgz} (run directories without weights).
+#   3. the two-minute preset as a CUDA stream, state-only, with the camera (ResNet-18) and state-only with
+#      --sleep.joint_forward=true (its sleep phases' seconds against the default's), side by side
+#      -> $OUT/try_{state,vision,state_joint}_cuda.{txt,tgz} (run directories without weights).
 # Everything is written under $OUT; each step has its own time limit, so one failure leaves the others' output.
 cd "$(dirname "$0")/../.."
 OUT=${OUT:-/tmp/gpu_out}; mkdir -p "$OUT"
@@ -37,7 +38,11 @@ OMP_NUM_THREADS=4 timeout 150 python3 -c "$MAIN" --config_path=configs/needle_tr
   --train.policy.use_images=true --train.policy.vision_backbone=resnet18 \
   --train.output_dir=/tmp/try_vision_cuda > "$OUT/try_vision_cuda.txt" 2>&1 &
 p2=$!
-wait $p1; stamp "state rc=$?"; wait $p2; stamp "vision rc=$?"   # wait by pid: a bare wait also waits for tee
+OMP_NUM_THREADS=4 timeout 150 python3 -c "$MAIN" --config_path=configs/needle_try.json $NOVID --train.policy.device=cuda \
+  --train.sleep.joint_forward=true --train.output_dir=/tmp/try_state_joint_cuda > "$OUT/try_state_joint_cuda.txt" 2>&1 &
+p3=$!
+wait $p1; stamp "state rc=$?"; wait $p2; stamp "vision rc=$?"; wait $p3; stamp "state, joint forward rc=$?"  # by pid:
+# a bare wait also waits for tee
 for d in /tmp/try_*; do
   [ -d "$d" ] && tar -czf "$OUT/$(basename "$d").tgz" --exclude='*.safetensors' --exclude='*.mp4' -C /tmp "$(basename "$d")"
 done
