@@ -30,7 +30,7 @@ OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.per_memory_grads
   | tee "$OUT/per_memory_grads_cuda.txt"
 MAIN='import sys; from sr_imitation.main_job import entry; sys.argv = ["sr-main"] + sys.argv[1:]; entry()'
 NOVID="--expert_video=false --train.eval.videos_per_skill=0"
-stamp "needle_try on cuda: state-only and vision side by side"
+stamp "needle_try on cuda: state-only, vision and state-only with joint forward, side by side"
 OMP_NUM_THREADS=4 timeout 150 python3 -c "$MAIN" --config_path=configs/needle_try.json $NOVID --train.policy.device=cuda \
   --train.output_dir=/tmp/try_state_cuda > "$OUT/try_state_cuda.txt" 2>&1 &
 p1=$!
@@ -41,8 +41,7 @@ p2=$!
 OMP_NUM_THREADS=4 timeout 150 python3 -c "$MAIN" --config_path=configs/needle_try.json $NOVID --train.policy.device=cuda \
   --train.sleep.joint_forward=true --train.output_dir=/tmp/try_state_joint_cuda > "$OUT/try_state_joint_cuda.txt" 2>&1 &
 p3=$!
-wait $p1; stamp "state rc=$?"; wait $p2; stamp "vision rc=$?"; wait $p3; stamp "state, joint forward rc=$?"  # by pid:
-# a bare wait also waits for tee
+wait $p1; stamp "state rc=$?"; wait $p2; stamp "vision rc=$?"; wait $p3; stamp "state, joint forward rc=$?"
 for d in /tmp/try_*; do
   [ -d "$d" ] && tar -czf "$OUT/$(basename "$d").tgz" --exclude='*.safetensors' --exclude='*.mp4' -C /tmp "$(basename "$d")"
 done
