@@ -192,35 +192,34 @@ def anchor_coefficient(
     return (float(strength) if min(distances) < tau else 0.0), distances
 
 
-def _flat_batched_grads(losses: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
-    """Write d losses[i] / d params, flattened, into row i of ``out`` (k x P) with one batched backward pass;
-    parameters a loss does not use get zeros."""
-    cotangents = torch.eye(len(losses), device=losses.device, dtype=losses.dtype)
-    grads = torch.autograd.grad(losses, params, grad_outputs=cotangents, is_grads_batched=True, allow_unused=True)
-    offset = 0
-    for p, g in zip(params, grads, strict=True):
-        n = p.numel()
-        if g is None:
-            out[:, offset : offset + n].zero_()
-        else:
-            out[:, offset : offset + n].copy_(g.reshape(len(losses), n))
-        offset += n
-
-
-def _flat_grads(loss: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
-    """Write d loss / d params, flattened, into ``out``; parameters the loss does not use get zeros."""
-    grads = torch.autograd.grad(loss, params, allow_unused=True)
+def _write_flat(grads: Sequence[Tensor | None], params: Sequence[Tensor], out: Tensor) -> None:
+    """Write per-parameter gradients, flattened and concatenated, into ``out`` (P, or k x P for gradients batched
+    over k losses); a parameter without a gradient gets zeros."""
+    lead = out.shape[:-1]
     if all(g is not None for g in grads):
-        torch.cat([g.reshape(-1) for g in grads], out=out)
+        torch.cat([g.reshape(*lead, -1) for g in grads], dim=-1, out=out)
         return
     offset = 0
     for p, g in zip(params, grads, strict=True):
         n = p.numel()
         if g is None:
-            out[offset : offset + n].zero_()
+            out[..., offset : offset + n].zero_()
         else:
-            out[offset : offset + n].copy_(g.reshape(-1))
+            out[..., offset : offset + n].copy_(g.reshape(*lead, n))
         offset += n
+
+
+def _flat_grads(loss: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
+    """Write d loss / d params, flattened, into ``out`` (P)."""
+    _write_flat(torch.autograd.grad(loss, params, allow_unused=True), params, out)
+
+
+def _flat_batched_grads(losses: Tensor, params: Sequence[Tensor], out: Tensor) -> None:
+    """Write d losses[i] / d params, flattened, into row i of ``out`` (k x P) with one backward pass batched over the
+    k one-hot cotangents."""
+    cotangents = torch.eye(len(losses), device=losses.device, dtype=losses.dtype)
+    _write_flat(torch.autograd.grad(losses, params, grad_outputs=cotangents, is_grads_batched=True,
+                                    allow_unused=True), params, out)
 
 
 def sleep_consolidate(
