@@ -22,7 +22,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from sr_imitation.envs.needle.env import ACTION_NAMES, STATE_DIM, STATE_NAMES, NeedleEnv
 from sr_imitation.envs.needle.expert import ExpertSettings, NeedleExpert
@@ -31,6 +30,7 @@ from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.progress import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -294,7 +294,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
             vcodec=cfg.vcodec,
         )
         failures, attempt = 0, 0
-        with tqdm(total=cfg.num_episodes, desc=f"record {skill}", unit="ep") as bar:
+        with Progress(cfg.num_episodes, f"record {skill}", logger, unit="ep") as bar:
             while bar.n < cfg.num_episodes:
                 seed = episode_seed(cfg.seed, skill_index, attempt)
                 attempt += 1

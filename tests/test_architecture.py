@@ -1,5 +1,6 @@
 """The package's walls (issue 29): no import cycles, not even through imports inside functions or under
-``TYPE_CHECKING``, and no upward imports between the layers (io < core < infra < stream < substrates < drivers)."""
+``TYPE_CHECKING``, and no upward imports between the layers (io, progress < core < infra < stream < substrates <
+drivers)."""
 
 from __future__ import annotations
 
@@ -12,27 +13,29 @@ ROOT = Path(__file__).resolve().parents[1] / "sr_imitation"
 ALLOWED: dict[str, set[str]] = {
     # atomic writes and checked files: everything is saved through them
     "io": set(),
+    # progress bars / log lines of long loops (the sleep's included)
+    "progress": set(),
     # formulas: memories, aggregation, sleep, excitability, metrics
-    "core": {"io"},
+    "core": {"io", "progress"},
     # run infrastructure: settings fingerprints, run log, provenance, command-line parsing and errors
-    "infra": {"core", "io"},
+    "infra": {"core", "io", "progress"},
     # Algorithm 1, the method plugins and the shared results: substrate-free
-    "stream": {"core", "io", "infra"},
+    "stream": {"core", "io", "progress", "infra"},
     # the needle world and what records it
     "offscreen": set(),
-    "video": {"core", "io", "infra"},
-    "envs": {"core", "io", "infra", "offscreen", "video"},
-    "record": {"core", "io", "infra", "envs", "offscreen", "video"},
+    "video": {"core", "io", "progress", "infra"},
+    "envs": {"core", "io", "progress", "infra", "offscreen", "video"},
+    "record": {"core", "io", "progress", "infra", "envs", "offscreen", "video"},
     # the two substrates (each with its own methods and configs); neither imports the other
-    "imitation": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video"},
-    "rl": {"core", "io", "infra", "stream", "offscreen", "video"},
+    "imitation": {"core", "io", "progress", "infra", "stream", "envs", "record", "offscreen", "video"},
+    "rl": {"core", "io", "progress", "infra", "stream", "offscreen", "video"},
     # drivers: commands, experiments, benchmarks (anything below them)
-    "cli": {"core", "io", "infra", "stream"},
-    "main_job": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation"},
-    "experiments": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl",
-                    "main_job"},
-    "benchmarks": {"core", "io", "infra", "stream", "envs", "record", "offscreen", "video", "imitation", "rl",
-                   "main_job", "experiments"},  # the grid benchmark times the experiment drivers' runner
+    "cli": {"core", "io", "progress", "infra", "stream"},
+    "main_job": {"core", "io", "progress", "infra", "stream", "envs", "record", "offscreen", "video", "imitation"},
+    "experiments": {"core", "io", "progress", "infra", "stream", "envs", "record", "offscreen", "video", "imitation",
+                    "rl", "main_job"},
+    "benchmarks": {"core", "io", "progress", "infra", "stream", "envs", "record", "offscreen", "video", "imitation",
+                   "rl", "main_job", "experiments"},  # the grid benchmark times the experiment drivers' runner
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""
 

@@ -24,10 +24,10 @@ from typing import Any
 import numpy as np
 import torch
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from sr_imitation.core.aggregation import Aggregator, make_aggregator
 from sr_imitation.core.memory import Memory, per_memory_losses
+from sr_imitation.progress import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -285,10 +285,11 @@ def sleep_consolidate(
     result = SleepResult(skills, lam, distances, stop_iteration=0, stop_reason="max_iterations")
     window = config.early_stop_window
     consecutive_bad = 0
-    bar = tqdm(range(config.max_iterations), desc=f"sleep k={k}", disable=not progress, leave=False)
+    bar = Progress(config.max_iterations, f"sleep k={k}", logger, enabled=progress)
     logger.info("sleep over %s: lambda=%g (distances %s), %s", skills, lam,
                 [round(d, 3) for d in distances], aggregator)
-    for it in bar:
+    for it in range(config.max_iterations):
+        bar.update(1)
         batches = [memory.sample(config.batch_size, generator) for memory in memories]
         if config.joint_forward:
             # One forward per memory kind on the concatenated batches, then one backward batched over the k losses

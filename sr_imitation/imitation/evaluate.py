@@ -35,8 +35,8 @@ import numpy as np
 import torch
 from lerobot.envs.utils import preprocess_observation
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE
-from tqdm.auto import tqdm
 
+from sr_imitation.progress import Progress
 from sr_imitation.video import write_mp4
 
 logger = logging.getLogger(__name__)
@@ -450,7 +450,7 @@ def evaluate_skills(
     policy.eval()
     results: dict[str, SkillEvaluation] = {}
     total = len(skills) * len(cfg.seeds) * cfg.episodes
-    bar = tqdm(total=total, desc="eval", disable=not progress, leave=False)
+    bar = Progress(total, "eval", logger, enabled=progress, unit="ep")
     for skill, index in zip(skills, skill_indices, strict=True):
         per_seed, lengths, trajectories, videos = [], [], [], []
         env = make_env(skill, False)

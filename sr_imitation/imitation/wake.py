@@ -23,10 +23,10 @@ from lerobot.scripts.lerobot_train import update_policy
 from lerobot.utils.constants import ACTION
 from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
 from torch.utils.data import DataLoader, Subset
-from tqdm.auto import tqdm
 
 from sr_imitation.imitation.data import SkillData
 from sr_imitation.infra.distributed import Processes, average_gradients, average_scalars, current, shard
+from sr_imitation.progress import Progress
 
 logger = logging.getLogger(__name__)
 
@@ -208,8 +208,7 @@ def wake_train(
                               "lr": AverageMeter("lr", ":0.1e"), "update_s": AverageMeter("updt_s", ":.3f")})
     result = WakeResult(data.skill, 0, -1, math.inf, 0)
     best_state: dict[str, torch.Tensor] | None = None
-    bar = tqdm(total=cfg.max_epochs * steps_per_epoch, desc=f"wake {data.skill}", disable=not progress,
-               leave=False)
+    bar = Progress(cfg.max_epochs * steps_per_epoch, f"wake {data.skill}", logger, enabled=progress)
     for epoch in range(cfg.max_epochs):
         sums: dict[str, float] = {}
         for step, raw in enumerate(train_loader):

@@ -118,8 +118,23 @@ LOG_FORMAT = "%(asctime)s %(levelname)s %(name)s: %(message)s"
 
 
 def setup_logging(level: int = logging.INFO) -> None:
-    """The one logging set-up of every command (``main()`` of each console script and ``python -m`` module)."""
-    logging.basicConfig(level=level, format=LOG_FORMAT)
+    """The one logging set-up of every command (``main()`` of each console script and ``python -m`` module).
+
+    Importing LeRobot calls ``logging.debug`` at module level (``lerobot.utils.import_utils``), and a module-level
+    logging call with no handler installed runs ``logging.basicConfig()``: a WARNING-level root logger with the
+    default format, before any command starts. ``basicConfig(level=INFO)`` alone then does nothing, and until
+    2026-11-26 every INFO line of every command was lost (a two-hour run logged nothing but its bars). So the
+    handler that implicit call installed is replaced and the root level is set; handlers anyone else installed
+    (pytest's, an application's) are kept.
+    """
+    root = logging.getLogger()
+    for handler in list(root.handlers):
+        implicit = (type(handler) is logging.StreamHandler and handler.formatter is not None
+                    and handler.formatter._fmt == logging.BASIC_FORMAT)
+        if implicit:
+            root.removeHandler(handler)
+    logging.basicConfig(level=level, format=LOG_FORMAT)  # does nothing while other handlers remain
+    root.setLevel(level)
 
 
 def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:

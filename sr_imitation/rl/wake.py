@@ -12,9 +12,9 @@ from typing import Any
 
 import numpy as np
 from torch import Tensor
-from tqdm.auto import tqdm
 
 from sr_imitation.core.excitability import ExcitabilityConfig, activity_recording_off
+from sr_imitation.progress import Progress
 from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
 from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
 from sr_imitation.rl.envs import SkillEnv
@@ -111,8 +111,9 @@ def train_skill(
     if method is not None and method.has_wake_hooks:  # the actor's recorded activity is left alone by the hooks
         hooks = WakeHooks(method, skill_index, agent.actor_parameters(), agent.policy_fn, seed,
                           quiet=lambda: activity_recording_off(agent.actor))
-    bar = tqdm(range(budget.max_episodes), desc=f"wake {env.skill}", disable=not progress, leave=False)
-    for episode in bar:
+    bar = Progress(budget.max_episodes, f"wake {env.skill}", logger, enabled=progress, unit="ep")
+    for episode in range(budget.max_episodes):
+        bar.update(1)
         episode_starts.append(replay.total)
         rate = exc_cfg.rate("wake", skill_index, episode)
         obs = env.reset()
