@@ -194,7 +194,7 @@ def eval_main(args: list[str] | None = None) -> None:
     record = {s: {"success": r.success, "success_per_seed": r.success_per_seed, "videos": r.videos}
               for s, r in results.items()}
     write_checked_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})
-    print(json.dumps({s: r["success"] for s, r in record.items()}, indent=2))
+    print(json.dumps({s: round(r["success"], 4) for s, r in record.items()}, indent=2))  # eval.json: exact
     print(f"written: {cfg.output_dir / 'eval.json'}, videos in {cfg.output_dir / 'videos'}")
 
 

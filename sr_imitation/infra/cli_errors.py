@@ -135,6 +135,7 @@ def setup_logging(level: int = logging.INFO) -> None:
             root.removeHandler(handler)
     logging.basicConfig(level=level, format=LOG_FORMAT)  # does nothing while other handlers remain
     root.setLevel(level)
+    logging.getLogger("OpenGL.acceleratesupport").setLevel(logging.WARNING)  # "No OpenGL_accelerate module" each run
 
 
 def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:
