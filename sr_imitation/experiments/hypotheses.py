@@ -7,7 +7,8 @@ A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0
 (:func:`sr_imitation.stream.stats.paired_test`), over the training seeds both variants have in the archive
 (``<variant>_seed<S>/results.json``, read and checked by :func:`sr_imitation.stream.results.load_results`); each
 seed's value is the run's final metric (its mean over evaluation units). Written: ``hypotheses.md`` and
-``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference, t, p, bootstrap 95% CI).
+``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference, t, p, bootstrap 95% CI) and
+``hypotheses.png`` (per test, each training seed's A and B joined by a line: the pairing the test uses).
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from pathlib import Path
 from typing import Any
 
 import draccus
+import numpy as np
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.io import atomic_write_bytes, write_checked_json
@@ -100,6 +102,49 @@ def render(rows: list[dict[str, Any]], archive: Path) -> str:
     return "\n".join(lines) + "\n"
 
 
+def plot(rows: list[dict[str, Any]], path: Path) -> None:
+    """One panel per test: each seed's A and B values joined by a line (green where A - B has the tested sign, or
+    for a two-sided test the mean difference's sign; red where not), labelled with its training seed, the means +-
+    SE beside them, and the test's mean difference, CI and p in the title."""
+    import io
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, len(rows), figsize=(3.6 * len(rows), 3.8), squeeze=False)
+    for ax, r in zip(axes[0], rows, strict=True):
+        a, b = np.asarray(r["a_values"], dtype=float), np.asarray(r["b_values"], dtype=float)
+        sign = {"greater": 1.0, "less": -1.0}.get(r["alternative"], np.sign(r["mean"]) if r["n"] else 0.0)
+        labels: dict[float, list[str]] = {}
+        for seed, ya, yb in zip(r["seeds"], a, b, strict=True):
+            agrees = np.sign(ya - yb) == sign != 0
+            ax.plot([0, 1], [ya, yb], "-o", color="tab:green" if agrees else "tab:red", ms=4, lw=1, alpha=0.8)
+            labels.setdefault(round(float(ya), 3), []).append(str(seed))
+        for y, seeds in labels.items():  # seeds with the same A value share one label
+            ax.annotate(",".join(seeds), (0, y), xytext=(-6, 0), textcoords="offset points", fontsize=7,
+                        va="center", ha="right")
+        for x, values in ((-0.25, a), (1.25, b)):
+            if len(values):
+                sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
+                ax.errorbar([x], [values.mean()], yerr=[sem], fmt="s", color="k", capsize=4, ms=5)
+        ax.set_xticks([0, 1], [r["a"], r["b"]])
+        ax.set_xlim(-0.6, 1.6)
+        ax.set_ylabel(f"final {r['metric']}")
+        if r["n"] >= 2:
+            ax.set_title(f"{r['test']}: {r['mean']:+.3f} +- {r['sem']:.3f}\n"
+                         f"CI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], p = {r['p']:.4f}", fontsize=8)
+        else:
+            ax.set_title(f"{r['test']}: {r['n']} paired seed(s), no test", fontsize=8)
+        ax.grid(alpha=0.3)
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
 def main(args: list[str] | None = None) -> None:
     setup_logging()
     cfg = draccus.parse(HypothesesConfig, args=list(sys.argv[1:] if args is None else args))
@@ -108,6 +153,7 @@ def main(args: list[str] | None = None) -> None:
     if cfg.output is not None:
         write_checked_json(cfg.output / "hypotheses.json", {"archive": str(cfg.archive), "tests": rows})
         atomic_write_bytes(cfg.output / "hypotheses.md", text.encode())
+        plot(rows, cfg.output / "hypotheses.png")
     print(text)  # noqa: T201 (command output)
 
 

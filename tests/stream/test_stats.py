@@ -77,6 +77,7 @@ def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
     ref = st.ttest_rel(row["a_values"], row["b_values"], alternative="greater")
     assert row["p"] == pytest.approx(ref.pvalue) and row["mean"] == pytest.approx(np.mean([0.1, 0.01, 0.12]))
     assert "sr>wake_only (greater)" in capsys.readouterr().out
+    assert (tmp_path / "h" / "hypotheses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the paired-seeds figure
     with pytest.raises(ValueError, match="not of the form"):
         HypothesesConfig(tests=["sr=wake_only"])
     with pytest.raises(FileNotFoundError, match="is not a folder"):
