@@ -5,11 +5,14 @@ plain loop.
         --output_root=outputs/needle_grid --archive=docs/results/needle_cpu_m16_compare
     sr-grid --preset=configs/sac_mt5_cpu.json --variants=[sr,wake_only] --seeds=[0,1] --ray.address=auto
 
-The substrate follows from the preset: an ``sr-main`` preset (``record`` + ``train`` sections) is the needle
-comparison (:mod:`sr_imitation.experiments.needle_compare`: its variants, its summary), a SAC config (``"substrate":
-"sac"``) the Meta-World one (:mod:`sr_imitation.experiments.mt5_compare`). The driver (this process)
+The substrate follows from the preset: an ``sr-main`` preset (``record`` + ``train`` sections) or an ``sr-train``
+config of ACT-SR (e.g. a stream on your own datasets, ``--stream.dataset_paths`` / ``repo_ids`` with your
+``--eval.env``, or a run's ``train_config.json``) is the imitation comparison
+(:mod:`sr_imitation.experiments.needle_compare`: its variants, its summary), a SAC config (``"substrate": "sac"``)
+the Meta-World one (:mod:`sr_imitation.experiments.mt5_compare`). The driver (this process)
 
-1. builds every run's config; the needle preset's datasets are recorded here, once, before anything fans out;
+1. builds every run's config; an sr-main preset's datasets are recorded here, once, before anything fans out (an
+   sr-train config's datasets are the user's: each run checks them before its first gradient);
 2. skips every run that is finished with the settings it would have (its checked settings fingerprint,
    :func:`~sr_imitation.experiments.archive.archived_run`), in ``--archive`` or in ``--output_root``, all checked
    before the first run is submitted (another value of a setting refuses the whole grid in one line);
@@ -133,7 +136,8 @@ class RayOptions:
 @dataclass
 class GridConfig:
     preset: Path = Path("configs/needle_cpu.json")
-    """The config every run starts from: an sr-main preset (needle, ACT) or a SAC config (``"substrate": "sac"``)."""
+    """The config every run starts from: an sr-main preset (needle, ACT), an ACT-SR sr-train config (your own
+    datasets and evaluation environment) or a SAC config (``"substrate": "sac"``)."""
     variants: list[str] = field(default_factory=list)
     """Variants to run, in this order (the substrate's ``VARIANTS``); empty - its default list."""
     seeds: list[int] = field(default_factory=list)
@@ -165,9 +169,18 @@ def run_name(variant: str, seed: int) -> str:
     return f"{variant}_seed{seed}"
 
 
+def is_train_config(data: object) -> bool:
+    """Whether a config file's JSON is an ACT-SR ``sr-train`` config (``"substrate": "act"``, or ``policy`` and
+    ``stream`` sections without a ``record`` one): a stream on datasets that already exist, the user's own."""
+    if not isinstance(data, dict) or "record" in data or data.get("substrate", "act") != "act":
+        return False
+    return data.get("substrate") == "act" or (isinstance(data.get("policy"), dict) and isinstance(data.get("stream"),
+                                                                                                  dict))
+
+
 def substrate_of_preset(preset: Path) -> str:
-    """``sac`` for a SAC config (its ``substrate`` key), ``act`` for an sr-main preset (``record`` and ``train``);
-    ``ValueError`` naming the file otherwise."""
+    """``sac`` for a SAC config (its ``substrate`` key), ``act`` for an sr-main preset (``record`` and ``train``) or an
+    ACT-SR sr-train config (:func:`is_train_config`); ``ValueError`` naming the file otherwise."""
     try:
         data = json.loads(Path(preset).read_text())
     except (OSError, json.JSONDecodeError) as exc:
@@ -176,8 +189,11 @@ def substrate_of_preset(preset: Path) -> str:
         return "sac"
     if isinstance(data, dict) and isinstance(data.get("train"), dict) and "record" in data:
         return "act"
-    raise ValueError(f"preset: {preset} is neither an sr-main preset (record and train sections: the needle grid) "
-                     "nor a SAC config (\"substrate\": \"sac\": the Meta-World grid)")
+    if is_train_config(data):
+        return "act"
+    raise ValueError(f"preset: {preset} is neither an sr-main preset (record and train sections: the needle grid), "
+                     "an ACT-SR sr-train config (policy and stream sections: your datasets) nor a SAC config "
+                     "(\"substrate\": \"sac\": the Meta-World grid)")
 
 
 def grid_substrate(name: str) -> GridSubstrate:

@@ -16,7 +16,10 @@ iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamm
 BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the
 union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run of the preset
 (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets (recorded once,
-as by ``sr-main``), each evaluated on the preset's evaluation seeds. The runner is ``sr-grid``'s
+as by ``sr-main``), each evaluated on the preset's evaluation seeds. The preset may also be an ``sr-train`` config
+of your own skills (``--stream.dataset_paths`` or ``repo_ids``, your ``--eval.env``; :func:`base_config`): the same
+grid then answers "does sleep help on my skills?" with ``--variants=[sr,wake_only]`` and
+:mod:`sr_imitation.experiments.hypotheses` on ``output_root``. The runner is ``sr-grid``'s
 (:mod:`sr_imitation.experiments.grid`; this module is its needle variant table, :data:`GRID`): it skips finished runs
 (``results.json`` and the same settings), resumes killed ones and starts the others, one after another
 (``--runner=loop``, the default here) or as Ray tasks, one per core (``--runner=ray``, ``--ray.*``).
@@ -36,14 +39,16 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, NamedTuple
 
 from sr_imitation.experiments.archive import RunKey
-from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
+from sr_imitation.experiments.grid import GridConfig, is_train_config, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
+from sr_imitation.imitation.cli import parse_train_config
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
@@ -129,9 +134,18 @@ class CompareConfig(GridConfig):
         GRID.validate(self.variants)
 
 
-def run_config(cfg: GridConfig, base: MainJobConfig, variant: str, seed: int) -> TrainStreamConfig:
+def base_config(preset: Path, flags: list[str]) -> TrainStreamConfig:
+    """The ``sr-train`` config every run starts from: an ``sr-main`` preset's train section (its datasets recorded if
+    missing, checked if present) or an ACT-SR ``sr-train`` config as ``sr-train --config_path`` reads it (your own
+    datasets: each run checks them before its first gradient); ``flags`` (``--extra``) applied to it."""
+    if is_train_config(json.loads(Path(preset).read_text())):
+        return parse_train_config(str(preset), list(flags))
+    return preset_with_datasets(preset, flags).train
+
+
+def run_config(cfg: GridConfig, base: MainJobConfig | TrainStreamConfig, variant: str, seed: int) -> TrainStreamConfig:
     """The ``sr-train`` config of one run: the preset's (with ``extra``) plus the variant's method and sleep."""
-    train = copy.deepcopy(base.train)
+    train = copy.deepcopy(base.train if isinstance(base, MainJobConfig) else base)
     spec = VARIANTS[variant]
     train.method = spec.method
     train.sleep = dataclasses.replace(train.sleep, **spec.sleep)
@@ -155,7 +169,7 @@ class NeedleGrid:
         check_choices("variants", variants, VARIANTS)
 
     def plan(self, cfg: GridConfig) -> dict[RunKey, TrainStreamConfig]:
-        base = preset_with_datasets(cfg.preset, cfg.extra)  # recorded once, here, before any run starts
+        base = base_config(cfg.preset, cfg.extra)  # a preset's datasets recorded once, here, before any run starts
         return {(v, s): run_config(cfg, base, v, s) for v in cfg.variants for s in cfg.seeds}
 
     def fingerprint(self, variant: str, train: TrainStreamConfig) -> Any:

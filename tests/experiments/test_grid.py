@@ -182,8 +182,10 @@ def test_the_sac_grid_on_ray_gives_the_loops_results(local_ray, tmp_path):
 def test_the_command_line_and_the_summary_on_request(loop_runs, preset, caplog):
     assert substrate_of_preset(CONFIGS / "needle_cpu.json") == "act"
     assert substrate_of_preset(CONFIGS / "sac_mt5_cpu.json") == "sac"
+    assert substrate_of_preset(loop_runs / "sr_seed0" / "train_config.json") == "act"  # a run's sr-train config
+    (loop_runs / "other.json").write_text(json.dumps({"policy": {"type": "act_sr"}}))
     with pytest.raises(ValueError, match="neither an sr-main preset"):
-        substrate_of_preset(loop_runs / "sr_seed0" / "train_config.json")
+        substrate_of_preset(loop_runs / "other.json")
     cfg = draccus.parse(GridConfig, args=["--preset=p.json", "--variants=[sr,ewc]", "--seeds=[0,1]",
                                           "--ray.address=auto", "--ray.num_gpus=1", "--ray.memory_gb=4"])
     assert (cfg.runner, cfg.ray.address, cfg.ray.num_gpus, cfg.ray.num_cpus) == ("ray", "auto", 1, 1)
@@ -198,3 +200,25 @@ def test_the_command_line_and_the_summary_on_request(loop_runs, preset, caplog):
         summary = run_grid(GridConfig(preset=preset, variants=[*VARIANTS, "sequential_bc"], seeds=[0],
                                       output_root=loop_runs, summary_only=True))
     assert set(summary["variants"]) == set(VARIANTS) and "summary without sequential_bc_seed0" in caplog.text
+
+
+def test_an_sr_train_config_on_your_own_datasets_is_a_grid_too(preset, loop_runs, tmp_path, capsys):
+    """"Does sleep help on my skills?": an sr-train config naming its datasets by path (nothing to record) is a grid
+    of the same variants, and gives the preset's runs bit for bit when it describes the same stream; the
+    hypotheses command then reads its output folder."""
+    from sr_imitation.experiments.hypotheses import main as hypotheses_main
+
+    config = json.loads(preset.read_text())
+    root = Path(config["record"]["root"])
+    before = sorted(p.relative_to(root) for p in root.rglob("*"))
+    stream = config["train"]["stream"]
+    train = {**config["train"], "stream": {**stream, "dataset_paths": [str(root / s) for s in stream["skills"]]}}
+    mine = tmp_path / "my_skills.json"
+    mine.write_text(json.dumps(train))
+    assert substrate_of_preset(mine) == "act"
+    run_grid(GridConfig(preset=mine, variants=VARIANTS, seeds=[0], output_root=tmp_path / "grid", runner="loop"))
+    for variant in VARIANTS:
+        _assert_same_run(loop_runs / f"{variant}_seed0", tmp_path / "grid" / f"{variant}_seed0")
+    assert sorted(p.relative_to(root) for p in root.rglob("*")) == before  # the user's datasets untouched
+    hypotheses_main([f"--archive={tmp_path / 'grid'}", "--tests=[sr>wake_only]"])
+    assert "| sr>wake_only (greater) | afsr | 0 |" in capsys.readouterr().out
