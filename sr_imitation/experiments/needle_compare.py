@@ -118,7 +118,8 @@ class CompareConfig(GridConfig):
     defaults (and ``--runner=loop``)."""
 
     preset: Path = Path("configs/needle_cpu.json")
-    """The sr-main config every run starts from (its record section gives the datasets)."""
+    """The sr-main config every run starts from (its record section gives the datasets), or an ACT-SR sr-train
+    config on your own datasets (:func:`base_config`)."""
     variants: list[str] = field(default_factory=lambda: list(TABLE_2))
     """Variants to run (:data:`VARIANTS`), in this order."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2, 3, 4])
