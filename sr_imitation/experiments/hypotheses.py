@@ -6,7 +6,9 @@
 A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0, ``A!=B`` the two-sided one
 (:func:`sr_imitation.stream.stats.paired_test`), over the training seeds both variants have in the archive
 (``<variant>_seed<S>/results.json``, read and checked by :func:`sr_imitation.stream.results.load_results`); each
-seed's value is the run's final metric (its mean over evaluation units). Written: ``hypotheses.md`` and
+seed's value is the run's final metric (its mean over evaluation units), or for runs without closed-loop
+evaluation (``--eval.env=none``: a real robot's datasets and no simulator) an offline one (:data:`LOSS_METRICS`:
+lower is better, so the test of "sleep helps" is ``sr<wake_only``). Written: ``hypotheses.md`` and
 ``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference, t, p, bootstrap 95% CI) and
 ``hypotheses.png`` (per test, each training seed's A and B joined by a line: the pairing the test uses).
 """
@@ -30,6 +32,12 @@ from sr_imitation.stream.stats import paired_test
 
 logger = logging.getLogger(__name__)
 
+LOSS_METRICS = {"val_l1": "validation_l1", "memory_loss": "memory_loss"}
+"""Offline metrics of runs without evaluation (``results.json``'s ``losses``): the mean over skills, under the
+final policy, of each skill's validation l1 (the behaviour-cloning l1 on its held-out demonstration episodes; the
+same episodes for every variant of a training seed) or of its stored memory's distillation loss (skills whose
+method stores no memory are left out). Lower is better."""
+
 _TEST = re.compile(r"^([\w.]+)(>|<|!=)([\w.]+)$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
 
@@ -41,7 +49,8 @@ class HypothesesConfig:
     tests: list[str] = field(default_factory=lambda: ["sr>wake_only", "sr!=replay"])
     """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided)."""
     metric: str = "afsr"
-    """The final metric compared (afsr, prs, bwt, bwt_wake, spi)."""
+    """The final metric compared: afsr, prs, bwt, bwt_wake, spi (evaluated runs) or val_l1, memory_loss (runs
+    without evaluation, lower is better: :data:`LOSS_METRICS`)."""
     alpha: float = 0.05
     """The significance level stated before the runs."""
     output: Path | None = None
@@ -51,8 +60,8 @@ class HypothesesConfig:
         bad = [t for t in self.tests if not _TEST.match(t)]
         if bad:
             raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B")
-        if self.metric not in METRICS:
-            raise ValueError(f"metric: {self.metric!r} is not one of {list(METRICS)}")
+        if self.metric not in METRICS and self.metric not in LOSS_METRICS:
+            raise ValueError(f"metric: {self.metric!r} is not one of {[*METRICS, *LOSS_METRICS]}")
         if not 0 < self.alpha < 1:
             raise ValueError(f"alpha must be in (0, 1), got {self.alpha}")
         if not Path(self.archive).is_dir():
@@ -69,10 +78,26 @@ def archived_runs(archive: Path, variant: str) -> dict[int, dict[str, Any]]:
     return out
 
 
+def final_value(results: dict[str, Any], metric: str) -> float | None:
+    """A run's final ``metric`` (:data:`METRICS` or :data:`LOSS_METRICS`); ``None`` where the run did not measure it
+    (no evaluation for the success metrics, an evaluated run for the loss ones)."""
+    if metric in METRICS:
+        value = results["metrics"][metric]["final"]
+        return None if value is None else float(value)
+    rows = (results.get("losses") or {}).get(LOSS_METRICS[metric]) or []
+    last = [float(x) for x in (rows[-1] if rows else []) if x is not None]
+    return float(np.mean(last)) if last else None
+
+
 def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float]:
-    """``{training seed: final metric}`` of every finished run of ``variant`` in ``archive``."""
-    finals = {seed: r["metrics"][metric]["final"] for seed, r in archived_runs(archive, variant).items()}
-    return {seed: float(v) for seed, v in finals.items() if v is not None}
+    """``{training seed: final metric}`` of every finished run of ``variant`` in ``archive`` that measured it."""
+    runs = archived_runs(archive, variant)
+    finals = {seed: final_value(r, metric) for seed, r in runs.items()}
+    values = {seed: v for seed, v in finals.items() if v is not None}
+    if runs and not values:
+        hint = "--metric=val_l1 for runs without evaluation" if metric in METRICS else "a success metric"
+        logger.warning("%s: %d finished runs in %s, none measured %s (%s)", variant, len(runs), archive, metric, hint)
+    return values
 
 
 def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:

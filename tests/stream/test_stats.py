@@ -84,6 +84,38 @@ def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
         HypothesesConfig(archive=tmp_path / "typo")
 
 
+def test_runs_without_evaluation_are_tested_on_their_final_validation_l1(tmp_path, capsys, caplog):
+    """--eval.env=none (no simulator): no success rate, so "sleep helps" is sr<wake_only on the mean validation l1
+    over skills under the final policy (``losses.validation_l1``'s last row); asking for AFSR names the way out."""
+    import json
+    import logging
+
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, main
+    from sr_imitation.io import write_checked_json
+    from tests.stream.test_results import _results
+
+    last_rows = {"sr": [[0.30, 0.20, 0.10], [0.28, 0.22, 0.12]], "wake_only": [[0.45, 0.30, 0.10], [0.40, 0.35, 0.11]]}
+    for variant, rows in last_rows.items():
+        for seed, last in enumerate(rows):
+            l1 = [[0.1, None, None], [0.2, 0.1, None], last]
+            losses = {"validation_l1": l1, "memory_loss": [[0.0, None, None], [0.01, 0.0, None], [0.02, 0.01, None]]}
+            run = tmp_path / f"{variant}_seed{seed}"
+            run.mkdir()
+            write_checked_json(run / "results.json", _results(seed=seed, sleep=variant == "sr", success=None,
+                                                              after_wake=None, spi=None, evaluation="none",
+                                                              losses=losses))
+    main([f"--archive={tmp_path}", "--tests=[sr<wake_only]", "--metric=val_l1", f"--output={tmp_path / 'h'}"])
+    row = json.loads((tmp_path / "h" / "hypotheses.json").read_text())["tests"][0]
+    assert row["a_values"] == pytest.approx([0.2, 0.2066667])
+    assert row["b_values"] == pytest.approx([0.2833333, 0.2866667])
+    assert row["alternative"] == "less" and row["mean"] == pytest.approx(-0.0816667) and row["seeds"] == [0, 1]
+    with caplog.at_level(logging.WARNING):
+        main([f"--archive={tmp_path}", "--tests=[sr>wake_only]"])
+    assert "none measured afsr (--metric=val_l1 for runs without evaluation)" in caplog.text
+    with pytest.raises(ValueError, match="val_l1"):
+        HypothesesConfig(archive=tmp_path, metric="l1")
+
+
 def test_a_flag_value_the_shell_cut_short_is_one_line_naming_the_value(tmp_path, capsys):
     """``--tests=[sr>wake_only]`` unquoted: the shell redirects at ``>`` and draccus gets ``[sr``."""
     from sr_imitation.experiments.hypotheses import main
