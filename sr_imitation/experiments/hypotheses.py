@@ -27,16 +27,10 @@ import numpy as np
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.results import LOSS_METRICS, METRICS, final_loss, load_results
 from sr_imitation.stream.stats import paired_test
 
 logger = logging.getLogger(__name__)
-
-LOSS_METRICS = {"val_l1": "validation_l1", "memory_loss": "memory_loss"}
-"""Offline metrics of runs without evaluation (``results.json``'s ``losses``): the mean over skills, under the
-final policy, of each skill's validation l1 (the behaviour-cloning l1 on its held-out demonstration episodes; the
-same episodes for every variant of a training seed) or of its stored memory's distillation loss (skills whose
-method stores no memory are left out). Lower is better."""
 
 _TEST = re.compile(r"^([\w.]+)(>|<|!=)([\w.]+)$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
@@ -84,9 +78,7 @@ def final_value(results: dict[str, Any], metric: str) -> float | None:
     if metric in METRICS:
         value = results["metrics"][metric]["final"]
         return None if value is None else float(value)
-    rows = (results.get("losses") or {}).get(LOSS_METRICS[metric]) or []
-    last = [float(x) for x in (rows[-1] if rows else []) if x is not None]
-    return float(np.mean(last)) if last else None
+    return final_loss(results, metric)
 
 
 def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float]:

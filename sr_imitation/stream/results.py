@@ -58,6 +58,19 @@ its seal is decided by its recorded version, never by the missing key alone."""
 METRICS = ("afsr", "prs", "bwt", "bwt_wake", "spi")
 LABELS = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT (ref. after stage i)",
           "bwt_wake": "BWT_wake (ref. after own wake)", "spi": "SPI"}
+LOSS_METRICS = {"val_l1": "validation_l1", "memory_loss": "memory_loss"}
+"""The final metrics of runs without closed-loop evaluation (``losses``, ``--eval.env=none``: e.g. a real robot's
+datasets and no simulator): the mean over skills, under the final policy, of each skill's validation l1 (the
+behaviour-cloning l1 on its held-out demonstration episodes, the same episodes for every variant of a training seed)
+or of its stored memory's distillation loss (skills whose method stores no memory left out). Lower is better."""
+
+
+def final_loss(results: Mapping[str, Any], metric: str) -> float | None:
+    """A run's final :data:`LOSS_METRICS` value (the last row of ``losses[...]``, mean over the skills measured);
+    ``None`` for a run that did not record it (an evaluated run)."""
+    rows = (results.get("losses") or {}).get(LOSS_METRICS[metric]) or []
+    last = [float(x) for x in (rows[-1] if rows else []) if x is not None and math.isfinite(x)]
+    return float(np.mean(last)) if last else None
 
 
 def variant_label(method: str, sleep_enabled: bool) -> str:

@@ -7,7 +7,9 @@ sleep) and, within a variant, by training seed. For every variant: the final AFS
 stage i), BWT_wake (reference right after skill i's own wake) and SPI, the final success per skill and the success
 right after each skill's own wake, each as mean +- SE over training seeds (each seed's value is its mean over
 evaluation units), and every metric's paired difference to the baseline variant over the training seeds both have.
-Written as ``summary.json``, ``summary.md`` and ``summary.png`` (bars with the seeds as dots). Used by
+Runs without closed-loop evaluation (``--eval.env=none``) have none of these; for them the final validation l1 and
+memory loss (:data:`~sr_imitation.stream.results.LOSS_METRICS`, lower is better) take their place, paired the same
+way. Written as ``summary.json``, ``summary.md`` and ``summary.png`` (bars with the seeds as dots). Used by
 ``sr_imitation.experiments.needle_compare`` and ``sr_imitation.experiments.mt5_compare``; reads results of every
 schema version (:func:`sr_imitation.stream.results.upgrade_results`).
 """
@@ -25,7 +27,7 @@ import numpy as np
 
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.stream.results import METRICS, load_results
+from sr_imitation.stream.results import LOSS_METRICS, METRICS, final_loss, load_results
 from sr_imitation.stream.rundir import read_progress
 
 SHORT = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
@@ -116,6 +118,10 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "oracle": bool((runs[0].get("extra") or {}).get("oracle")),
             "curves": {m: _curve_stats([r["metrics"][m].get("curve") for r in runs]) for m in METRICS},
         }
+        offline = {m: {seed: final_loss(r, m) for seed, r in per_seed.items()} for m in LOSS_METRICS}
+        if any(v is not None for per in offline.values() for v in per.values()):  # runs without evaluation
+            finals[variant].update(offline)
+            variants[variant]["offline"] = {m: mean_sem_dict(list(offline[m].values())) for m in LOSS_METRICS}
     paired: dict[str, Any] = {}
     if baseline in finals:
         for variant, per_metric in finals.items():
@@ -125,7 +131,8 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             if variant == baseline or not seeds or not same_skills:
                 continue
             paired[variant] = {"seeds": seeds}
-            for m in METRICS:
+            offline = [m for m in LOSS_METRICS if m in per_metric and m in finals[baseline]]
+            for m in [*METRICS, *offline]:
                 base = finals[baseline][m]
                 paired[variant][m] = mean_sem_dict([
                     None if per_metric[m][s] is None or base[s] is None else per_metric[m][s] - base[s]
@@ -159,6 +166,24 @@ def _final_tables(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]
                 row = paired[v]
                 lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS)
                              + " |")
+    return lines
+
+
+def _offline_table(summary: Mapping[str, Any]) -> list[str]:
+    """Runs without closed-loop evaluation (``--eval.env=none``): their final validation l1 and memory loss
+    (:data:`~sr_imitation.stream.results.LOSS_METRICS`) per variant and paired to the baseline; nothing otherwise."""
+    variants, paired, base = summary["variants"], summary["paired"], summary.get("baseline")
+    names = [v for v, row in variants.items() if row.get("offline")]
+    if not names:
+        return []
+    lines = ["", "Runs without closed-loop evaluation (--eval.env=none): under the final policy, the mean over skills "
+                 "of each skill's validation l1 (behaviour-cloning l1 on its held-out episodes) and of its memory's "
+                 f"distillation loss; lower is better. Mean +- SE over training seeds; paired: variant - {base}.", "",
+             "| variant | seeds | val_l1 | memory_loss | paired val_l1 | paired memory_loss |", "|---" * 6 + "|"]
+    for v in names:
+        row, diff = variants[v]["offline"], paired.get(v) or {}
+        cells = [_fmt(row[m]) for m in LOSS_METRICS] + [_fmt(diff[m]) if m in diff else "-" for m in LOSS_METRICS]
+        lines.append(f"| {v} | {','.join(variants[v]['seeds'])} | " + " | ".join(cells) + " |")
     return lines
 
 
@@ -200,6 +225,7 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
     if unsealed:
         lines += ["", f"Unsealed: {', '.join(unsealed)} (results.json of a schema before seals; read as written, "
                       "without a checksum to verify it)."]
+    lines += _offline_table(summary)
     mixed = any(row["skills"] != skills for row in variants.values())
     for key, title in (("final_success", "Final success per skill (after the last stage)"),
                        ("success_after_own_wake", "Success right after each skill's own wake phase")):

@@ -124,6 +124,28 @@ def test_summary_mean_se_over_seeds_and_paired_differences(tmp_path):
         group_runs([runs[0], _write_run(tmp_path, "again", _results(seed=0))])
 
 
+def test_summary_of_runs_without_evaluation_reports_their_final_losses(tmp_path):
+    """--eval.env=none: no success to average, so the summary shows each variant's final validation l1 and memory
+    loss (mean over skills of the last row of ``losses``), mean +- SE over seeds and paired to the baseline."""
+    def run(name: str, seed: int, last_l1: list[float], last_memory: list[float | None]) -> Path:
+        losses = {"validation_l1": [[0.1, N, N], [0.2, 0.1, N], last_l1],
+                  "memory_loss": [[0.0, N, N], [0.01, 0.0, N], last_memory]}
+        return _write_run(tmp_path, name, _results(seed=seed, sleep=name.startswith("sr"), success=None,
+                                                   after_wake=None, spi=None, evaluation="none", losses=losses))
+
+    runs = [run("sr0", 0, [0.3, 0.2, 0.1], [0.02, 0.01, None]), run("sr1", 1, [0.3, 0.3, 0.3], [0.03, 0.01, None]),
+            run("wo0", 0, [0.6, 0.3, 0.3], [0.05, 0.03, None]), run("wo1", 1, [0.5, 0.4, 0.3], [0.04, 0.02, None])]
+    summary = summarize(group_runs(runs), "sr")
+    sr, wo = summary["variants"]["sr"]["offline"], summary["variants"]["wake_only"]["offline"]
+    assert sr["val_l1"]["per_seed"] == pytest.approx([0.2, 0.3]) and wo["val_l1"]["mean"] == pytest.approx(0.4)
+    assert sr["memory_loss"]["per_seed"] == pytest.approx([0.015, 0.02])  # the skill without a memory left out
+    assert summary["paired"]["wake_only"]["val_l1"]["per_seed"] == pytest.approx([0.2, 0.1])
+    md = render_markdown_summary(summary)
+    assert "| wake_only | 0,1 | 0.400 +- 0.000 | 0.035 +- 0.005 | 0.150 +- 0.050 | 0.018 +- 0.008 |" in md
+    evaluated = render_markdown_summary(summarize(group_runs([_write_run(tmp_path, "e", _results(seed=0))])))
+    assert "without closed-loop evaluation" not in evaluated  # evaluated runs: no such table
+
+
 def test_summary_of_streams_with_other_skills_or_order(tmp_path):
     """Reverse and longer streams (MT5 reversed, MT8) share one summary: per-skill cells by name, '-' elsewhere."""
     runs = [_write_run(tmp_path, "fwd", _results(seed=0)),
