@@ -58,6 +58,7 @@ import draccus
 from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.stream.results import final_loss
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 
 logger = logging.getLogger(__name__)
@@ -258,19 +259,24 @@ def _task(module: str, variant: str, run: Any, log_file: str, threads: int) -> d
 
 
 # -- the grid --------------------------------------------------------------------------------------------------
-def _final_afsr(run_dir: Path) -> float | None:
+def _final_metric(run_dir: Path) -> str:
+    """The run's final AFSR, or for a run without evaluation its final validation l1; ``-`` if unreadable."""
     try:
-        return json.loads((Path(run_dir) / "results.json").read_text())["metrics"]["afsr"]["final"]
+        results = json.loads((Path(run_dir) / "results.json").read_text())
+        afsr = results["metrics"]["afsr"]["final"]
+        if afsr is not None:
+            return f"AFSR {afsr:.3f}"
+        l1 = final_loss(results, "val_l1")
+        return "AFSR -" if l1 is None else f"validation l1 {l1:.4f} (no evaluation)"
     except (OSError, ValueError, KeyError, TypeError):
-        return None
+        return "AFSR -"
 
 
 def _finished_line(key: RunKey, info: dict[str, Any], count: int, total: int) -> str:
     variant, seed = key
-    afsr = _final_afsr(info["run_dir"])
     n = len(info["resumed_phases"])
     resumed = f", resumed with {n} phase{'s' * (n != 1)} done" if n else ""
-    return (f"finished {variant} seed {seed}: AFSR {'-' if afsr is None else f'{afsr:.3f}'}, "
+    return (f"finished {variant} seed {seed}: {_final_metric(info['run_dir'])}, "
             f"{info['wall_s']:.1f} s{resumed} ({count}/{total})")
 
 

@@ -222,3 +222,23 @@ def test_an_sr_train_config_on_your_own_datasets_is_a_grid_too(preset, loop_runs
     assert sorted(p.relative_to(root) for p in root.rglob("*")) == before  # the user's datasets untouched
     hypotheses_main([f"--archive={tmp_path / 'grid'}", "--tests=[sr>wake_only]"])
     assert "| sr>wake_only (greater) | afsr | 0 |" in capsys.readouterr().out
+
+
+def test_a_grid_without_an_evaluation_environment_reports_and_tests_validation_l1(preset, tmp_path, caplog, capsys):
+    """No simulator (``--eval.env=none``): the grid logs each run's final validation l1, the summary tables it
+    (paired to sr) and the hypotheses command tests it (lower is better)."""
+    from sr_imitation.experiments.hypotheses import main as hypotheses_main
+
+    config = json.loads(preset.read_text())
+    root = Path(config["record"]["root"])
+    train = {**config["train"], "stream": {**config["train"]["stream"], "dataset_root": str(root)},
+             "eval": {"env": "none", "episodes": 0, "videos_per_skill": 0}}
+    mine = tmp_path / "no_sim.json"
+    mine.write_text(json.dumps(train))
+    with caplog.at_level(logging.INFO):
+        run_grid(GridConfig(preset=mine, variants=VARIANTS, seeds=[0], output_root=tmp_path / "grid", runner="loop"))
+    assert "finished wake_only seed 0: validation l1 " in caplog.text and "(no evaluation)" in caplog.text
+    summary = (tmp_path / "grid" / "summary.md").read_text()
+    assert "| variant | seeds | val_l1 | memory_loss | paired val_l1 | paired memory_loss |" in summary
+    hypotheses_main([f"--archive={tmp_path / 'grid'}", "--tests=[sr<wake_only]", "--metric=val_l1"])
+    assert "| sr<wake_only (less) | val_l1 | 0 |" in capsys.readouterr().out
