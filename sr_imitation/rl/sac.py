@@ -354,7 +354,8 @@ class SACAgent(nn.Module):
         target = batch["rewards"] * self.cfg.reward_scale + (1 - batch["terminated"]) * self.cfg.gamma * next_q
         q1, q2 = self.critic(obs, batch["actions"])
         rmse = math.sqrt(0.5 * float((q1 - target).pow(2).mean() + (q2 - target).pow(2).mean()))
-        return rmse / max(float(target.std()), 1e-6)
+        spread = float(target.std()) if target.numel() > 1 else 0.0  # one sample has no spread (std would be NaN)
+        return rmse / max(spread, 1e-6)
 
     def actor_parameters(self) -> list[nn.Parameter]:
         """theta: the shared policy's trainable parameters (excitability gains are buffers, not included)."""
