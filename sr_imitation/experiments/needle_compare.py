@@ -156,6 +156,7 @@ def run_config(cfg: GridConfig, base: MainJobConfig | TrainStreamConfig, variant
     train.seed = seed
     train.output_dir = cfg.output_root / run_name(variant, seed)
     train.resume = RunDirectory.occupied(train.output_dir)
+    train.overwrite = False  # a grid resumes or skips its runs, never restarts one (a user config may say otherwise)
     return train
 
 
