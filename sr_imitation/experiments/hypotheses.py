@@ -28,7 +28,7 @@ import numpy as np
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.stream.results import LOSS_METRICS, METRICS, final_loss, load_results
-from sr_imitation.stream.stats import paired_test
+from sr_imitation.stream.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
 
@@ -48,7 +48,10 @@ class HypothesesConfig:
     alpha: float = 0.05
     """The significance level stated before the runs."""
     output: Path | None = None
-    """Where hypotheses.md / .json go (none: print only)."""
+    """Where hypotheses.md / .json / .png go (none: print only)."""
+    holm: bool = False
+    """Also report Holm-Bonferroni adjusted p values over the tests given (one family: give only the pre-registered
+    tests in that call) and the verdict on them (family-wise error rate alpha)."""
 
     def __post_init__(self) -> None:
         bad = [t for t in self.tests if not _TEST.match(t)]
@@ -105,17 +108,30 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
         rows.append({"test": test, "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
                      "a_values": [va[s] for s in seeds], "b_values": [vb[s] for s in seeds], **result.to_dict(),
                      "alpha": cfg.alpha, "significant": bool(result.p < cfg.alpha)})
+    if cfg.holm:
+        for row, adjusted in zip(rows, holm([r["p"] for r in rows]), strict=True):
+            row["p_holm"], row["significant_holm"] = adjusted, bool(adjusted < cfg.alpha)
     return rows
 
 
 def render(rows: list[dict[str, Any]], archive: Path) -> str:
-    lines = [f"Pre-registered paired tests over training seeds ({archive}):", "",
-             "| test | metric | seeds | mean diff +- SE | 95% bootstrap CI | t | p | at alpha |", "|---" * 8 + "|"]
+    adjusted = any("p_holm" in r for r in rows)
+    header = "| test | metric | seeds | mean diff +- SE | 95% bootstrap CI | t | p | at alpha |"
+    header += " Holm p | at alpha, Holm |" if adjusted else ""
+    lines = [f"Pre-registered paired tests over training seeds ({archive}):", "", header,
+             "|---" * (10 if adjusted else 8) + "|"]
+    def verdict(r: dict[str, Any], significant: bool) -> str:
+        return "-" if r["n"] < 2 else ("reject H0" if significant else "not significant")
+
     for r in rows:
-        verdict = "-" if r["n"] < 2 else ("reject H0" if r["significant"] else "not significant")
-        lines.append(f"| {r['test']} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
-                     f"{r['mean']:+.3f} +- {r['sem']:.3f} | [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}] | "
-                     f"{r['t']:.2f} | {r['p']:.4f} | {verdict} ({r['alpha']}) |")
+        line = (f"| {r['test']} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
+                f"{r['mean']:+.3f} +- {r['sem']:.3f} | [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}] | "
+                f"{r['t']:.2f} | {r['p']:.4f} | {verdict(r, r['significant'])} ({r['alpha']}) |")
+        if adjusted:
+            line += f" {r['p_holm']:.4f} | {verdict(r, r['significant_holm'])} |"
+        lines.append(line)
+    if adjusted:
+        lines += ["", f"Holm: adjusted over the {len(rows)} tests above as one family."]
     return "\n".join(lines) + "\n"
 
 

@@ -122,3 +122,17 @@ def paired_test(a: Sequence[float], b: Sequence[float], alternative: str = "two-
     means = d[rng.integers(0, n, size=(resamples, n))].mean(axis=1)
     low, high = np.quantile(means, [(1 - ci_level) / 2, 1 - (1 - ci_level) / 2])
     return PairedTest(n, mean, sem, t, p, alternative, float(low), float(high), ci_level)
+
+
+def holm(p_values: Sequence[float]) -> list[float]:
+    """Holm-Bonferroni adjusted p values of one family of tests, in the input order: sorted ascending, the i-th
+    smallest (0-based) is multiplied by m - i, made non-decreasing and capped at 1; rejecting where the adjusted p
+    is below alpha controls the family-wise error rate at alpha. NaN p values (tests without data) stay NaN and do
+    not count in m."""
+    finite = [(p, i) for i, p in enumerate(p_values) if not math.isnan(p)]
+    out = [float("nan")] * len(p_values)
+    running = 0.0
+    for rank, (p, i) in enumerate(sorted(finite)):
+        running = max(running, min(1.0, (len(finite) - rank) * p))
+        out[i] = running
+    return out

@@ -56,6 +56,25 @@ def test_edge_cases():
         paired_test([1.0, 2.0], [1.0, 0.0], "bigger")
 
 
+def test_holm_adjustment_known_values_and_properties():
+    from sr_imitation.stream.stats import holm
+
+    assert holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])  # 4x, 3x, 2x then monotone
+    assert holm([0.2]) == [0.2] and holm([]) == []
+    assert holm([0.6, 0.7]) == [1.0, 1.0]  # capped
+    nan = float("nan")
+    out = holm([0.01, nan, 0.02])  # a test without data neither counts nor changes
+    assert out[0] == pytest.approx(0.02) and np.isnan(out[1]) and out[2] == pytest.approx(0.02)
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        raw = rng.uniform(0, 0.2, size=int(rng.integers(1, 8))).tolist()
+        adj = holm(raw)
+        assert all(a >= r - 1e-15 for a, r in zip(adj, raw, strict=True))  # never below the raw p
+        order = np.argsort(raw)
+        assert all(np.diff(np.asarray(adj)[order]) >= -1e-15)  # same order as the raw p
+        assert min(adj) == pytest.approx(min(1.0, len(raw) * min(raw)))  # the smallest: Bonferroni
+
+
 def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
     import json
 
@@ -78,6 +97,10 @@ def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
     assert row["p"] == pytest.approx(ref.pvalue) and row["mean"] == pytest.approx(np.mean([0.1, 0.01, 0.12]))
     assert "sr>wake_only (greater)" in capsys.readouterr().out
     assert (tmp_path / "h" / "hypotheses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"  # the paired-seeds figure
+    main([f"--archive={tmp_path}", "--tests=[sr>wake_only,sr!=wake_only]", "--holm=true", f"--output={tmp_path / 'h'}"])
+    one, two = json.loads((tmp_path / "h" / "hypotheses.json").read_text())["tests"]
+    assert one["p_holm"] == pytest.approx(min(1.0, max(2 * min(one["p"], two["p"]), one["p"])))
+    assert "Holm p" in capsys.readouterr().out
     with pytest.raises(ValueError, match="not of the form"):
         HypothesesConfig(tests=["sr=wake_only"])
     with pytest.raises(FileNotFoundError, match="is not a folder"):
