@@ -120,6 +120,7 @@ def render(rows: list[dict[str, Any]], archive: Path) -> str:
     header += " Holm p | at alpha, Holm |" if adjusted else ""
     lines = [f"Pre-registered paired tests over training seeds ({archive}):", "", header,
              "|---" * (10 if adjusted else 8) + "|"]
+
     def verdict(r: dict[str, Any], significant: bool) -> str:
         return "-" if r["n"] < 2 else ("reject H0" if significant else "not significant")
 
@@ -186,7 +187,8 @@ def main(args: list[str] | None = None) -> None:
     if cfg.output is not None:
         write_checked_json(cfg.output / "hypotheses.json", {"archive": str(cfg.archive), "tests": rows})
         atomic_write_bytes(cfg.output / "hypotheses.md", text.encode())
-        plot(rows, cfg.output / "hypotheses.png")
+        if rows:
+            plot(rows, cfg.output / "hypotheses.png")
     print(text)  # noqa: T201 (command output)
 
 
