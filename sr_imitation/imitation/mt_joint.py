@@ -97,9 +97,6 @@ def joint_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = No
 
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
     """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
-    if cfg.eval.env == "none":
-        raise ValueError("eval.env: the MT-Joint oracle is reported by its success; --eval.env=none leaves nothing to "
-                         "compare")
     _, input_features, output_features = check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before writing
     check_evaluation_envs(cfg, input_features, output_features, custom_env=make_env is not None)
     stored = joint_stored_config(cfg)
@@ -127,20 +124,38 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
         substrate.begin_phase(0, "wake.eval", substrate.phase_seed(0, "wake.eval"))
         run.mark(0, "wake.eval", substrate.evaluate(0, "wake.eval", list(range(len(skills)))))
     evals = substrate.read_eval(0, "wake")
-    per_seed = np.array([evals[s]["success_per_seed"] for s in skills]).T  # (evaluation seeds, skills)
     n = len(skills)
+    common = {"substrate": "act", "method": JOINT, "sleep_enabled": False, "seed": cfg.seed, "skills": skills,
+              "pairs": pair_list(cfg.stream.pairs, skills), "spi_features": [], "memory_bytes": {},
+              "stages": [{"stage": 0, "skill": JOINT, "wake": run.record(0, "wake"),
+                          "wake.eval": run.record(0, "wake.eval")}],
+              "config": stored, "extra": {"oracle": "all skills trained jointly; rows repeat the final evaluation",
+                                          "episodes_per_skill_per_unit": cfg.eval.episodes}}
+    if cfg.eval.env == "none":  # no success to report: each skill's validation l1 under the joint policy
+        results = build_results(**common, success=None, after_wake=None, spi=None, evaluation="none",
+                                losses=_offline_losses([evals[s]["validation_l1"] for s in skills]))
+        write_results(cfg.output_dir, results, plots=False)
+        return results
+    per_seed = np.array([evals[s]["success_per_seed"] for s in skills]).T  # (evaluation seeds, skills)
     matrix = np.repeat(per_seed[:, None, :], n, axis=1)
     matrix[:, np.triu_indices(n, 1)[0], np.triu_indices(n, 1)[1]] = np.nan
-    results = build_results(
-        substrate="act", method=JOINT, sleep_enabled=False, seed=cfg.seed, skills=skills,
-        pairs=pair_list(cfg.stream.pairs, skills), success=matrix, after_wake=per_seed,
-        spi=np.full((per_seed.shape[0], n), np.nan), spi_features=[], memory_bytes={},
-        stages=[{"stage": 0, "skill": JOINT, "wake": run.record(0, "wake"), "wake.eval": run.record(0, "wake.eval")}],
-        config=stored, extra={"oracle": "all skills trained jointly; rows repeat the final evaluation",
-                              "episodes_per_skill_per_unit": cfg.eval.episodes},
-        evaluation=None if cfg.eval.env == "needle" else cfg.eval.env)
+    results = build_results(**common, success=matrix, after_wake=per_seed, spi=np.full((per_seed.shape[0], n), np.nan),
+                            evaluation=None if cfg.eval.env == "needle" else cfg.eval.env)
     write_results(cfg.output_dir, results)
     return results
+
+
+def _offline_losses(validation_l1: list[float]) -> dict[str, Any]:
+    """``losses`` of the oracle without an evaluation environment, in the stream's layout
+    (:func:`~sr_imitation.imitation.report.loss_matrices`): every row the joint policy's validation l1 on each skill's
+    validation episodes (the episodes the stream's wakes hold out: the union is split as each wake splits), null above
+    the diagonal; no memories, and one joint wake instead of one per skill."""
+    n = len(validation_l1)
+    rows = np.tile(np.asarray(validation_l1, dtype=float), (n, 1))
+    rows[np.triu_indices(n, 1)] = np.nan
+    nothing = np.full((n, n), np.nan)
+    return {"validation_l1": rows.tolist(), "validation_l1_after_wake": rows.tolist(),
+            "memory_loss": nothing.tolist(), "memory_loss_after_wake": nothing.tolist(), "wake_best_val_l1": [None] * n}
 
 
 def main(args: list[str] | None = None) -> None:

@@ -236,9 +236,15 @@ def test_a_grid_without_an_evaluation_environment_reports_and_tests_validation_l
     mine = tmp_path / "no_sim.json"
     mine.write_text(json.dumps(train))
     with caplog.at_level(logging.INFO):
-        run_grid(GridConfig(preset=mine, variants=VARIANTS, seeds=[0], output_root=tmp_path / "grid", runner="loop"))
+        run_grid(GridConfig(preset=mine, variants=[*VARIANTS, "mt_joint"], seeds=[0], output_root=tmp_path / "grid",
+                            runner="loop"))
     assert "finished wake_only seed 0: validation l1 " in caplog.text and "(no evaluation)" in caplog.text
     summary = (tmp_path / "grid" / "summary.md").read_text()
     assert "| variant | seeds | val_l1 | memory_loss | paired val_l1 | paired memory_loss |" in summary
+    # the oracle's reference without a simulator: the joint policy's validation l1 on each skill's held-out episodes
+    oracle = json.loads((tmp_path / "grid" / "mt_joint_seed0" / "results.json").read_text())
+    evals = json.loads((tmp_path / "grid" / "mt_joint_seed0" / "mt_joint" / "wake" / "eval.json").read_text())
+    assert oracle["losses"]["validation_l1"][-1] == [evals[s]["validation_l1"] for s in oracle["skills"]]
+    assert oracle["evaluation"] == "none" and "| mt_joint | 0 | " in summary
     hypotheses_main([f"--archive={tmp_path / 'grid'}", "--tests=[sr<wake_only]", "--metric=val_l1"])
     assert "| sr<wake_only (less) | val_l1 | 0 |" in capsys.readouterr().out
