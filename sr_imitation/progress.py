@@ -41,7 +41,8 @@ def interactive() -> bool:
     return bool(stream is not None and hasattr(stream, "isatty") and stream.isatty())
 
 
-def _duration(seconds: float) -> str:
+def format_duration(seconds: float) -> str:
+    """``1h05m``, ``3m07s``, ``42s``: a duration as the progress lines write it."""
     seconds = max(0, int(round(seconds)))
     hours, rest = divmod(seconds, 3600)
     minutes, secs = divmod(rest, 60)
@@ -91,10 +92,10 @@ class Progress:
         self.last = now
         elapsed = now - self.start
         share = self.n / self.total if self.total > 0 else 0.0
-        left = f", ~{_duration(elapsed * (1 - share) / share)} left" if 0 < share < 1 else ""
+        left = f", ~{format_duration(elapsed * (1 - share) / share)} left" if 0 < share < 1 else ""
         values = "; " + ", ".join(f"{k}={v}" for k, v in self.postfix.items()) if self.postfix else ""
         self.logger.info("%s: %d/%d (%.0f%%), %s elapsed%s%s", self.desc, self.n, self.total, 100 * share,
-                         _duration(elapsed), left, values)
+                         format_duration(elapsed), left, values)
 
     def close(self) -> None:
         if self.bar is not None:

@@ -93,3 +93,19 @@ def test_commands_log_info_lines_after_lerobot_is_imported():
     done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300)
     lines = done.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].endswith(" INFO sr_imitation.check: an info line"), done.stderr
+
+
+def test_durations_read_as_the_progress_lines_write_them():
+    from sr_imitation.progress import format_duration
+
+    assert [format_duration(s) for s in (0, 42.4, 187, 3900, 90061)] == ["0s", "42s", "3m07s", "1h05m", "25h01m"]
+
+
+def test_a_grid_says_how_long_its_other_runs_will_take_at_the_pace_so_far(tmp_path):
+    from sr_imitation.experiments.grid import _finished_line
+
+    info = {"resumed_phases": ["1.wake"], "wall_s": 300.0, "run_dir": tmp_path}  # no results.json: AFSR -
+    line = _finished_line(("sr", 3), info, 2, 5, elapsed=600.0)
+    assert line == ("finished sr seed 3: AFSR -, 300.0 s, resumed with 1 phase done "
+                    "(2/5; the other 3 at this pace: ~15m00s)")
+    assert _finished_line(("sr", 3), info, 5, 5, elapsed=600.0).endswith("(5/5)")

@@ -58,6 +58,7 @@ import draccus
 from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.progress import format_duration
 from sr_imitation.stream.results import final_loss
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 
@@ -272,12 +273,16 @@ def _final_metric(run_dir: Path) -> str:
         return "AFSR -"
 
 
-def _finished_line(key: RunKey, info: dict[str, Any], count: int, total: int) -> str:
+def _finished_line(key: RunKey, info: dict[str, Any], count: int, total: int, elapsed: float | None = None) -> str:
+    """One finished run: its final metric, wall time, resumed phases, and (``elapsed``: seconds since the grid
+    started) the time the rest of the grid will take at the pace so far."""
     variant, seed = key
     n = len(info["resumed_phases"])
     resumed = f", resumed with {n} phase{'s' * (n != 1)} done" if n else ""
+    left = f"; the other {total - count} at this pace: ~{format_duration(elapsed / count * (total - count))}" \
+        if elapsed is not None and 0 < count < total else ""
     return (f"finished {variant} seed {seed}: {_final_metric(info['run_dir'])}, "
-            f"{info['wall_s']:.1f} s{resumed} ({count}/{total})")
+            f"{info['wall_s']:.1f} s{resumed} ({count}/{total}{left})")
 
 
 def find_finished(cfg: GridConfig, substrate: GridSubstrate) -> dict[str, dict[str, Path]]:
@@ -321,13 +326,14 @@ def run_grid(cfg: GridConfig, substrate: GridSubstrate | None = None) -> dict[st
                 sum(v is not None for v in archived.values()), sum(v is not None for v in finished.values()),
                 cfg.output_root, len(todo), cfg.runner)
     done: list[RunKey] = []
+    start = time.monotonic()
 
     def on_finished(key: RunKey, info: dict[str, Any]) -> None:
         out = Path(plan[key].output_dir)
         if cfg.archive is not None:
             archive_run(out, cfg.archive, out.name)
         done.append(key)
-        logger.info(_finished_line(key, {**info, "run_dir": out}, len(done), len(todo)))
+        logger.info(_finished_line(key, {**info, "run_dir": out}, len(done), len(todo), time.monotonic() - start))
 
     if todo:
         (_run_ray if cfg.runner == "ray" else _run_loop)(cfg, substrate, plan, todo, on_finished)
