@@ -1,0 +1,64 @@
+"""docs/RESULTS.md's headline numbers recompute from the committed raw files (issue 28's calibrated stream): the
+first paragraph, Table 2's rows, the pre-registered tests and the per-seed line. A number typed by hand that drifts
+from its raw file fails here (session 29 found a per-seed line that had)."""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import pytest
+
+from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_values, run_tests
+
+DOCS = Path(__file__).resolve().parents[1] / "docs"
+ARCHIVE = DOCS / "results" / "needle_cpu_m16_compare"
+VARIANTS = {"sr": "sr", "wake_only": "wake_only", "sr_sleep_only": "sr_sleep_only", "replay": "replay",
+            "sequential_bc": "sequential_bc", "ewc": "ewc_lam10000", "lwf": "lwf_w0.1", "m2distill": "m2distill_w0.01",
+            "mt_joint": "mt_joint"}
+
+
+@pytest.fixture(scope="module")
+def text() -> str:
+    return re.sub(r"\s+", " ", (DOCS / "RESULTS.md").read_text())  # lines wrap anywhere
+
+
+def _mean_se(values: list[float]) -> str:
+    import numpy as np
+
+    return f"{np.mean(values):.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
+
+
+def test_the_first_paragraph_and_the_tests_recompute(text):
+    h1, h2 = run_tests(HypothesesConfig(archive=ARCHIVE, tests=["sr>wake_only", "sr!=replay"]))
+    sr, wake = (list(archived_values(ARCHIVE, v, "afsr").values()) for v in ("sr", "wake_only"))
+    assert (f"final AFSR {_mean_se(sr)} vs wake-only {_mean_se(wake)}, paired +{h1['mean']:.3f} +- {h1['sem']:.3f} "
+            f"over 5 training seeds, one-sided paired t-test p = {h1['p']:.3f}") in text
+    assert f"bootstrap 95% CI [{h1['ci_low']:+.3f}, {h1['ci_high']:+.3f}]" in text
+    assert (f"| H1: SR - wake-only > 0 (one-sided) | 0-4 | {h1['mean']:+.3f} +- {h1['sem']:.3f} | "
+            f"[{h1['ci_low']:+.3f}, {h1['ci_high']:+.3f}] | {h1['t']:.2f} | {h1['p']:.3f} |") in text
+    assert (f"| H2: SR - replay != 0 (two-sided) | 0-4 | {h2['mean']:+.3f} +- {h2['sem']:.3f} | "
+            f"[{h2['ci_low']:+.3f}, {h2['ci_high']:+.3f}] | {h2['t']:.2f} | {h2['p']:.4f} |") in text
+
+
+def test_table_2_rows_and_the_per_seed_line_recompute(text):
+    sr = archived_values(ARCHIVE, "sr", "afsr")
+    for name, variant in VARIANTS.items():
+        values = archived_values(ARCHIVE, variant, "afsr")
+        assert sorted(values) == [0, 1, 2, 3, 4], variant
+        row = re.search(r"\| \**\*?" + re.escape(name) + r"[^|]*\| 0-4 \| ([^|]*) \|", text)
+        assert row is not None, name
+        assert row.group(1).strip("* ") == _mean_se(list(values.values())), name
+        if name != "sr":  # the last column: paired AFSR - SR
+            diffs = [values[s] - sr[s] for s in sorted(sr)]
+            assert re.search(r"\| \**\*?" + re.escape(name) + r"[^\n]*\| " + re.escape(f"{_signed(diffs)}") + r" \|",
+                             text), name
+    wake = archived_values(ARCHIVE, "wake_only", "afsr")
+    pairs = ", ".join(f"{sr[s]:.3f} / {wake[s]:.3f}" for s in sorted(sr))
+    assert f"Per seed (AFSR, SR / wake-only): {pairs}:" in text
+
+
+def _signed(values: list[float]) -> str:
+    import numpy as np
+
+    return f"{np.mean(values):+.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
