@@ -62,3 +62,20 @@ def _signed(values: list[float]) -> str:
     import numpy as np
 
     return f"{np.mean(values):+.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
+
+
+def test_the_memory_budget_table_recomputes(text):
+    from sr_imitation.experiments.memory_budget import BudgetConfig, collect
+
+    folders = {8: "needle_cpu_m8_compare", 16: "needle_cpu_m16_compare", 64: "needle_cpu_m64_compare",
+               256: "needle_cpu_m256_compare", 1024: "needle_cpu_v2_compare"}
+    summary = collect(BudgetConfig(points=[f"{b}={DOCS / 'results' / f}" for b, f in folders.items()],
+                                   variants=["sr", "wake_only", "replay"], seeds=[0, 1, 2]))
+
+    def cell(d: dict) -> str:
+        return f"{d['mean']:.3f} +- {d['sem']:.3f}"
+
+    for budget, row in summary["budgets"].items():
+        assert all(row[v]["seeds"] == [0, 1, 2] for v in ("sr", "wake_only", "replay")), budget
+        afsr = " | ".join(cell(row[v]["afsr"]) for v in ("sr", "wake_only", "replay"))
+        assert f"| {budget} | {afsr} | " in text, budget
