@@ -1,0 +1,123 @@
+"""Where runs stand, read from their files: ``python -m sr_imitation.stream.status RUN_OR_FOLDER [...]``.
+
+A run is a directory with ``progress.json`` (any substrate, any method, the MT-Joint oracle included); a folder of
+runs (a grid's ``output_root``, an archive) is searched one level down. One row per run: its variant, the stage it
+is in (or "finished" with its final AFSR, or its validation l1 for a run without evaluation), the last recorded
+phase and how long ago it was recorded (a run whose last phase ended long ago may have been killed: ``--resume``
+continues it), the compute time of its recorded phases, and for an unfinished run a rough time left: its completed
+stages' times (two at least) extrapolated linearly in the stage index (later stages distil from more memories and sleep over more
+of them; our choice) over the stages left, less what the current stage has recorded. A stage is complete when its
+last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``, stage >= 2), else its wake's
+(a method with other phases gets a rougher estimate). Reads only; writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from sr_imitation.progress import format_duration
+from sr_imitation.stream.results import final_loss, variant_label
+from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
+
+
+def find_runs(paths: Sequence[str | Path]) -> list[Path]:
+    """The run directories among ``paths`` and their immediate subfolders, in order, each once."""
+    runs: list[Path] = []
+    for path in map(Path, paths):
+        found = [path] if (path / PROGRESS_FILE).is_file() else sorted(
+            p for p in path.iterdir() if (p / PROGRESS_FILE).is_file()) if path.is_dir() else []
+        if not found:
+            raise FileNotFoundError(f"{path}: no run here ({PROGRESS_FILE} in it or in a folder just below)")
+        runs += [r for r in found if r not in runs]
+    return runs
+
+
+def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
+    """One run's state (see the module docstring) as a dictionary."""
+    now = time.time() if now is None else now
+    completed = read_progress(run / PROGRESS_FILE).get("completed") or {}
+    config = _read(run / RUN_CONFIG_FILE) or {}
+    skills = list((config.get("stream") or {}).get("skills") or [])
+    oracle = bool(config.get("mt_joint"))
+    total = 1 if oracle else len(skills)
+    label = "mt_joint" if oracle else variant_label(str(config.get("method", "?")),
+                                                    bool((config.get("sleep") or {}).get("enabled", False)))
+    per_stage: dict[int, float] = {}
+    for key, record in completed.items():
+        stage = int(key.split(".", 1)[0])
+        seconds = record.get("seconds") if isinstance(record, dict) else None
+        per_stage[stage] = per_stage.get(stage, 0.0) + (seconds if isinstance(seconds, (int, float)) else 0.0)
+    last = max(completed, key=lambda k: (int(k.split(".", 1)[0]), _order(k)), default=None)
+    sleeps = bool((config.get("sleep") or {}).get("enabled", False)) and not oracle
+
+    def complete(k: int) -> bool:
+        return f"{k}.sleep.eval" in completed if sleeps and k >= 2 else f"{k}.wake.eval" in completed
+
+    n_done = 0
+    while n_done < total and complete(n_done + 1):
+        n_done += 1
+    out: dict[str, Any] = {"run": str(run), "variant": label, "seed": config.get("seed"), "stages": total,
+                           "done": n_done, "last_phase": last, "seconds": sum(per_stage.values()),
+                           "since_last": now - (run / PROGRESS_FILE).stat().st_mtime, "finished": False,
+                           "final": None, "left": None}
+    results = _read(run / "results.json")
+    if results is not None:
+        afsr = ((results.get("metrics") or {}).get("afsr") or {}).get("final")
+        l1 = None if afsr is not None else final_loss(results, "val_l1")
+        out.update(finished=True, final=f"AFSR {afsr:.3f}" if afsr is not None else
+                   (f"val_l1 {l1:.4f}" if l1 is not None else "-"))
+        return out
+    if n_done >= 2:  # one stage says nothing about the growth
+        times = [per_stage.get(k, 0.0) for k in range(1, n_done + 1)]
+        slope = float(np.polyfit(np.arange(1, n_done + 1), times, 1)[0]) if n_done >= 2 else 0.0
+        ahead = [max(0.0, times[-1] + slope * (k - n_done)) for k in range(n_done + 1, total + 1)]
+        out["left"] = max(0.0, sum(ahead) - per_stage.get(n_done + 1, 0.0))
+    return out
+
+
+_PHASE_ORDER = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
+
+
+def _order(key: str) -> int:
+    phase = key.split(".", 1)[1] if "." in key else key
+    return _PHASE_ORDER.index(phase) if phase in _PHASE_ORDER else len(_PHASE_ORDER)
+
+
+def _read(path: Path) -> dict[str, Any] | None:
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def render(rows: Sequence[dict[str, Any]]) -> str:
+    """The markdown table of :func:`run_status` rows."""
+    lines = ["| run | variant | seed | stages done | last phase (ago) | compute | state |", "|---" * 7 + "|"]
+    for r in rows:
+        state = f"finished: {r['final']}" if r["finished"] else (
+            "running or stopped" + (f", ~{format_duration(r['left'])} left" if r["left"] is not None else ""))
+        last = f"{r['last_phase'] or '-'} ({format_duration(r['since_last'])} ago)"
+        lines.append(f"| {r['run']} | {r['variant']} | {r['seed']} | {r['done']}/{r['stages']} | {last} | "
+                     f"{format_duration(r['seconds'])} | {state} |")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: list[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("runs", nargs="+", help="run directories, or folders of runs (a grid's output_root)")
+    ns = parser.parse_args(args)
+    print(render([run_status(r) for r in find_runs(ns.runs)]), end="")  # noqa: T201 (command output)
+
+
+if __name__ == "__main__":
+    from sr_imitation.infra.cli_errors import run_cli
+
+    run_cli("sr_imitation.stream.status", main)

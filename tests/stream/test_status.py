@@ -1,0 +1,58 @@
+"""sr_imitation.stream.status: where runs stand, read from their files (stages done, last phase, compute, a rough
+time left that grows with the stage, finished runs' final metric)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+
+from sr_imitation.io import write_checked_json
+from sr_imitation.stream.status import find_runs, main, run_status
+
+SKILLS = ["a", "b", "c", "d", "e"]
+
+
+def _run(root: Path, name: str, completed: dict[str, float], sleep: bool = True, **config) -> Path:
+    run = root / name
+    run.mkdir(parents=True)
+    write_checked_json(run / "progress.json", {"version": 2, "completed": {k: {"seconds": v}
+                                                                          for k, v in completed.items()}})
+    (run / "train_config.json").write_text(json.dumps({"method": "sr", "seed": 3, "sleep": {"enabled": sleep},
+                                                      "stream": {"skills": SKILLS}, **config}))
+    return run
+
+
+def _stage(k: int, seconds: float, sleep: bool) -> dict[str, float]:
+    phases = {f"{k}.wake": seconds, f"{k}.memory": 0.0, f"{k}.wake.eval": 0.0}
+    if sleep and k >= 2:  # the sleep and its evaluation take no time here: the stage's seconds are its wake's
+        phases |= {f"{k}.sleep": 0.0, f"{k}.sleep.eval": 0.0}
+    return phases
+
+
+def test_an_unfinished_run_extrapolates_its_stage_times(tmp_path):
+    # stages 1-3 took 60, 120, 180 s (linear), stage 4 has its wake (200 s) but not yet its sleep
+    completed = {**_stage(1, 60, True), **_stage(2, 120, True), **_stage(3, 180, True), "4.wake": 200.0}
+    status = run_status(_run(tmp_path, "sr_seed3", completed), now=None)
+    assert (status["variant"], status["done"], status["stages"], status["last_phase"]) == ("sr", 3, 5, "4.wake")
+    assert status["left"] == pytest.approx(240 + 300 - 200)  # stages 4 and 5 predicted, less stage 4's 200 s
+    assert status["seconds"] == pytest.approx(560) and not status["finished"]
+    # without sleep a stage ends with its wake's evaluation; one complete stage gives no estimate
+    wake_only = run_status(_run(tmp_path, "wake_only_seed3", _stage(1, 60, False) | {"2.wake": 10.0}, sleep=False))
+    assert (wake_only["variant"], wake_only["done"], wake_only["left"]) == ("wake_only", 1, None)
+
+
+def test_finished_runs_folders_of_runs_and_the_table(tmp_path, capsys):
+    done = _run(tmp_path / "grid", "sr_seed0", {k: v for s in range(1, 6) for k, v in _stage(s, 10, True).items()})
+    (done / "results.json").write_text(json.dumps({"metrics": {"afsr": {"final": 0.9333}}}))
+    oracle = _run(tmp_path / "grid", "mt_joint_seed0", {"1.wake": 50.0, "1.wake.eval": 5.0}, sleep=False,
+                  mt_joint=True)
+    assert run_status(oracle)["variant"] == "mt_joint" and run_status(oracle)["done"] == 1
+    assert find_runs([tmp_path / "grid", done]) == [oracle, done]  # one level down, each once
+    main([str(tmp_path / "grid")])
+    out = capsys.readouterr().out
+    assert "| sr | 3 | 5/5 | 5.sleep.eval (" in out and "finished: AFSR 0.933 |" in out
+    assert "| mt_joint | 3 | 1/1 | 1.wake.eval (" in out
+    with pytest.raises(FileNotFoundError, match="no run here"):
+        find_runs([tmp_path / "nothing"])
