@@ -1,14 +1,14 @@
 """Where runs stand, read from their files: ``python -m sr_imitation.stream.status RUN_OR_FOLDER [...]``.
 
 A run is a directory with ``progress.json`` (any substrate, any method, the MT-Joint oracle included); a folder of
-runs (a grid's ``output_root``, an archive) is searched one level down. One row per run: its variant, the stage it
-is in (or "finished" with its final AFSR, or its validation l1 for a run without evaluation), the last recorded
+runs (a grid's ``output_root``, an archive) is searched one level down. One row per run: its variant, the stages it
+has done (or "finished" with its final AFSR, or its validation l1 for a run without evaluation), the last recorded
 phase and how long ago it was recorded (a run whose last phase ended long ago may have been killed: ``--resume``
 continues it), the compute time of its recorded phases, and for an unfinished run a rough time left: its completed
-stages' times (two at least) extrapolated linearly in the stage index (later stages distil from more memories and sleep over more
-of them; our choice) over the stages left, less what the current stage has recorded. A stage is complete when its
-last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``, stage >= 2), else its wake's
-(a method with other phases gets a rougher estimate). Reads only; writes nothing.
+stages' times (two at least) extrapolated linearly in the stage index (later stages distil from more memories and
+sleep over more of them; our choice) over the stages left, less what the current stage has recorded. A stage is
+complete when its last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``, stage >=
+2), else its wake's (a method with other phases gets a rougher estimate). Reads only; writes nothing.
 """
 
 from __future__ import annotations
