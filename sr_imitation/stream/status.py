@@ -76,7 +76,7 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
         return out
     if n_done >= 2:  # one stage says nothing about the growth
         times = [per_stage.get(k, 0.0) for k in range(1, n_done + 1)]
-        slope = float(np.polyfit(np.arange(1, n_done + 1), times, 1)[0]) if n_done >= 2 else 0.0
+        slope = float(np.polyfit(np.arange(1, n_done + 1), times, 1)[0])
         ahead = [max(0.0, times[-1] + slope * (k - n_done)) for k in range(n_done + 1, total + 1)]
         out["left"] = max(0.0, sum(ahead) - per_stage.get(n_done + 1, 0.0))
     return out
