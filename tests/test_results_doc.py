@@ -79,3 +79,39 @@ def test_the_memory_budget_table_recomputes(text):
         assert all(row[v]["seeds"] == [0, 1, 2] for v in ("sr", "wake_only", "replay")), budget
         afsr = " | ".join(cell(row[v]["afsr"]) for v in ("sr", "wake_only", "replay"))
         assert f"| {budget} | {afsr} | " in text, budget
+
+
+def test_the_vision_rows_so_far_recompute():
+    """Every filled cell of the vision table's "Runs so far" rows (typed in as each run landed) against its run."""
+    import json
+
+    from sr_imitation.stream.summary import phase_seconds
+
+    archive = DOCS / "results" / "needle_cpu_vision_compare"
+    lines = (DOCS / "RESULTS.md").read_text().splitlines()
+    start = lines.index("| training seed | SR | wake-only | SR - wake-only | SR BWT / BWT_wake | "
+                        "wake-only BWT / BWT_wake | minutes SR / wake-only |")
+    rows = []
+    for line in lines[start + 2:]:  # the table's rows: up to its first non-table line
+        if not line.startswith("| "):
+            break
+        rows.append(line)
+    assert len(rows) >= 5
+    for line in rows:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        seed = int(cells[0].split()[0])
+        runs = {v: archive / f"{v}_seed{seed}" for v in ("sr", "wake_only")}
+        found = {v: json.loads((r / "results.json").read_text())["metrics"] for v, r in runs.items()
+                 if (r / "results.json").is_file()}
+        minutes = cells[6].split(" / ")
+        for v, afsr_cell, bwt_cell, minute in (("sr", cells[1], cells[4], minutes[0]),
+                                               ("wake_only", cells[2], cells[5], minutes[1])):
+            if v not in found:
+                assert afsr_cell in ("running", "queued") and minute == "-", line
+                continue
+            m = found[v]
+            assert afsr_cell == f"{m['afsr']['final']:.3f} +- {m['afsr']['final_sem']:.3f}", line
+            assert bwt_cell == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", line
+            assert minute == f"{phase_seconds(runs[v]) / 60:.1f}", line
+        if len(found) == 2:
+            assert cells[3] == f"{found['sr']['afsr']['final'] - found['wake_only']['afsr']['final']:+.3f}", line
