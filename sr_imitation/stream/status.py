@@ -1,14 +1,14 @@
 """Where runs stand, read from their files: ``python -m sr_imitation.stream.status RUN_OR_FOLDER [...]``.
 
 A run is a directory with ``progress.json`` (any substrate, any method, the MT-Joint oracle included); a folder of
-runs (a grid's ``output_root``, an archive) is searched one level down. One row per run: its variant, the stages it
-has done (or "finished" with its final AFSR, or its validation l1 for a run without evaluation), the last recorded
-phase and how long ago it was recorded (a run whose last phase ended long ago may have been killed: ``--resume``
-continues it), the compute time of its recorded phases, and for an unfinished run a rough time left: its completed
-stages' times (two at least) extrapolated linearly in the stage index (later stages distil from more memories and
-sleep over more of them; our choice) over the stages left, less what the current stage has recorded. A stage is
-complete when its last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``, stage >=
-2), else its wake's (a method with other phases gets a rougher estimate). Reads only; writes nothing.
+runs (a grid's ``output_root``, an archive) is searched one level down, else two. One row per run: its variant, the
+stages it has done (or "finished" with its final AFSR, or its validation l1 for a run without evaluation), the last
+recorded phase and how long ago it was recorded (a run whose last phase ended long ago may have been killed:
+``--resume`` continues it), the compute time of its recorded phases, and for an unfinished run a rough time left:
+its completed stages' times (two at least) extrapolated linearly in the stage index (later stages distil from more
+memories and sleep over more of them; our choice) over the stages left, less what the current stage has recorded. A
+stage is complete when its last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``,
+stage >= 2), else its wake's (a method with other phases gets a rougher estimate). Reads only; writes nothing.
 """
 
 from __future__ import annotations
@@ -28,13 +28,16 @@ from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_prog
 
 
 def find_runs(paths: Sequence[str | Path]) -> list[Path]:
-    """The run directories among ``paths`` and their immediate subfolders, in order, each once."""
+    """The run directories among ``paths``, else in the folders one level below them, else two (a grid's
+    ``output_root``; ``<root>/<name>/<run>`` as an experiment queue lays them out), in order, each once."""
     runs: list[Path] = []
     for path in map(Path, paths):
-        found = [path] if (path / PROGRESS_FILE).is_file() else sorted(
-            p for p in path.iterdir() if (p / PROGRESS_FILE).is_file()) if path.is_dir() else []
+        found = [path] if (path / PROGRESS_FILE).is_file() else []
+        for pattern in ("*", "*/*"):
+            if not found and path.is_dir():
+                found = sorted(p for p in path.glob(pattern) if (p / PROGRESS_FILE).is_file())
         if not found:
-            raise FileNotFoundError(f"{path}: no run here ({PROGRESS_FILE} in it or in a folder just below)")
+            raise FileNotFoundError(f"{path}: no run here ({PROGRESS_FILE} in it or up to two levels below)")
         runs += [r for r in found if r not in runs]
     return runs
 

@@ -50,6 +50,7 @@ def test_finished_runs_folders_of_runs_and_the_table(tmp_path, capsys):
                   mt_joint=True)
     assert run_status(oracle)["variant"] == "mt_joint" and run_status(oracle)["done"] == 1
     assert find_runs([tmp_path / "grid", done]) == [oracle, done]  # one level down, each once
+    assert find_runs([tmp_path]) == [oracle, done]  # two levels down when nothing is one level down
     main([str(tmp_path / "grid")])
     out = capsys.readouterr().out
     assert "| sr | 3 | 5/5 | 5.sleep.eval (" in out and "finished: AFSR 0.933 |" in out
