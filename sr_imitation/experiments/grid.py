@@ -59,7 +59,7 @@ from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import format_duration
-from sr_imitation.stream.results import final_loss
+from sr_imitation.stream.results import final_headline
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 
 logger = logging.getLogger(__name__)
@@ -261,15 +261,10 @@ def _task(module: str, variant: str, run: Any, log_file: str, threads: int) -> d
 
 # -- the grid --------------------------------------------------------------------------------------------------
 def _final_metric(run_dir: Path) -> str:
-    """The run's final AFSR, or for a run without evaluation its final validation l1; ``-`` if unreadable."""
+    """The run's :func:`~sr_imitation.stream.results.final_headline`; ``AFSR -`` if its results are unreadable."""
     try:
-        results = json.loads((Path(run_dir) / "results.json").read_text())
-        afsr = results["metrics"]["afsr"]["final"]
-        if afsr is not None:
-            return f"AFSR {afsr:.3f}"
-        l1 = final_loss(results, "val_l1")
-        return "AFSR -" if l1 is None else f"validation l1 {l1:.4f} (no evaluation)"
-    except (OSError, ValueError, KeyError, TypeError):
+        return final_headline(json.loads((Path(run_dir) / "results.json").read_text()))
+    except (OSError, ValueError, AttributeError, TypeError):
         return "AFSR -"
 
 

@@ -73,6 +73,16 @@ def final_loss(results: Mapping[str, Any], metric: str) -> float | None:
     return float(np.mean(last)) if last else None
 
 
+def final_headline(results: Mapping[str, Any]) -> str:
+    """A run's final number in words for log and status lines: ``AFSR 0.933``, or for a run without evaluation
+    ``validation l1 0.5990 (no evaluation)`` (:func:`final_loss`), else ``AFSR -``."""
+    afsr = ((results.get("metrics") or {}).get("afsr") or {}).get("final")
+    if afsr is not None:
+        return f"AFSR {afsr:.3f}"
+    l1 = final_loss(results, "val_l1")
+    return "AFSR -" if l1 is None else f"validation l1 {l1:.4f} (no evaluation)"
+
+
 def variant_label(method: str, sleep_enabled: bool) -> str:
     """The name a run's variant has in tables: ``sr`` without sleep is the paper's "SR Wake-Only"."""
     return "wake_only" if method == "sr" and not sleep_enabled else method

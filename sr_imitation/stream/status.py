@@ -23,8 +23,9 @@ from typing import Any
 import numpy as np
 
 from sr_imitation.progress import format_duration
-from sr_imitation.stream.results import final_loss, variant_label
+from sr_imitation.stream.results import final_headline, variant_label
 from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
+from sr_imitation.stream.substrate import PHASE_IDS
 
 
 def find_runs(paths: Sequence[str | Path]) -> list[Path]:
@@ -57,7 +58,8 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
         stage = int(key.split(".", 1)[0])
         seconds = record.get("seconds") if isinstance(record, dict) else None
         per_stage[stage] = per_stage.get(stage, 0.0) + (seconds if isinstance(seconds, (int, float)) else 0.0)
-    last = max(completed, key=lambda k: (int(k.split(".", 1)[0]), _order(k)), default=None)
+    last = max(completed, key=lambda k: (int(k.split(".", 1)[0]), PHASE_IDS.get(k.split(".", 1)[1], len(PHASE_IDS))),
+               default=None)
     sleeps = bool((config.get("sleep") or {}).get("enabled", False)) and not oracle
 
     def complete(k: int) -> bool:
@@ -72,10 +74,7 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
                            "final": None, "left": None}
     results = _read(run / "results.json")
     if results is not None:
-        afsr = ((results.get("metrics") or {}).get("afsr") or {}).get("final")
-        l1 = None if afsr is not None else final_loss(results, "val_l1")
-        out.update(finished=True, final=f"AFSR {afsr:.3f}" if afsr is not None else
-                   (f"val_l1 {l1:.4f}" if l1 is not None else "-"))
+        out.update(finished=True, final=final_headline(results))
         return out
     if n_done >= 2:  # one stage says nothing about the growth
         times = [per_stage.get(k, 0.0) for k in range(1, n_done + 1)]
@@ -83,14 +82,6 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
         ahead = [max(0.0, times[-1] + slope * (k - n_done)) for k in range(n_done + 1, total + 1)]
         out["left"] = max(0.0, sum(ahead) - per_stage.get(n_done + 1, 0.0))
     return out
-
-
-_PHASE_ORDER = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
-
-
-def _order(key: str) -> int:
-    phase = key.split(".", 1)[1] if "." in key else key
-    return _PHASE_ORDER.index(phase) if phase in _PHASE_ORDER else len(_PHASE_ORDER)
 
 
 def _read(path: Path) -> dict[str, Any] | None:
