@@ -127,3 +127,15 @@ def test_the_batched_per_memory_gradients_the_benchmark_times_are_the_sleep_s_gr
     r = per_memory_gradients(torch.device("cpu"), vision=False, repeats=1)
     assert r["loop"]["difference"] == 0 and all(m["ms"] > 0 and m["difference"] < 1e-4 for m in r.values())
     assert r["joint"]["ops"] < r["loop"]["ops"] / 2 and r["vmap"]["ops"] < r["loop"]["ops"] / 2  # batched passes
+
+
+def test_the_per_memory_gradient_benchmark_at_the_presets_sizes_k_passes_scale_with_k_batched_ones_do_not():
+    """--k / --batch (the presets' sleeps: 2-5 memories of batch 32): the k passes' operations grow with k, the batched
+    backward's stay, so its launch advantage shrinks at small k (the second GPU session's end-to-end finding)."""
+    from sr_imitation.benchmarks.per_memory_grads import per_memory_gradients
+
+    small = per_memory_gradients(torch.device("cpu"), vision=False, repeats=1, k=2, batch=4)
+    large = per_memory_gradients(torch.device("cpu"), vision=False, repeats=1, k=4, batch=4)
+    assert all(m["difference"] < 1e-4 for m in (*small.values(), *large.values()))
+    assert large["loop"]["ops"] > 1.8 * small["loop"]["ops"]
+    assert abs(large["joint"]["ops"] - small["joint"]["ops"]) < 0.05 * small["joint"]["ops"]

@@ -189,13 +189,17 @@ def device_name(device: torch.device) -> str:
     return f"{device.type} ({platform.processor() or platform.machine()}, {torch.get_num_threads()} threads)"
 
 
-def parse_device_args(description: str, repeats: int) -> tuple[torch.device, argparse.Namespace]:
-    """The device benchmarks' flags (``--device``, ``--repeats``, ``--threads``): the device, the arguments; sets
-    torch's thread count."""
+def parse_device_args(description: str, repeats: int,
+                      extra: Callable[[argparse.ArgumentParser], None] | None = None,
+                      ) -> tuple[torch.device, argparse.Namespace]:
+    """The device benchmarks' flags (``--device``, ``--repeats``, ``--threads``, and what ``extra`` adds): the
+    device, the arguments; sets torch's thread count."""
     parser = argparse.ArgumentParser(description=description, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--repeats", type=int, default=repeats)
     parser.add_argument("--threads", type=int, default=torch.get_num_threads())
+    if extra is not None:
+        extra(parser)
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     return resolve_device(args.device), args

@@ -1,17 +1,22 @@
 """Per-memory gradients of a sleep iteration: k backward passes, one batched backward, one vmap pass.
 
     python -m sr_imitation.benchmarks.per_memory_grads [--device auto|cpu|cuda] [--repeats 10] [--threads N]
+        [--k 5] [--batch 8]
 
 A sleep iteration needs the k per-memory gradients g_i = grad L_i(theta) (the rows of the Gram matrix, Eq. 5). The
 sleep computes them with k forward/backward passes of batch 8 (:func:`sr_imitation.core.sleep.sleep_consolidate`),
 or with ``joint_forward`` from one forward over the k batches and one backward batched over the k losses;
 ``torch.func.vmap(torch.func.grad(L))`` over the k memories' batches is a third way. This benchmark times the three
-on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8, random targets), counts the ATen
-operations each launches (on a GPU at these sizes, the cost) and reports the largest difference to the k passes
+on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8 unless ``--k`` / ``--batch`` say otherwise;
+the presets' sleeps draw batches of 32 from 2-5 memories; random targets), counts the ATen operations each launches
+(on a GPU at small sizes, the cost; the batched backward also does k times the loop's backward arithmetic, which
+grows with the batch) and reports the largest difference to the k passes
 relative to the largest gradient entry (float summation order only), on any device (``docs/BENCHMARKS.md``).
 """
 
 from __future__ import annotations
+
+import argparse
 
 import torch
 from torch.func import functional_call, grad, vmap
@@ -57,9 +62,11 @@ METHODS = {
 }
 
 
-def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> dict[str, dict[str, float]]:
+def per_memory_gradients(device: torch.device, vision: bool, repeats: int, k: int = K,
+                         batch: int = BATCH) -> dict[str, dict[str, float]]:
     """For each of :data:`METHODS`: milliseconds, ATen operations and largest difference to ``loop`` (relative to the
-    largest gradient entry) of the k per-memory gradients of the ACT-SR chunk loss."""
+    largest gradient entry) of the ``k`` per-memory gradients of the ACT-SR chunk loss, ``batch`` observations each."""
+    K, BATCH = k, batch  # noqa: N806 - the module's defaults, overridden
     torch.manual_seed(0)
     policy = act_policy(device, vision)
     policy.eval()
@@ -114,13 +121,17 @@ def per_memory_gradients(device: torch.device, vision: bool, repeats: int) -> di
 
 
 def main() -> None:
-    device, args = parse_device_args(__doc__, repeats=10)
-    print(f"device: {device_name(device)}; torch {torch.__version__}; k = {K} memories, batch {BATCH}; "  # noqa: T201
+    def sizes(parser: argparse.ArgumentParser) -> None:
+        parser.add_argument("--k", type=int, default=K, help="memories per iteration")
+        parser.add_argument("--batch", type=int, default=BATCH, help="observations per memory batch")
+
+    device, args = parse_device_args(__doc__, repeats=10, extra=sizes)
+    print(f"device: {device_name(device)}; torch {torch.__version__}; k = {args.k} memories, batch {args.batch}; "  # noqa: T201
           f"median of {args.repeats}\n")
     print("| policy | method | ms | vs loop | ATen ops | max difference / max entry |\n"  # noqa: T201
           "|---|---|---|---|---|---|")
     for vision in (False, True):
-        rows = per_memory_gradients(device, vision, args.repeats)
+        rows = per_memory_gradients(device, vision, args.repeats, args.k, args.batch)
         for name, r in rows.items():
             print(f"| ACT-SR {'vision' if vision else 'state-only'} | {METHODS[name]} | {r['ms']:.2f} | "  # noqa: T201
                   f"{rows['loop']['ms'] / r['ms']:.2f}x | {r['ops']:.0f} | {r['difference']:.1e} |")

@@ -13,6 +13,8 @@ stamp benchmark
 OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.device --device=cuda --threads=4 2>&1 | tee "$OUT/bench_cuda.txt"
 OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.per_memory_grads --device=cuda --threads=4 2>&1 \
   | tee "$OUT/per_memory_grads_cuda.txt"
+OMP_NUM_THREADS=4 timeout 90 python3 -m sr_imitation.benchmarks.per_memory_grads --device=cuda --threads=4 --k=3 \
+  --batch=32 2>&1 | tee "$OUT/per_memory_grads_cuda_k3_b32.txt"  # the presets' sleep sizes (docs/BENCHMARKS.md)
 MAIN='import sys; from sr_imitation.main_job import entry; sys.argv = ["sr-main"] + sys.argv[1:]; entry()'
 NOVID="--expert_video=false --train.eval.videos_per_skill=0"
 stamp "needle_try on cuda: state-only, vision and state-only with joint forward, side by side"
