@@ -115,3 +115,40 @@ def test_the_vision_rows_so_far_recompute():
             assert minute == f"{phase_seconds(runs[v]) / 60:.1f}", line
         if len(found) == 2:
             assert cells[3] == f"{found['sr']['afsr']['final'] - found['wake_only']['afsr']['final']:+.3f}", line
+
+
+def test_the_vision_baseline_rows_so_far_recompute():
+    """Every filled cell of the vision table's "Baselines so far" rows against its run (and SR's at the same seed)."""
+    import json
+
+    from sr_imitation.stream.summary import phase_seconds
+
+    archive = DOCS / "results" / "needle_cpu_vision_compare"
+    lines = (DOCS / "RESULTS.md").read_text().splitlines()
+    start = lines.index("| variant | training seed | final AFSR | AFSR - SR (same seed) | BWT / BWT_wake | minutes |")
+    rows = []
+    for line in lines[start + 2:]:
+        if not line.startswith("| "):
+            break
+        rows.append(line)
+    variants = {"sequential BC": "sequential_bc", "MT-Joint": "mt_joint"}
+    assert sorted((r.split("|")[1].strip(), r.split("|")[2].strip()) for r in rows) == sorted(
+        (name, str(seed)) for name in variants for seed in range(3))
+    for line in rows:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        variant, seed = variants[cells[0]], int(cells[1])
+        run = archive / f"{variant}_seed{seed}"
+        if not (run / "results.json").is_file():
+            assert cells[2] in ("running", "queued") and cells[5] == "-", line
+            continue
+        m = json.loads((run / "results.json").read_text())["metrics"]
+        assert cells[2] == f"{m['afsr']['final']:.3f} +- {m['afsr']['final_sem']:.3f}", line
+        sr = archive / f"sr_seed{seed}" / "results.json"
+        if sr.is_file():
+            sr_afsr = json.loads(sr.read_text())["metrics"]["afsr"]["final"]
+            assert cells[3] == f"{m['afsr']['final'] - sr_afsr:+.3f}", line
+        if variant == "mt_joint":
+            assert cells[4] == "n/a", line
+        else:
+            assert cells[4] == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", line
+        assert cells[5] == f"{phase_seconds(run) / 60:.1f}", line
