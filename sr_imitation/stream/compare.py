@@ -1,0 +1,146 @@
+"""Do two runs agree? ``python -m sr_imitation.stream.compare RUN_A RUN_B [--tol 0]``.
+
+A reproducibility check (a rerun, a resume, another machine or commit, CPU against CUDA) compares what two runs
+measured, not how long they took:
+
+- ``results.json``: the success matrices per evaluation unit (and their means), the success right after each own
+  wake, every metric, the memory sizes;
+- ``progress.json``: every number each phase recorded (each wake's best validation l1 and epoch, each sleep's
+  memory losses, bargaining weights, stop iteration and solver statuses, each evaluation's success), except its
+  ``seconds``.
+
+Numbers agree when ``|a - b| <= tol`` (0: exactly); anything else must be equal. The settings both runs recorded
+(``settings_fingerprint.json``: the names of those that differ) and their code commits (``results.md``) are printed
+as context, not compared: two
+runs of different settings may agree. Prints the differing values (the first ``--show``), a count and the largest
+numeric difference; exits 0 when the runs agree, 1 when they do not (a user error, such as a folder without
+``progress.json``, is one line and exit 2). Reads only; writes nothing.
+"""
+
+from __future__ import annotations
+
+import argparse
+import math
+import re
+import sys
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from sr_imitation.io import read_json
+from sr_imitation.stream.rundir import PROGRESS_FILE, read_progress
+
+RESULTS_KEYS = ("success_matrix", "success_matrix_per_unit", "success_after_own_wake",
+                "success_after_own_wake_per_unit", "metrics", "memory_bytes", "skills", "stages")
+"""The parts of ``results.json`` that are measurements (the rest is the run's config, labels and seal)."""
+TIMING_KEYS = frozenset({"seconds"})
+"""Keys that measure time, not the run (a phase record's, and each stage's in ``results.json``): skipped anywhere."""
+
+
+def leaves(value: Any, path: str = "") -> Iterator[tuple[str, Any]]:
+    """``(path, leaf)`` for every non-container value in nested dicts and lists (``a.b[2].c``)."""
+    if isinstance(value, dict):
+        for key in sorted(value, key=str):
+            yield from leaves(value[key], f"{path}.{key}" if path else str(key))
+    elif isinstance(value, (list, tuple)):
+        for i, item in enumerate(value):
+            yield from leaves(item, f"{path}[{i}]")
+    else:
+        yield path, value
+
+
+def measured(run: Path) -> dict[str, Any]:
+    """What ``run`` measured (see the module docstring), keyed by source file and path."""
+    if not (run / PROGRESS_FILE).is_file():
+        raise FileNotFoundError(f"{run}: not a run directory (no {PROGRESS_FILE})")
+    completed = read_progress(run / PROGRESS_FILE).get("completed") or {}
+    found = [(f"progress:{p}", v) for p, v in leaves(completed)]
+    results_path = run / "results.json"
+    if results_path.is_file():
+        results = read_json(results_path)
+        found += [(f"results:{p}", v) for key in RESULTS_KEYS if key in results for p, v in leaves(results[key], key)]
+    return {p: v for p, v in found if not TIMING_KEYS & set(re.split(r"[.:\[]", p))}
+
+
+def _agree(a: Any, b: Any, tol: float) -> tuple[bool, float | None]:
+    """Whether two leaves agree, and their numeric difference (None when not both numbers)."""
+    numbers = all(isinstance(x, (int, float)) and not isinstance(x, bool) for x in (a, b))
+    if not numbers:
+        return a == b, None
+    if math.isnan(a) or math.isnan(b):
+        return math.isnan(a) and math.isnan(b), None
+    diff = abs(a - b)
+    return diff <= tol, diff
+
+
+def compare_runs(run_a: Path, run_b: Path, tol: float = 0.0) -> dict[str, Any]:
+    """``{"compared", "differences": [(path, a, b, diff)], "only_a", "only_b", "max_diff", "max_path"}``."""
+    a, b = measured(run_a), measured(run_b)
+    differences = []
+    max_diff, max_path = 0.0, None
+    for path in sorted(a.keys() & b.keys()):
+        ok, diff = _agree(a[path], b[path], tol)
+        if diff is not None and diff > max_diff:
+            max_diff, max_path = diff, path
+        if not ok:
+            differences.append((path, a[path], b[path], diff))
+    return {"compared": len(a.keys() & b.keys()), "differences": differences,
+            "only_a": sorted(a.keys() - b.keys()), "only_b": sorted(b.keys() - a.keys()),
+            "max_diff": max_diff, "max_path": max_path}
+
+
+def run_commit(run: Path) -> str:
+    """The run's code commit as its ``results.md`` names it, else "unknown commit"."""
+    report = run / "results.md"
+    found = re.search(r"commit ([0-9a-f]{7,40})", report.read_text()) if report.is_file() else None
+    return f"commit {found.group(1)[:10]}" if found else "unknown commit"
+
+
+def settings_differences(run_a: Path, run_b: Path) -> list[str] | None:
+    """The recorded settings (``settings_fingerprint.json``) whose values differ between the runs; None when a run
+    recorded none."""
+    paths = [r / "settings_fingerprint.json" for r in (run_a, run_b)]
+    if not all(p.is_file() for p in paths):
+        return None
+    a, b = (read_json(p).get("settings") or {} for p in paths)
+    return sorted(k for k in a.keys() | b.keys() if a.get(k, "<unset>") != b.get(k, "<unset>"))
+
+
+def render(report: dict[str, Any], show: int = 20) -> str:
+    lines = []
+    for path, a, b, diff in report["differences"][:show]:
+        lines.append(f"  {path}: {a!r} != {b!r}" + (f"  (|diff| {diff:.3g})" if diff is not None else ""))
+    if len(report["differences"]) > show:
+        lines.append(f"  ... and {len(report['differences']) - show} more")
+    for side in ("only_a", "only_b"):
+        if report[side]:
+            lines.append(f"  only in run {side[-1].upper()}: {len(report[side])} values, e.g. {report[side][0]}")
+    agree = not (report["differences"] or report["only_a"] or report["only_b"])
+    largest = (f"; largest numeric difference {report['max_diff']:.3g} ({report['max_path']})"
+               if report["max_path"] else "; every number equal")
+    verdict = "the runs agree" if agree else f"the runs differ in {len(report['differences'])} values"
+    lines.append(f"{report['compared']} measured values compared: {verdict}{largest}")
+    return "\n".join(lines) + "\n"
+
+
+def main(args: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run_a")
+    parser.add_argument("run_b")
+    parser.add_argument("--tol", type=float, default=0.0, help="largest numeric difference that still agrees")
+    parser.add_argument("--show", type=int, default=20, help="differences printed")
+    ns = parser.parse_args(args)
+    run_a, run_b = Path(ns.run_a), Path(ns.run_b)
+    report = compare_runs(run_a, run_b, ns.tol)
+    settings = settings_differences(run_a, run_b)
+    context = ("settings: not recorded by both" if settings is None else
+               "settings: the same" if not settings else f"settings differ in: {', '.join(settings)}")
+    print(f"A = {run_a} ({run_commit(run_a)})\nB = {run_b} ({run_commit(run_b)})\n{context}\n"  # noqa: T201
+          + render(report, ns.show), end="")
+    return 0 if not (report["differences"] or report["only_a"] or report["only_b"]) else 1
+
+
+if __name__ == "__main__":
+    from sr_imitation.infra.cli_errors import run_cli
+
+    sys.exit(run_cli("sr_imitation.stream.compare", main))

@@ -1,0 +1,81 @@
+"""sr_imitation.stream.compare: two runs agree when every number they measured is equal (or within --tol), timings
+aside; the command says where they differ and exits 1."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from pathlib import Path
+
+import pytest
+
+from sr_imitation.io import read_checked_json, write_checked_json
+from sr_imitation.stream.compare import compare_runs, leaves, main
+from tests.stream.test_engine import make_engine, toy_methods  # noqa: F401 (the fixture: toy runs of the methods)
+
+
+@pytest.fixture
+def runs(tmp_path, toy_methods) -> dict[str, Path]:  # noqa: F811 (the imported fixture, requested)
+    for name, seed in (("a", 0), ("b", 0), ("other_seed", 1)):
+        make_engine(tmp_path / "runs" / name, seed=seed).run()
+    return {p.name: p for p in (tmp_path / "runs").iterdir()}
+
+
+def test_leaves_paths_every_value_of_nested_dicts_and_lists():
+    assert list(leaves({"b": [1, {"c": 2}], "a": 3.0})) == [("a", 3.0), ("b[0]", 1), ("b[1].c", 2)]
+
+
+def test_two_runs_of_the_same_settings_agree_and_another_seed_does_not(runs, capsys):
+    same = compare_runs(runs["a"], runs["b"])
+    assert same["compared"] > 20 and same["differences"] == [] and same["max_diff"] == 0.0
+    assert main([str(runs["a"]), str(runs["b"])]) == 0
+    assert "the runs agree; every number equal" in capsys.readouterr().out
+    other = compare_runs(runs["a"], runs["other_seed"])
+    assert other["differences"] and other["max_diff"] > 0
+    assert main([str(runs["a"]), str(runs["other_seed"])]) == 1
+    assert "the runs differ in" in capsys.readouterr().out
+
+
+def test_timings_are_not_compared_and_a_changed_number_is_found_within_tol_or_not(runs, tmp_path):
+    copy = tmp_path / "copy"
+    shutil.copytree(runs["a"], copy)
+    progress = read_checked_json(copy / "progress.json")
+    phase = next(k for k in progress["completed"] if k.endswith(".sleep"))
+    for record in progress["completed"].values():
+        record["seconds"] = 1e6  # another machine's clock: still the same run
+    write_checked_json(copy / "progress.json", progress)
+    assert compare_runs(runs["a"], copy)["differences"] == []
+    losses = progress["completed"][phase]["final_memory_losses"]
+    losses[0] += 1e-9
+    write_checked_json(copy / "progress.json", progress)
+    report = compare_runs(runs["a"], copy)
+    assert [d[0] for d in report["differences"]] == [f"progress:{phase}.final_memory_losses[0]"]
+    assert compare_runs(runs["a"], copy, tol=1e-8)["differences"] == []
+    del progress["completed"][phase]
+    write_checked_json(copy / "progress.json", progress)
+    assert compare_runs(runs["a"], copy)["only_a"]
+
+
+def test_results_files_are_compared_too(runs, tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(runs["a"], a)
+    shutil.copytree(runs["a"], b)
+    results = {"success_matrix_per_unit": [[[1.0]], [[0.5]]], "metrics": {"afsr": {"final": 0.75}},
+               "stages": [{"wake": {"seconds": 3.0}}], "config": {"output_dir": "x"}}
+    (a / "results.json").write_text(json.dumps(results))
+    results |= {"stages": [{"wake": {"seconds": 9.0}}], "config": {"output_dir": "y"}}  # neither is a measurement
+    (b / "results.json").write_text(json.dumps(results))
+    assert compare_runs(a, b)["differences"] == []
+    results["success_matrix_per_unit"][1][0][0] = 0.6
+    (b / "results.json").write_text(json.dumps(results))
+    assert [d[0] for d in compare_runs(a, b)["differences"]] == ["results:success_matrix_per_unit[1][0][0]"]
+
+
+def test_a_folder_that_is_not_a_run_is_one_line(tmp_path, capsys):
+    from sr_imitation.infra.cli_errors import run_cli
+
+    with pytest.raises(SystemExit) as exit_:
+        run_cli("sr_imitation.stream.compare", main, [str(tmp_path), str(tmp_path)])
+    assert exit_.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "not a run directory (no progress.json)" in err
