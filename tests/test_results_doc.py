@@ -152,3 +152,26 @@ def test_the_vision_baseline_rows_so_far_recompute():
         else:
             assert cells[4] == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", line
         assert cells[5] == f"{phase_seconds(run) / 60:.1f}", line
+
+
+def test_the_vision_test_h4_and_its_first_lines_recompute(text):
+    """H4 (pre-registered): its table row and the first paragraph's vision sentence, from the vision archive."""
+    import json
+
+    import numpy as np
+
+    archive = DOCS / "results" / "needle_cpu_vision_compare"
+    (h4,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only"]))
+    assert h4["seeds"] == [0, 1, 2, 3, 4]
+    assert (f"| H4: SR - wake-only > 0 (one-sided), vision stream | 0-4 | {h4['mean']:+.3f} +- {h4['sem']:.3f} | "
+            f"[{h4['ci_low']:+.3f}, {h4['ci_high']:+.3f}] | {h4['t']:.2f} | {h4['p']:.4f} |") in text
+    sr, wake = (list(archived_values(archive, v, "afsr").values()) for v in ("sr", "wake_only"))
+    assert (f"SR {_mean_se(sr)} vs wake-only {_mean_se(wake)}, paired {h4['mean']:+.3f} +- {h4['sem']:.3f} over 5 "
+            f"training seeds, every pair positive, one-sided paired t-test p = {h4['p']:.4f}") in text
+    assert min(a - b for a, b in zip(sr, wake, strict=True)) > 0
+    assert f"[{h4['ci_low']:+.3f}, {h4['ci_high']:+.3f}]); the gain is retention" in text
+    bwt = {v: [json.loads((archive / f"{v}_seed{s}" / "results.json").read_text())["metrics"]["bwt"]["final"]
+               for s in range(5)] for v in ("sr", "wake_only")}
+    assert f"(BWT {np.mean(bwt['sr']):+.3f} vs {np.mean(bwt['wake_only']):+.3f})" in text
+    assert (f"BWT {_signed(bwt['sr'])} for SR" in text and f"against {_signed(bwt['wake_only'])} for wake-only"
+            in text)
