@@ -1,5 +1,8 @@
 """Do two runs agree? ``python -m sr_imitation.stream.compare RUN_A RUN_B [--tol 0]``.
 
+Two folders of runs (two grids' ``output_root``, an archive and its re-run) are compared run by run, paired by their
+path below the folder: a row per run and exit 0 when every pair agrees and both hold the same runs.
+
 A reproducibility check (a rerun, a resume, another machine or commit, CPU against CUDA) compares what two runs
 measured, not how long they took:
 
@@ -123,21 +126,47 @@ def render(report: dict[str, Any], show: int = 20) -> str:
     return "\n".join(lines) + "\n"
 
 
+def _agrees(report: dict[str, Any]) -> bool:
+    return not (report["differences"] or report["only_a"] or report["only_b"])
+
+
+def compare_folders(folder_a: Path, folder_b: Path, tol: float = 0.0) -> tuple[str, bool]:
+    """Two folders of runs (grids' ``output_root``, archives): the runs of the same name paired, one row each, and
+    whether every pair agrees and both folders hold the same runs."""
+    from sr_imitation.stream.status import find_runs  # the same search as status (one or two levels down)
+
+    runs_a, runs_b = ({r.relative_to(f).as_posix(): r for r in find_runs([f])} for f in (folder_a, folder_b))
+    lines = ["| run | values compared | differing | largest numeric difference | verdict |", "|---" * 5 + "|"]
+    ok = runs_a.keys() == runs_b.keys()
+    for name in sorted(runs_a.keys() & runs_b.keys()):
+        report = compare_runs(runs_a[name], runs_b[name], tol)
+        ok &= _agrees(report)
+        lines.append(f"| {name} | {report['compared']} | {len(report['differences'])} | {report['max_diff']:.3g} | "
+                     f"{'agree' if _agrees(report) else 'differ'} |")
+    for name in sorted(runs_a.keys() ^ runs_b.keys()):
+        lines.append(f"| {name} | - | - | - | only in {'A' if name in runs_a else 'B'} |")
+    return "\n".join(lines) + "\n", ok
+
+
 def main(args: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("run_a")
+    parser.add_argument("run_a", help="a run directory, or a folder of runs (then run_b is one too)")
     parser.add_argument("run_b")
     parser.add_argument("--tol", type=float, default=0.0, help="largest numeric difference that still agrees")
     parser.add_argument("--show", type=int, default=20, help="differences printed")
     ns = parser.parse_args(args)
     run_a, run_b = Path(ns.run_a), Path(ns.run_b)
+    if not (run_a / PROGRESS_FILE).is_file() and not (run_b / PROGRESS_FILE).is_file():
+        table, ok = compare_folders(run_a, run_b, ns.tol)
+        print(f"A = {run_a}\nB = {run_b}\n" + table, end="")  # noqa: T201 (command output)
+        return 0 if ok else 1
     report = compare_runs(run_a, run_b, ns.tol)
     settings = settings_differences(run_a, run_b)
     context = ("settings: not recorded by both" if settings is None else
                "settings: the same" if not settings else f"settings differ in: {', '.join(settings)}")
     print(f"A = {run_a} ({run_commit(run_a)})\nB = {run_b} ({run_commit(run_b)})\n{context}\n"  # noqa: T201
           + render(report, ns.show), end="")
-    return 0 if not (report["differences"] or report["only_a"] or report["only_b"]) else 1
+    return 0 if _agrees(report) else 1
 
 
 if __name__ == "__main__":

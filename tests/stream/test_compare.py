@@ -71,11 +71,32 @@ def test_results_files_are_compared_too(runs, tmp_path):
     assert [d[0] for d in compare_runs(a, b)["differences"]] == ["results:success_matrix_per_unit[1][0][0]"]
 
 
-def test_a_folder_that_is_not_a_run_is_one_line(tmp_path, capsys):
+@pytest.mark.parametrize("run_a", [True, False])
+def test_a_folder_without_runs_is_one_line(runs, run_a, tmp_path, capsys):
     from sr_imitation.infra.cli_errors import run_cli
 
+    empty = tmp_path / "empty"
+    empty.mkdir()
     with pytest.raises(SystemExit) as exit_:
-        run_cli("sr_imitation.stream.compare", main, [str(tmp_path), str(tmp_path)])
+        run_cli("sr_imitation.stream.compare", main, [str(runs["a"] if run_a else empty), str(empty)])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
-    assert err.count("\n") == 1 and "not a run directory (no progress.json)" in err
+    assert err.count("\n") == 1
+    assert ("not a run directory (no progress.json)" if run_a else "no run here") in err
+
+
+def test_two_folders_of_runs_are_compared_run_by_run(runs, tmp_path, capsys):
+    a, b = tmp_path / "grid_a", tmp_path / "grid_b"
+    for folder in (a, b):
+        shutil.copytree(runs["a"], folder / "sr_seed0")
+    assert main([str(a), str(b)]) == 0
+    assert "| sr_seed0 |" in capsys.readouterr().out
+    shutil.copytree(runs["other_seed"], b / "sr_seed1")
+    assert main([str(a), str(b)]) == 1
+    assert "| sr_seed1 | - | - | - | only in B |" in capsys.readouterr().out
+    shutil.rmtree(b / "sr_seed0")
+    shutil.copytree(runs["other_seed"], b / "sr_seed0")
+    shutil.copytree(runs["other_seed"], a / "sr_seed1")
+    assert main([str(a), str(b)]) == 1
+    out = capsys.readouterr().out
+    assert "| sr_seed0 |" in out and out.count("differ |") == 1 and out.count("agree |") == 1
