@@ -54,9 +54,12 @@ def leaves(value: Any, path: str = "") -> Iterator[tuple[str, Any]]:
 
 def measured(run: Path) -> dict[str, Any]:
     """What ``run`` measured (see the module docstring), keyed by source file and path."""
-    if not (run / PROGRESS_FILE).is_file():
+    from sr_imitation.stream.status import is_run
+
+    if not is_run(run):
         raise FileNotFoundError(f"{run}: not a run directory (no {PROGRESS_FILE})")
-    completed = read_progress(run / PROGRESS_FILE).get("completed") or {}
+    progress = run / PROGRESS_FILE  # a run that has started and recorded no phase has measured nothing yet
+    completed = (read_progress(progress).get("completed") or {}) if progress.is_file() else {}
     found = [(f"progress:{p}", v) for p, v in leaves(completed)]
     results_path = run / "results.json"
     if results_path.is_file():
@@ -118,16 +121,19 @@ def render(report: dict[str, Any], show: int = 20) -> str:
     for side in ("only_a", "only_b"):
         if report[side]:
             lines.append(f"  only in run {side[-1].upper()}: {len(report[side])} values, e.g. {report[side][0]}")
-    agree = not (report["differences"] or report["only_a"] or report["only_b"])
+    agree = _agrees(report)
     largest = (f"; largest numeric difference {report['max_diff']:.3g} ({report['max_path']})"
                if report["max_path"] else "; every number equal")
-    verdict = "the runs agree" if agree else f"the runs differ in {len(report['differences'])} values"
+    verdict = ("the runs agree" if agree else "nothing measured yet" if not report["compared"] else
+               f"the runs differ in {len(report['differences'])} values")
     lines.append(f"{report['compared']} measured values compared: {verdict}{largest}")
     return "\n".join(lines) + "\n"
 
 
 def _agrees(report: dict[str, Any]) -> bool:
-    return not (report["differences"] or report["only_a"] or report["only_b"])
+    """No differing value, none on one side only, and something compared (two runs that measured nothing yet do not
+    agree: they have not run)."""
+    return report["compared"] > 0 and not (report["differences"] or report["only_a"] or report["only_b"])
 
 
 def compare_folders(folder_a: Path, folder_b: Path, tol: float = 0.0) -> tuple[str, bool]:
@@ -156,7 +162,9 @@ def main(args: list[str] | None = None) -> int:
     parser.add_argument("--show", type=int, default=20, help="differences printed")
     ns = parser.parse_args(args)
     run_a, run_b = Path(ns.run_a), Path(ns.run_b)
-    if not (run_a / PROGRESS_FILE).is_file() and not (run_b / PROGRESS_FILE).is_file():
+    from sr_imitation.stream.status import is_run
+
+    if not is_run(run_a) and not is_run(run_b):
         table, ok = compare_folders(run_a, run_b, ns.tol)
         print(f"A = {run_a}\nB = {run_b}\n" + table, end="")  # noqa: T201 (command output)
         return 0 if ok else 1

@@ -1,6 +1,7 @@
 """Where runs stand, read from their files: ``python -m sr_imitation.stream.status RUN_OR_FOLDER [...]``.
 
-A run is a directory with ``progress.json`` (any substrate, any method, the MT-Joint oracle included); a folder of
+A run is a directory with ``progress.json`` (any substrate, any method, the MT-Joint oracle included), or one that
+has started and recorded no phase yet (only its settings fingerprint: "started" in the last-phase column); a folder of
 runs (a grid's ``output_root``, an archive) is searched one level down, else two. One row per run: its variant, the
 stages it has done (or "finished" with its final AFSR, or its validation l1 for a run without evaluation), the last
 recorded phase and how long ago it was recorded (a run whose last phase ended long ago may have been killed:
@@ -22,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE
 from sr_imitation.progress import format_duration
 from sr_imitation.stream.results import final_headline, variant_label
 from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
@@ -33,20 +35,28 @@ def find_runs(paths: Sequence[str | Path]) -> list[Path]:
     ``output_root``; ``<root>/<name>/<run>`` as an experiment queue lays them out), in order, each once."""
     runs: list[Path] = []
     for path in map(Path, paths):
-        found = [path] if (path / PROGRESS_FILE).is_file() else []
+        found = [path] if is_run(path) else []
         for pattern in ("*", "*/*"):
             if not found and path.is_dir():
-                found = sorted(p for p in path.glob(pattern) if (p / PROGRESS_FILE).is_file())
+                found = sorted(p for p in path.glob(pattern) if is_run(p))
         if not found:
-            raise FileNotFoundError(f"{path}: no run here ({PROGRESS_FILE} in it or up to two levels below)")
+            raise FileNotFoundError(f"{path}: no run here ({PROGRESS_FILE} or {FINGERPRINT_FILE} in it or up to two "
+                                    "levels below)")
         runs += [r for r in found if r not in runs]
     return runs
+
+
+def is_run(path: Path) -> bool:
+    """A run directory: it has recorded a phase (``progress.json``), or has started (its settings fingerprint is the
+    first file a run writes; a long first phase, an MT-Joint oracle's one wake, records nothing for an hour)."""
+    return (path / PROGRESS_FILE).is_file() or (path / FINGERPRINT_FILE).is_file()
 
 
 def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
     """One run's state (see the module docstring) as a dictionary."""
     now = time.time() if now is None else now
-    completed = read_progress(run / PROGRESS_FILE).get("completed") or {}
+    progress = run / PROGRESS_FILE
+    completed = (read_progress(progress).get("completed") or {}) if progress.is_file() else {}
     config = _read(run / RUN_CONFIG_FILE) or {}
     skills = list((config.get("stream") or {}).get("skills") or [])
     oracle = bool(config.get("mt_joint"))
@@ -70,7 +80,8 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
         n_done += 1
     out: dict[str, Any] = {"run": str(run), "variant": label, "seed": config.get("seed"), "stages": total,
                            "done": n_done, "last_phase": last, "seconds": sum(per_stage.values()),
-                           "since_last": now - (run / PROGRESS_FILE).stat().st_mtime, "finished": False,
+                           "since_last": now - (progress if progress.is_file() else run / FINGERPRINT_FILE
+                                                ).stat().st_mtime, "finished": False,
                            "final": None, "left": None}
     results = _read(run / "results.json")
     if results is not None:
@@ -98,7 +109,7 @@ def render(rows: Sequence[dict[str, Any]]) -> str:
     for r in rows:
         state = f"finished: {r['final']}" if r["finished"] else (
             "running or stopped" + (f", ~{format_duration(r['left'])} left" if r["left"] is not None else ""))
-        last = f"{r['last_phase'] or '-'} ({format_duration(r['since_last'])} ago)"
+        last = f"{r['last_phase'] or 'started'} ({format_duration(r['since_last'])} ago)"
         lines.append(f"| {r['run']} | {r['variant']} | {r['seed']} | {r['done']}/{r['stages']} | {last} | "
                      f"{format_duration(r['seconds'])} | {state} |")
     return "\n".join(lines) + "\n"

@@ -100,3 +100,11 @@ def test_two_folders_of_runs_are_compared_run_by_run(runs, tmp_path, capsys):
     assert main([str(a), str(b)]) == 1
     out = capsys.readouterr().out
     assert "| sr_seed0 |" in out and out.count("differ |") == 1 and out.count("agree |") == 1
+
+
+def test_runs_that_have_measured_nothing_yet_do_not_agree(tmp_path, capsys):
+    for name in ("a", "b"):
+        (tmp_path / name).mkdir()
+        (tmp_path / name / "settings_fingerprint.json").write_text("{}")
+    assert main([str(tmp_path / "a"), str(tmp_path / "b")]) == 1
+    assert "0 measured values compared: nothing measured yet" in capsys.readouterr().out

@@ -57,3 +57,16 @@ def test_finished_runs_folders_of_runs_and_the_table(tmp_path, capsys):
     assert "| mt_joint | 3 | 1/1 | 1.wake.eval (" in out
     with pytest.raises(FileNotFoundError, match="no run here"):
         find_runs([tmp_path / "nothing"])
+
+
+def test_a_run_that_has_started_and_recorded_no_phase_is_listed_as_started(tmp_path, capsys):
+    """An MT-Joint oracle's one wake records nothing for an hour: its settings fingerprint says it exists."""
+    run = tmp_path / "grid" / "mt_joint_0" / "mt_joint_seed0"
+    run.mkdir(parents=True)
+    (run / "settings_fingerprint.json").write_text("{}")
+    (run / "train_config.json").write_text(json.dumps({"mt_joint": True, "seed": 0, "stream": {"skills": SKILLS}}))
+    assert find_runs([tmp_path / "grid"]) == [run]
+    status = run_status(run)
+    assert (status["done"], status["stages"], status["last_phase"], status["variant"]) == (0, 1, None, "mt_joint")
+    main([str(tmp_path / "grid")])
+    assert "| 0/1 | started (" in capsys.readouterr().out
