@@ -13,7 +13,7 @@ measured, not how long they took:
   ``seconds``.
 
 Numbers agree when ``|a - b| <= tol`` (0: exactly); anything else must be equal. The settings both runs recorded
-(``settings_fingerprint.json``: the names of those that differ) and their code commits (``results.md``) are printed
+(``settings_fingerprint.json``: the names of those that differ) and their code commits (``results.json``) are printed
 as context, not compared: two
 runs of different settings may agree. Prints the differing values (the first ``--show``), a count and the largest
 numeric difference; exits 0 when the runs agree, 1 when they do not (a user error, such as a folder without
@@ -96,10 +96,13 @@ def compare_runs(run_a: Path, run_b: Path, tol: float = 0.0) -> dict[str, Any]:
 
 
 def run_commit(run: Path) -> str:
-    """The run's code commit as its ``results.md`` names it, else "unknown commit"."""
-    report = run / "results.md"
-    found = re.search(r"commit ([0-9a-f]{7,40})", report.read_text()) if report.is_file() else None
-    return f"commit {found.group(1)[:10]}" if found else "unknown commit"
+    """The code that wrote the run's results (``results.json``'s ``code``; "dirty": with uncommitted changes), else
+    "unknown commit" (an unfinished run, or one written before the commit was recorded)."""
+    results = run / "results.json"
+    code = (read_json(results).get("code") or {}) if results.is_file() else {}
+    if not code.get("commit"):
+        return "unknown commit"
+    return f"commit {code['commit'][:10]}" + (" (dirty)" if code.get("dirty") else "")
 
 
 def settings_differences(run_a: Path, run_b: Path) -> list[str] | None:

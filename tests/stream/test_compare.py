@@ -108,3 +108,11 @@ def test_runs_that_have_measured_nothing_yet_do_not_agree(tmp_path, capsys):
         (tmp_path / name / "settings_fingerprint.json").write_text("{}")
     assert main([str(tmp_path / "a"), str(tmp_path / "b")]) == 1
     assert "0 measured values compared: nothing measured yet" in capsys.readouterr().out
+
+
+def test_the_code_that_wrote_each_run_is_named(runs, tmp_path):
+    from sr_imitation.stream.compare import run_commit
+
+    assert run_commit(runs["a"]) == "unknown commit"  # the toy writes no results.json
+    (tmp_path / "results.json").write_text(json.dumps({"code": {"commit": "0123456789abcdef", "dirty": True}}))
+    assert run_commit(tmp_path) == "commit 0123456789 (dirty)"
