@@ -130,8 +130,9 @@ def test_the_batched_per_memory_gradients_the_benchmark_times_are_the_sleep_s_gr
 
 
 def test_the_per_memory_gradient_benchmark_at_the_presets_sizes_k_passes_scale_with_k_batched_ones_do_not():
-    """--k / --batch (the presets' sleeps: 2-5 memories of batch 32): the k passes' operations grow with k, the batched
-    backward's stay, so its launch advantage shrinks at small k (the second GPU session's end-to-end finding)."""
+    """--k / --batch (the state-only presets' sleeps: 2-5 memories of batch 32): the k passes' operations grow with k,
+    the batched backward's stay, so its launch advantage shrinks at small k (the second GPU session's end-to-end
+    finding)."""
     from sr_imitation.benchmarks.per_memory_grads import per_memory_gradients
 
     small = per_memory_gradients(torch.device("cpu"), vision=False, repeats=1, k=2, batch=4)

@@ -7,10 +7,10 @@ A sleep iteration needs the k per-memory gradients g_i = grad L_i(theta) (the ro
 sleep computes them with k forward/backward passes of batch 8 (:func:`sr_imitation.core.sleep.sleep_consolidate`),
 or with ``joint_forward`` from one forward over the k batches and one backward batched over the k losses;
 ``torch.func.vmap(torch.func.grad(L))`` over the k memories' batches is a third way. This benchmark times the three
-on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8 unless ``--k`` / ``--batch`` say otherwise;
-the presets' sleeps draw batches of 32 from 2-5 memories; random targets), counts the ATen operations each launches
-(on a GPU at small sizes, the cost; the batched backward also does k times the loop's backward arithmetic, which
-grows with the batch) and reports the largest difference to the k passes
+on the CPU needle presets' ACT-SR (state-only and vision, k = 5, batch 8 unless ``--k`` / ``--batch`` say
+otherwise; the state-only presets' sleeps draw batches of 32 from 2-5 memories; random targets), counts the ATen
+operations each launches (on a GPU at small sizes, the cost; the batched backward also does k times the loop's
+backward arithmetic, which grows with the batch) and reports the largest difference to the k passes
 relative to the largest gradient entry (float summation order only), on any device (``docs/BENCHMARKS.md``).
 """
 

@@ -78,9 +78,9 @@ class SleepConfig:
     joint_forward: bool = False
     """Evaluate same-kind memories in one forward pass and take the k per-memory gradients from one backward pass
     batched over the k losses (``is_grads_batched``): fewer kernel launches (2.9x at k = 5, 1.8x at k = 3) for k times
-    the backward arithmetic. On an H200 2.9x faster at k = 5, batch 8, but not in the presets' streams (k = 2-3,
-    batch 32: up to 1.7x slower); slower on the CPU. The same values up to float summation order (our choice; off by
-    default; docs/BENCHMARKS.md)."""
+    the backward arithmetic. On an H200 2.9x faster at k = 5, batch 8, but not in the two-minute preset's stream
+    (k = 2-3, batch 32: up to 1.7x slower); slower on the CPU. The same values up to float summation order (our
+    choice; off by default; docs/BENCHMARKS.md)."""
 
     def __post_init__(self) -> None:
         checks = {  # rule text, holds
