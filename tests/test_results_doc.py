@@ -175,3 +175,30 @@ def test_the_vision_test_h4_and_its_first_lines_recompute(text):
     assert f"(BWT {np.mean(bwt['sr']):+.3f} vs {np.mean(bwt['wake_only']):+.3f})" in text
     assert (f"BWT {_signed(bwt['sr'])} for SR" in text and f"against {_signed(bwt['wake_only'])} for wake-only"
             in text)
+
+
+def test_the_vision_summary_numbers_recompute(text):
+    """The vision section's per-skill line (H4) and the baselines' three-seed means, from the committed summary."""
+    import json
+
+    summary = json.loads((DOCS / "results" / "needle_cpu_vision_compare" / "summary" / "summary.json").read_text())
+    variants = summary["variants"]
+    assert [int(x) for x in variants["sr"]["seeds"]] == [0, 1, 2, 3, 4]
+    assert [int(x) for x in variants["mt_joint"]["seeds"]] == [0, 1, 2]
+    final = {v: variants[v]["final_success"] for v in ("sr", "wake_only")}
+    per_skill = ", ".join(f"{skill} {final['sr'][skill]['mean']:.3f} / {final['wake_only'][skill]['mean']:.3f}"
+                          for skill in ("approach", "place", "insert", "regrasp", "pullout"))
+    assert f"SR / wake-only {per_skill};" in text
+
+    def cell(d: dict) -> str:
+        return f"{d['mean']:.3f} +- {d['sem']:.3f}"
+
+    assert f"**sequential BC {cell(variants['sequential_bc']['afsr'])}**" in text
+    assert f"BWT {cell(variants['sequential_bc']['bwt'])})" in text
+    assert f"**MT-Joint {cell(variants['mt_joint']['afsr'])}**" in text
+    paired = summary["paired"]["mt_joint"]["afsr"]
+    assert f"{-paired['mean']:.3f} +- {paired['sem']:.3f} below SR at the same seeds" in text
+    joint = variants["mt_joint"]["final_success"]
+    assert f"place ({cell(joint['place'])}:" in text and f"insert ({cell(joint['insert'])})" in text
+    own = {v: variants[v]["success_after_own_wake"]["insert"] for v in ("sequential_bc", "wake_only")}
+    assert f"({cell(own['sequential_bc'])}, against {cell(own['wake_only'])} for wake-only" in text
