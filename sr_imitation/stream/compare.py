@@ -32,6 +32,7 @@ from typing import Any
 
 from sr_imitation.io import read_json
 from sr_imitation.stream.rundir import PROGRESS_FILE, read_progress
+from sr_imitation.stream.status import find_runs, is_run  # the same run search as status (one or two levels down)
 
 RESULTS_KEYS = ("success_matrix", "success_matrix_per_unit", "success_after_own_wake",
                 "success_after_own_wake_per_unit", "metrics", "memory_bytes", "skills", "stages")
@@ -54,8 +55,6 @@ def leaves(value: Any, path: str = "") -> Iterator[tuple[str, Any]]:
 
 def measured(run: Path) -> dict[str, Any]:
     """What ``run`` measured (see the module docstring), keyed by source file and path."""
-    from sr_imitation.stream.status import is_run
-
     if not is_run(run):
         raise FileNotFoundError(f"{run}: not a run directory (no {PROGRESS_FILE})")
     progress = run / PROGRESS_FILE  # a run that has started and recorded no phase has measured nothing yet
@@ -142,8 +141,6 @@ def _agrees(report: dict[str, Any]) -> bool:
 def compare_folders(folder_a: Path, folder_b: Path, tol: float = 0.0) -> tuple[str, bool]:
     """Two folders of runs (grids' ``output_root``, archives): the runs of the same name paired, one row each, and
     whether every pair agrees and both folders hold the same runs."""
-    from sr_imitation.stream.status import find_runs  # the same search as status (one or two levels down)
-
     runs_a, runs_b = ({r.relative_to(f).as_posix(): r for r in find_runs([f])} for f in (folder_a, folder_b))
     lines = ["| run | values compared | differing | largest numeric difference | verdict |", "|---" * 5 + "|"]
     ok = runs_a.keys() == runs_b.keys()
@@ -165,8 +162,6 @@ def main(args: list[str] | None = None) -> int:
     parser.add_argument("--show", type=int, default=20, help="differences printed")
     ns = parser.parse_args(args)
     run_a, run_b = Path(ns.run_a), Path(ns.run_b)
-    from sr_imitation.stream.status import is_run
-
     if not is_run(run_a) and not is_run(run_b):
         table, ok = compare_folders(run_a, run_b, ns.tol)
         print(f"A = {run_a}\nB = {run_b}\n" + table, end="")  # noqa: T201 (command output)
