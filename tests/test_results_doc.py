@@ -202,3 +202,25 @@ def test_the_vision_summary_numbers_recompute(text):
     assert f"place ({cell(joint['place'])}:" in text and f"insert ({cell(joint['insert'])})" in text
     own = {v: variants[v]["success_after_own_wake"]["insert"] for v in ("sequential_bc", "wake_only")}
     assert f"({cell(own['sequential_bc'])}, against {cell(own['wake_only'])} for wake-only" in text
+
+
+def test_the_vision_oracle_at_twice_the_steps_rows_recompute():
+    """The exploratory MT-Joint 2x table: each filled cell against its run (1x and SR: the pre-registered archive)."""
+    import json
+
+    results = DOCS / "results"
+    lines = (DOCS / "RESULTS.md").read_text().splitlines()
+    start = lines.index("| training seed | MT-Joint, 9000 steps | MT-Joint, 18,000 steps | SR |")
+    rows = lines[start + 2:start + 5]
+    assert [int(r.split("|")[1]) for r in rows] == [0, 1, 2]
+    for line in rows:
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        seed = int(cells[0])
+        for cell, run in zip(cells[1:], (results / "needle_cpu_vision_compare" / f"mt_joint_seed{seed}",
+                                         results / "needle_cpu_vision_mtj_long" / f"mt_joint_seed{seed}",
+                                         results / "needle_cpu_vision_compare" / f"sr_seed{seed}"), strict=True):
+            if not (run / "results.json").is_file():
+                assert cell == "running", line
+                continue
+            afsr = json.loads((run / "results.json").read_text())["metrics"]["afsr"]
+            assert cell == f"{afsr['final']:.3f} +- {afsr['final_sem']:.3f}", line
