@@ -224,3 +224,13 @@ def test_the_vision_oracle_at_twice_the_steps_rows_recompute():
                 continue
             afsr = json.loads((run / "results.json").read_text())["metrics"]["afsr"]
             assert cell == f"{afsr['final']:.3f} +- {afsr['final_sem']:.3f}", line
+    import numpy as np
+
+    text = re.sub(r"\s+", " ", (DOCS / "RESULTS.md").read_text())
+    long_ = [json.loads((results / "needle_cpu_vision_mtj_long" / f"mt_joint_seed{s}" / "results.json").read_text())
+             ["metrics"]["afsr"]["final"] for s in range(3)]
+    sr = [json.loads((results / "needle_cpu_vision_compare" / f"sr_seed{s}" / "results.json").read_text())
+          ["metrics"]["afsr"]["final"] for s in range(3)]
+    diffs = np.array(long_) - np.array(sr)
+    assert f"MT-Joint at 18,000 steps is {_mean_se(long_)}" in text
+    assert f"paired to SR {_signed(list(diffs))}" in text
