@@ -4,9 +4,11 @@ from its raw file fails here (session 29 found a per-seed line that had)."""
 
 from __future__ import annotations
 
+import json
 import re
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_values, run_tests
@@ -24,9 +26,28 @@ def text() -> str:
 
 
 def _mean_se(values: list[float]) -> str:
-    import numpy as np
-
     return f"{np.mean(values):.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
+
+
+def _table_rows(header: str) -> list[list[str]]:
+    """The cells of a RESULTS table's rows: the lines after ``header`` and its rule, up to the first non-table line."""
+    lines = (DOCS / "RESULTS.md").read_text().splitlines()
+    rows = []
+    for line in lines[lines.index(header) + 2:]:
+        if not line.startswith("| "):
+            break
+        rows.append([c.strip() for c in line.strip("|").split("|")])
+    return rows
+
+
+def _metrics(run: Path) -> dict | None:
+    """A run's ``results.json`` metrics, or None while it has not finished."""
+    path = run / "results.json"
+    return json.loads(path.read_text())["metrics"] if path.is_file() else None
+
+
+def _afsr_cell(metrics: dict) -> str:
+    return f"{metrics['afsr']['final']:.3f} +- {metrics['afsr']['final_sem']:.3f}"
 
 
 def test_the_first_paragraph_and_the_tests_recompute(text):
@@ -59,8 +80,6 @@ def test_table_2_rows_and_the_per_seed_line_recompute(text):
 
 
 def _signed(values: list[float]) -> str:
-    import numpy as np
-
     return f"{np.mean(values):+.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
 
 
@@ -83,83 +102,59 @@ def test_the_memory_budget_table_recomputes(text):
 
 def test_the_vision_rows_so_far_recompute():
     """Every filled cell of the vision table's "Runs so far" rows (typed in as each run landed) against its run."""
-    import json
-
     from sr_imitation.stream.summary import phase_seconds
 
     archive = DOCS / "results" / "needle_cpu_vision_compare"
-    lines = (DOCS / "RESULTS.md").read_text().splitlines()
-    start = lines.index("| training seed | SR | wake-only | SR - wake-only | SR BWT / BWT_wake | "
-                        "wake-only BWT / BWT_wake | minutes SR / wake-only |")
-    rows = []
-    for line in lines[start + 2:]:  # the table's rows: up to its first non-table line
-        if not line.startswith("| "):
-            break
-        rows.append(line)
+    rows = _table_rows("| training seed | SR | wake-only | SR - wake-only | SR BWT / BWT_wake | "
+                       "wake-only BWT / BWT_wake | minutes SR / wake-only |")
     assert len(rows) >= 5
-    for line in rows:
-        cells = [c.strip() for c in line.strip("|").split("|")]
+    for cells in rows:
         seed = int(cells[0].split()[0])
         runs = {v: archive / f"{v}_seed{seed}" for v in ("sr", "wake_only")}
-        found = {v: json.loads((r / "results.json").read_text())["metrics"] for v, r in runs.items()
-                 if (r / "results.json").is_file()}
+        found = {v: m for v, r in runs.items() if (m := _metrics(r)) is not None}
         minutes = cells[6].split(" / ")
         for v, afsr_cell, bwt_cell, minute in (("sr", cells[1], cells[4], minutes[0]),
                                                ("wake_only", cells[2], cells[5], minutes[1])):
             if v not in found:
-                assert afsr_cell in ("running", "queued") and minute == "-", line
+                assert afsr_cell in ("running", "queued") and minute == "-", cells
                 continue
             m = found[v]
-            assert afsr_cell == f"{m['afsr']['final']:.3f} +- {m['afsr']['final_sem']:.3f}", line
-            assert bwt_cell == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", line
-            assert minute == f"{phase_seconds(runs[v]) / 60:.1f}", line
+            assert afsr_cell == _afsr_cell(m), cells
+            assert bwt_cell == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", cells
+            assert minute == f"{phase_seconds(runs[v]) / 60:.1f}", cells
         if len(found) == 2:
-            assert cells[3] == f"{found['sr']['afsr']['final'] - found['wake_only']['afsr']['final']:+.3f}", line
+            assert cells[3] == f"{found['sr']['afsr']['final'] - found['wake_only']['afsr']['final']:+.3f}", cells
 
 
 def test_the_vision_baseline_rows_so_far_recompute():
     """Every filled cell of the vision table's "Baselines so far" rows against its run (and SR's at the same seed)."""
-    import json
-
     from sr_imitation.stream.summary import phase_seconds
 
     archive = DOCS / "results" / "needle_cpu_vision_compare"
-    lines = (DOCS / "RESULTS.md").read_text().splitlines()
-    start = lines.index("| variant | training seed | final AFSR | AFSR - SR (same seed) | BWT / BWT_wake | minutes |")
-    rows = []
-    for line in lines[start + 2:]:
-        if not line.startswith("| "):
-            break
-        rows.append(line)
+    rows = _table_rows("| variant | training seed | final AFSR | AFSR - SR (same seed) | BWT / BWT_wake | minutes |")
     variants = {"sequential BC": "sequential_bc", "MT-Joint": "mt_joint"}
-    assert sorted((r.split("|")[1].strip(), r.split("|")[2].strip()) for r in rows) == sorted(
+    assert sorted((cells[0], cells[1]) for cells in rows) == sorted(
         (name, str(seed)) for name in variants for seed in range(3))
-    for line in rows:
-        cells = [c.strip() for c in line.strip("|").split("|")]
+    for cells in rows:
         variant, seed = variants[cells[0]], int(cells[1])
         run = archive / f"{variant}_seed{seed}"
-        if not (run / "results.json").is_file():
-            assert cells[2] in ("running", "queued") and cells[5] == "-", line
+        m = _metrics(run)
+        if m is None:
+            assert cells[2] in ("running", "queued") and cells[5] == "-", cells
             continue
-        m = json.loads((run / "results.json").read_text())["metrics"]
-        assert cells[2] == f"{m['afsr']['final']:.3f} +- {m['afsr']['final_sem']:.3f}", line
-        sr = archive / f"sr_seed{seed}" / "results.json"
-        if sr.is_file():
-            sr_afsr = json.loads(sr.read_text())["metrics"]["afsr"]["final"]
-            assert cells[3] == f"{m['afsr']['final'] - sr_afsr:+.3f}", line
+        assert cells[2] == _afsr_cell(m), cells
+        sr = _metrics(archive / f"sr_seed{seed}")
+        if sr is not None:
+            assert cells[3] == f"{m['afsr']['final'] - sr['afsr']['final']:+.3f}", cells
         if variant == "mt_joint":
-            assert cells[4] == "n/a", line
+            assert cells[4] == "n/a", cells
         else:
-            assert cells[4] == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", line
-        assert cells[5] == f"{phase_seconds(run) / 60:.1f}", line
+            assert cells[4] == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", cells
+        assert cells[5] == f"{phase_seconds(run) / 60:.1f}", cells
 
 
 def test_the_vision_test_h4_and_its_first_lines_recompute(text):
     """H4 (pre-registered): its table row and the first paragraph's vision sentence, from the vision archive."""
-    import json
-
-    import numpy as np
-
     archive = DOCS / "results" / "needle_cpu_vision_compare"
     (h4,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only"]))
     assert h4["seeds"] == [0, 1, 2, 3, 4]
@@ -170,8 +165,7 @@ def test_the_vision_test_h4_and_its_first_lines_recompute(text):
             f"training seeds, every pair positive, one-sided paired t-test p = {h4['p']:.4f}") in text
     assert min(a - b for a, b in zip(sr, wake, strict=True)) > 0
     assert f"[{h4['ci_low']:+.3f}, {h4['ci_high']:+.3f}]); the gain is retention" in text
-    bwt = {v: [json.loads((archive / f"{v}_seed{s}" / "results.json").read_text())["metrics"]["bwt"]["final"]
-               for s in range(5)] for v in ("sr", "wake_only")}
+    bwt = {v: list(archived_values(archive, v, "bwt").values()) for v in ("sr", "wake_only")}
     assert f"(BWT {np.mean(bwt['sr']):+.3f} vs {np.mean(bwt['wake_only']):+.3f})" in text
     assert (f"BWT {_signed(bwt['sr'])} for SR" in text and f"against {_signed(bwt['wake_only'])} for wake-only"
             in text)
@@ -179,8 +173,6 @@ def test_the_vision_test_h4_and_its_first_lines_recompute(text):
 
 def test_the_vision_summary_numbers_recompute(text):
     """The vision section's per-skill line (H4) and the baselines' three-seed means, from the committed summary."""
-    import json
-
     summary = json.loads((DOCS / "results" / "needle_cpu_vision_compare" / "summary" / "summary.json").read_text())
     variants = summary["variants"]
     assert [int(x) for x in variants["sr"]["seeds"]] == [0, 1, 2, 3, 4]
@@ -204,33 +196,19 @@ def test_the_vision_summary_numbers_recompute(text):
     assert f"({cell(own['sequential_bc'])}, against {cell(own['wake_only'])} for wake-only" in text
 
 
-def test_the_vision_oracle_at_twice_the_steps_rows_recompute():
+def test_the_vision_oracle_at_twice_the_steps_rows_recompute(text):
     """The exploratory MT-Joint 2x table: each filled cell against its run (1x and SR: the pre-registered archive)."""
-    import json
-
-    results = DOCS / "results"
-    lines = (DOCS / "RESULTS.md").read_text().splitlines()
-    start = lines.index("| training seed | MT-Joint, 9000 steps | MT-Joint, 18,000 steps | SR |")
-    rows = lines[start + 2:start + 5]
-    assert [int(r.split("|")[1]) for r in rows] == [0, 1, 2]
-    for line in rows:
-        cells = [c.strip() for c in line.strip("|").split("|")]
+    compare = DOCS / "results" / "needle_cpu_vision_compare"
+    long_archive = DOCS / "results" / "needle_cpu_vision_mtj_long"
+    rows = _table_rows("| training seed | MT-Joint, 9000 steps | MT-Joint, 18,000 steps | SR |")
+    assert [int(cells[0]) for cells in rows] == [0, 1, 2]
+    for cells in rows:
         seed = int(cells[0])
-        for cell, run in zip(cells[1:], (results / "needle_cpu_vision_compare" / f"mt_joint_seed{seed}",
-                                         results / "needle_cpu_vision_mtj_long" / f"mt_joint_seed{seed}",
-                                         results / "needle_cpu_vision_compare" / f"sr_seed{seed}"), strict=True):
-            if not (run / "results.json").is_file():
-                assert cell == "running", line
-                continue
-            afsr = json.loads((run / "results.json").read_text())["metrics"]["afsr"]
-            assert cell == f"{afsr['final']:.3f} +- {afsr['final_sem']:.3f}", line
-    import numpy as np
-
-    text = re.sub(r"\s+", " ", (DOCS / "RESULTS.md").read_text())
-    long_ = [json.loads((results / "needle_cpu_vision_mtj_long" / f"mt_joint_seed{s}" / "results.json").read_text())
-             ["metrics"]["afsr"]["final"] for s in range(3)]
-    sr = [json.loads((results / "needle_cpu_vision_compare" / f"sr_seed{s}" / "results.json").read_text())
-          ["metrics"]["afsr"]["final"] for s in range(3)]
-    diffs = np.array(long_) - np.array(sr)
+        for cell, run in zip(cells[1:], (compare / f"mt_joint_seed{seed}", long_archive / f"mt_joint_seed{seed}",
+                                         compare / f"sr_seed{seed}"), strict=True):
+            m = _metrics(run)
+            assert cell == ("running" if m is None else _afsr_cell(m)), cells
+    long_ = [_metrics(long_archive / f"mt_joint_seed{s}")["afsr"]["final"] for s in range(3)]
+    sr = [_metrics(compare / f"sr_seed{s}")["afsr"]["final"] for s in range(3)]
     assert f"MT-Joint at 18,000 steps is {_mean_se(long_)}" in text
-    assert f"paired to SR {_signed(list(diffs))}" in text
+    assert f"paired to SR {_signed(list(np.array(long_) - np.array(sr)))}" in text

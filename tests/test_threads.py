@@ -39,3 +39,17 @@ def test_the_warning_is_logged_from_this_machine_s_load(monkeypatch, caplog):
 
     monkeypatch.setattr(threads.os, "getloadavg", unknown)
     assert warn_if_oversubscribed(logging.getLogger("t"), 2) is None
+
+
+def test_set_torch_threads_sets_the_number_checks_it_and_keeps_the_default_for_none(monkeypatch):
+    import torch
+
+    checked = []
+    monkeypatch.setattr(threads, "warn_if_oversubscribed", lambda logger, n: checked.append(n))
+    before = torch.get_num_threads()
+    try:
+        assert threads.set_torch_threads(1, logging.getLogger("t")) == 1 == torch.get_num_threads()
+        assert threads.set_torch_threads(None, logging.getLogger("t")) == 1  # None keeps what is in effect
+        assert checked == [1, 1]
+    finally:
+        torch.set_num_threads(before)

@@ -50,7 +50,7 @@ from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, make_en
 from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
 from sr_imitation.imitation.wake import validation_l1, wake_train
 from sr_imitation.infra import distributed
-from sr_imitation.infra.threads import warn_if_oversubscribed
+from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import (
     CorruptFileError,
     atomic_write_json,
@@ -143,9 +143,7 @@ class ACTSubstrate:
 
     # -- set-up ------------------------------------------------------------------------------------------
     def setup(self) -> None:
-        if self.cfg.torch_threads is not None:
-            torch.set_num_threads(self.cfg.torch_threads)
-        warn_if_oversubscribed(logger, torch.get_num_threads())
+        set_torch_threads(self.cfg.torch_threads, logger)
         first_meta = load_metadata(self.cfg.stream.dataset_path(0), self.cfg.stream.repo_id(0))
         inputs, outputs = policy_features(first_meta, self.policy_cfg.use_images)
         self.policy_cfg.input_features, self.policy_cfg.output_features = inputs, outputs

@@ -5,13 +5,15 @@ processes keep the cores busy, each split waits for a descheduled thread. Measur
 docs/RESULTS.md): the CPU main job with torch's default of 2 threads beside one single-thread run took 487 s for its
 first wake (102 s with 1 thread beside two runs) and 5.5-7.5 s per sleep iteration (127 ms). Checked once at the start
 of a run from the 1-minute load average; only a warning (the thread count is a setting, fingerprinted, and a busy
-machine may become idle). Standard library only (``torch`` is asked by the caller).
+machine may become idle). Every runner sets its thread count through :func:`set_torch_threads`, which checks.
 """
 
 from __future__ import annotations
 
 import logging
 import os
+
+import torch
 
 
 def oversubscription(threads: int, load: float, cores: int) -> str | None:
@@ -34,3 +36,12 @@ def warn_if_oversubscribed(logger: logging.Logger, threads: int) -> str | None:
     if message:
         logger.warning(message)
     return message
+
+
+def set_torch_threads(threads: int | None, logger: logging.Logger) -> int:
+    """Set torch's intra-op threads to ``threads`` (None: keep this process's default, e.g. OMP_NUM_THREADS), warn
+    if they would share busy cores (:func:`warn_if_oversubscribed`), and return the number in effect."""
+    if threads is not None:
+        torch.set_num_threads(threads)
+    warn_if_oversubscribed(logger, torch.get_num_threads())
+    return torch.get_num_threads()

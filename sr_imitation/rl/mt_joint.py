@@ -27,7 +27,7 @@ import torch
 
 from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.infra.provenance import log_code_version
-from sr_imitation.infra.threads import warn_if_oversubscribed
+from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
 from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
@@ -104,8 +104,7 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
                        cfg.overwrite)
     run.prepare()
     log_code_version(logger)
-    torch.set_num_threads(cfg.torch_threads)
-    warn_if_oversubscribed(logger, torch.get_num_threads())
+    set_torch_threads(cfg.torch_threads, logger)
     torch.manual_seed(seed_sequence(cfg.seed, len(cfg.stream_skills), 1))
     agent = SACAgent(cfg.sac, cfg.excitability, device=cfg.device)
     skills = cfg.stream_skills

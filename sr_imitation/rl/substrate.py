@@ -33,7 +33,7 @@ from sr_imitation.core.excitability import activity_recording_off, update_excita
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.metrics import policy_motion
 from sr_imitation.infra.runlog import RunLog
-from sr_imitation.infra.threads import warn_if_oversubscribed
+from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import (
     CorruptFileError,
     load_checked_safetensors,
@@ -83,8 +83,7 @@ class SACSubstrate:
 
     # -- set-up and seeding ---------------------------------------------------------------------------------
     def setup(self) -> None:
-        torch.set_num_threads(self.cfg.torch_threads)
-        warn_if_oversubscribed(logger, torch.get_num_threads())
+        set_torch_threads(self.cfg.torch_threads, logger)
         torch.manual_seed(seed_sequence(self.cfg.seed, len(self.skills), 1))  # network initialization
         self.agent = SACAgent(self.cfg.sac, self.cfg.excitability, device=self.cfg.device)
         if self._videos and (reason := rendering_unavailable()) is not None:
