@@ -102,24 +102,26 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
     stored = joint_stored_config(cfg)
     inputs = stream_inputs(cfg)
     run = RunDirectory(cfg.output_dir, joint_fingerprint(cfg, inputs), "train_config.json", stored, cfg.resume,
-                       cfg.overwrite, check_inputs=inputs_check(cfg, inputs))
+                       cfg.overwrite, check_inputs=inputs_check(cfg, inputs),
+                       inputs=[cfg.stream.dataset_path(i) for i in range(len(cfg.stream.skills))])
     run.prepare()
     log_code_version(logger)
     substrate = JointSubstrate(cfg, make_env)
-    substrate.setup()
-    skills = substrate.skills
-    if not run.done(0, "wake"):
-        substrate.begin_phase(0, "wake", substrate.phase_seed(0, "wake"))
-        t0 = time.perf_counter()
-        result = wake_train(substrate.policy, substrate.preprocessor, union_data(substrate), joint_wake(cfg),
-                            substrate.phase_seed(0, "wake"), cfg.progress)
-        history = dataclasses.asdict(result)
-        substrate.save_policy(0, "wake", {"wake_history.json": history})
-        run.mark(0, "wake", {"seconds": time.perf_counter() - t0, "epochs": result.epochs,
-                              "best_epoch": result.best_epoch, "best_val_l1": result.best_val_l1,
-                              "steps": result.steps})
-    else:
-        substrate.load_policy(0, "wake")
+    with run.undo_on_error():  # a run --overwrite replaced comes back if the start fails
+        substrate.setup()
+        skills = substrate.skills
+        if not run.done(0, "wake"):
+            substrate.begin_phase(0, "wake", substrate.phase_seed(0, "wake"))
+            t0 = time.perf_counter()
+            result = wake_train(substrate.policy, substrate.preprocessor, union_data(substrate), joint_wake(cfg),
+                                substrate.phase_seed(0, "wake"), cfg.progress)
+            history = dataclasses.asdict(result)
+            substrate.save_policy(0, "wake", {"wake_history.json": history})
+            run.mark(0, "wake", {"seconds": time.perf_counter() - t0, "epochs": result.epochs,
+                                  "best_epoch": result.best_epoch, "best_val_l1": result.best_val_l1,
+                                  "steps": result.steps})
+        else:
+            substrate.load_policy(0, "wake")
     if not run.done(0, "wake.eval"):
         substrate.begin_phase(0, "wake.eval", substrate.phase_seed(0, "wake.eval"))
         run.mark(0, "wake.eval", substrate.evaluate(0, "wake.eval", list(range(len(skills)))))

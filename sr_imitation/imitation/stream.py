@@ -68,7 +68,8 @@ class StreamTrainer(StreamRun):
         inputs = stream_inputs(cfg)
         stored = stored_config_dict(cfg)
         super().__init__(cfg, substrate, fingerprint=resume_fingerprint(cfg, inputs), stored_config=stored,
-                         check_inputs=inputs_check(cfg, inputs), after_phase=after_phase)
+                         check_inputs=inputs_check(cfg, inputs), after_phase=after_phase,
+                         inputs=[cfg.stream.dataset_path(i) for i in range(len(cfg.stream.skills))])
         self.cfg: TrainStreamConfig = cfg
         self.substrate: ACTSubstrate = substrate
         substrate.train_config = stored

@@ -103,28 +103,29 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
     run = RunDirectory(out, settings_fingerprint(stored, RESUME_ALLOW_LIST), RUN_CONFIG_FILE, stored, cfg.resume,
                        cfg.overwrite)
     run.prepare()
-    log_code_version(logger)
-    set_torch_threads(cfg.torch_threads, logger)
-    torch.manual_seed(seed_sequence(cfg.seed, len(cfg.stream_skills), 1))
-    agent = SACAgent(cfg.sac, cfg.excitability, device=cfg.device)
-    skills = cfg.stream_skills
-    checkpoint = out / "agent.safetensors"
-    header = {"format": "sr_imitation.rl.mt_joint", "seed": cfg.seed, "skills": list(skills)}
-    if not run.done(0, "train"):
-        seed = seed_sequence(cfg.seed, 0)
-        torch.manual_seed(seed % (2**63))
-        np.random.seed(seed % (2**32))
-        t0 = time.perf_counter()
-        with MultiSkillEnv(skills, seed, cfg.max_episode_steps) as env:
-            wake, _ = train_skill(agent, env, 0, cfg.sac, cfg.wake, cfg.excitability, cfg.memory, seed=seed,
-                                  progress=cfg.progress)
-        tensors = {n: t.reshape(-1) if t.ndim == 0 else t for n, t in agent.state_dict().items()}
-        save_checked_safetensors(checkpoint, tensors, header)
-        run.mark(0, "train", {"wake": wake.summary(), "seconds": time.perf_counter() - t0})
-    else:
-        tensors, _ = load_checked_safetensors(checkpoint)
-        shapes = {n: t.shape for n, t in agent.state_dict().items()}
-        agent.load_state_dict({n: t.reshape(shapes[n]) for n, t in tensors.items()})
+    with run.undo_on_error():  # a run --overwrite replaced comes back if the start fails
+        log_code_version(logger)
+        set_torch_threads(cfg.torch_threads, logger)
+        torch.manual_seed(seed_sequence(cfg.seed, len(cfg.stream_skills), 1))
+        agent = SACAgent(cfg.sac, cfg.excitability, device=cfg.device)
+        skills = cfg.stream_skills
+        checkpoint = out / "agent.safetensors"
+        header = {"format": "sr_imitation.rl.mt_joint", "seed": cfg.seed, "skills": list(skills)}
+        if not run.done(0, "train"):
+            seed = seed_sequence(cfg.seed, 0)
+            torch.manual_seed(seed % (2**63))
+            np.random.seed(seed % (2**32))
+            t0 = time.perf_counter()
+            with MultiSkillEnv(skills, seed, cfg.max_episode_steps) as env:
+                wake, _ = train_skill(agent, env, 0, cfg.sac, cfg.wake, cfg.excitability, cfg.memory, seed=seed,
+                                      progress=cfg.progress)
+            tensors = {n: t.reshape(-1) if t.ndim == 0 else t for n, t in agent.state_dict().items()}
+            save_checked_safetensors(checkpoint, tensors, header)
+            run.mark(0, "train", {"wake": wake.summary(), "seconds": time.perf_counter() - t0})
+        else:
+            tensors, _ = load_checked_safetensors(checkpoint)
+            shapes = {n: t.shape for n, t in agent.state_dict().items()}
+            agent.load_state_dict({n: t.reshape(shapes[n]) for n, t in tensors.items()})
     if not run.done(0, "eval"):
         rows = []
         for skill in skills:

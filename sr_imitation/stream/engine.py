@@ -115,14 +115,15 @@ class StreamEngine:
         fresh = self.run_dir.starts_fresh()
         source = self._check_extension() if self.extend_from is not None and fresh else None  # before writing
         self.run_dir.prepare()
-        if source is not None:
-            self._import_stages(*source)
-        self.log = RunLog(self.run_dir.path, self.wandb, self.log_config)
-        self.substrate.run_log = self.log
-        try:
-            return self._run(last, report)
-        finally:
-            self.log.close()
+        with self.run_dir.undo_on_error():  # a run --overwrite replaced comes back if the start fails
+            if source is not None:
+                self._import_stages(*source)
+            self.log = RunLog(self.run_dir.path, self.wandb, self.log_config)
+            self.substrate.run_log = self.log
+            try:
+                return self._run(last, report)
+            finally:
+                self.log.close()
 
     def _run(self, last: int, report: bool = True) -> dict[str, Any]:
         self.substrate.setup()

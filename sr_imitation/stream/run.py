@@ -16,7 +16,7 @@ engine, the saved config's name, resume) is here, once.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -39,19 +39,21 @@ class StreamRun:
             before anything is written).
         stored_config: the configuration saved as ``train_config.json`` (and logged).
         check_inputs: checks the run's recorded inputs on resume (datasets by content), or ``None``.
+        inputs: the paths the run reads (datasets; ``stream.extend_from`` is added here): the output directory may
+            neither lie inside one nor, with ``--overwrite``, hold one.
         after_phase: called with ``(k, phase)`` after each newly completed phase, after :meth:`on_phase` (tests
             raise there to simulate a killed run).
     """
 
     def __init__(self, cfg: RunConfig, substrate: Substrate, *, fingerprint: SettingsFingerprint,
                  stored_config: dict[str, Any], check_inputs: Callable[..., Any] | None = None,
-                 after_phase: Callable[[int, str], None] | None = None) -> None:
+                 after_phase: Callable[[int, str], None] | None = None, inputs: Sequence[Path] = ()) -> None:
         self.cfg = cfg
         self.out = Path(cfg.output_dir)
         self.substrate = substrate
         self.method: ContinualMethod = make_method(cfg.method, substrate.name, substrate.method_settings())
         self.run_dir = RunDirectory(self.out, fingerprint, RUN_CONFIG_FILE, stored_config, cfg.resume, cfg.overwrite,
-                                    check_inputs=check_inputs)
+                                    check_inputs=check_inputs, inputs=[*inputs, cfg.stream.extend_from])
         self.after_phase = after_phase
         self.engine = StreamEngine(substrate, self.method, self.run_dir, cfg.progress, self._after_phase,
                                    wandb=cfg.wandb, log_config=stored_config,

@@ -7,14 +7,26 @@ left by a killed atomic write are removed. Nothing stored at the start is ever r
 
 ``progress.json`` records every completed phase under ``"<stage>.<phase>"`` (1-based stage), written atomically
 after the phase's files, so a phase is either recorded with all its outputs or redone.
+
+Overwrite (``--overwrite=true``) never deletes what a user owns. The directory is replaced only if it is a run of
+this package, recognised by its own files (:func:`run_entries_problem`: its settings fingerprint, or the progress
+and config of a run from before fingerprints, and nothing at its top level that no run writes), and only if it
+neither is, holds, nor lies inside one of the run's inputs (:func:`check_not_an_input`). :meth:`RunDirectory.prepare`
+runs after the substrate has checked every input; the old run is then renamed to a hidden sibling
+(``.<name>.replaced-<time>``), deleted once the new run has recorded its first phase, and renamed back if the start
+fails before that (:meth:`RunDirectory.restore_replaced`). A directory holding only what a killed atomic write
+leaves (the fingerprint's temporary file) holds no run: a plain start proceeds there.
 """
 
 from __future__ import annotations
 
+import contextlib
+import fnmatch
 import logging
 import os
 import shutil
-from collections.abc import Callable, Mapping
+import time
+from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -54,6 +66,71 @@ LAST_POINTER = "last"
 TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")
 """Names of what an interrupted atomic write leaves (temp files of ``atomic_write_bytes``, staging directories of
 checkpoints): removed on resume, never read."""
+RUN_ENTRIES = (FINGERPRINT_FILE, RUN_CONFIG_FILE, *LEGACY_CONFIG_FILES, PROGRESS_FILE, *REGENERATED_FILES,
+               "results.md", "*.png", "log.jsonl", "wandb", "videos", LAST_POINTER, "memories", "stages",
+               "skill_*_*", "stream_stats.safetensors", "agent.safetensors", "expert_suture.mp4")
+"""What a run of this package writes at its top level (fnmatch patterns: the stream engine's files, the ACT
+substrate's ``skill_<k>_<skill>`` stage folders, ``memories/``, statistics and ``last`` link, the SAC substrate's
+``stages/``, the oracles' ``agent.safetensors``, ``sr-main``'s expert video), besides :data:`TEMPORARY_PATTERNS`.
+``--overwrite`` refuses a directory holding anything else: it is not only a run."""
+REPLACED_MARK = ".replaced-"
+"""``.<name>.replaced-<time>``: where ``--overwrite`` keeps the old run until the new one has recorded a phase."""
+
+
+class OverwriteRefusedError(ValueError):
+    """``--overwrite=true`` on a directory that is not a run of this package, or that holds the run's inputs: one
+    line naming it; nothing was removed."""
+
+
+def _inside(path: Path, directory: Path) -> bool:
+    """Whether ``path`` is ``directory`` or below it (both resolved: links and ``..`` followed)."""
+    path, directory = Path(path).resolve(), Path(directory).resolve()
+    return path == directory or directory in path.parents
+
+
+def check_not_an_input(path: Path, inputs: Iterable[Path], overwrite: bool) -> None:
+    """Refuse an output directory that lies inside one of ``inputs`` (the run would write into its own data, whose
+    content identity it records) or, with ``overwrite``, one that is or holds an input (replacing it would delete
+    the data the run reads): :class:`OverwriteRefusedError` naming both."""
+    for source in inputs:
+        if source is None:
+            continue
+        source = Path(source)
+        if source.exists() and _inside(path, source):
+            raise OverwriteRefusedError(
+                f"output_dir {path} lies inside the input {source}; choose an output_dir outside the run's inputs")
+        if overwrite and _inside(source, path):
+            raise OverwriteRefusedError(
+                f"{path}: --overwrite=true refused: it holds the input {source}, which replacing it would delete; "
+                "choose another output_dir (nothing was removed)")
+
+
+START_LEFTOVER = f".{FINGERPRINT_FILE}.*.tmp"
+"""The temporary file of a start killed while writing its fingerprint (the run's first file): a directory holding
+only such files holds no run (:meth:`RunDirectory.occupied`)."""
+
+
+def _is_temporary(name: str) -> bool:
+    return any(fnmatch.fnmatchcase(name, pattern) for pattern in TEMPORARY_PATTERNS)
+
+
+def run_entries_problem(path: Path, entries: Iterable[str] = ()) -> str | None:
+    """Why the occupied directory ``path`` is not recognisably a run of this package (``None`` if it is): it holds
+    neither a settings fingerprint nor the progress and config of a run written before fingerprints, or it holds
+    an entry no run writes (:data:`RUN_ENTRIES`, and ``entries``: patterns another substrate writes)."""
+    patterns = (*RUN_ENTRIES, *entries)
+    path = Path(path)
+    if not path.is_dir() or path.is_symlink():
+        return "not a directory"
+    names = sorted(p.name for p in path.iterdir())
+    has_config = any(n in names for n in (RUN_CONFIG_FILE, *LEGACY_CONFIG_FILES))
+    if FINGERPRINT_FILE not in names and not (PROGRESS_FILE in names and has_config):
+        return f"it holds no {FINGERPRINT_FILE}, so it is not a run of this package"
+    foreign = [n for n in names if not _is_temporary(n) and not any(fnmatch.fnmatchcase(n, p) for p in patterns)]
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        return f"it holds {shown}, which no run writes"
+    return None
 
 
 def point_last(run: Path, checkpoint: Path) -> None:
@@ -97,6 +174,10 @@ class RunDirectory:
         check_inputs: ``check_inputs(fingerprint_file, stored_settings)`` is called on resume before the settings
             are compared, to refuse other input data with its own message (the ACT substrate's datasets:
             :func:`sr_imitation.imitation.dataset_identity.check_inputs`).
+        inputs: the paths the run reads (datasets, a run it extends): the directory may not lie inside one, nor, to
+            be replaced, be or hold one (:func:`check_not_an_input`).
+        entries: top-level names (fnmatch patterns) the substrate writes beyond :data:`RUN_ENTRIES`, for
+            recognising a run ``overwrite`` may replace.
 
     A directory without ``settings_fingerprint.json`` is never resumed: the fingerprint is written first, before
     anything else, so its absence means the run was not made by this code or the file was deleted (one line naming
@@ -105,7 +186,8 @@ class RunDirectory:
 
     def __init__(self, path: Path, fingerprint: SettingsFingerprint, config_file: str, stored_config: Mapping[str, Any],
                  resume: bool, overwrite: bool,
-                 check_inputs: Callable[[Path, Mapping[str, Any]], None] | None = None) -> None:
+                 check_inputs: Callable[[Path, Mapping[str, Any]], None] | None = None,
+                 inputs: Sequence[Path | None] = (), entries: Sequence[str] = ()) -> None:
         self.path = Path(path)
         self.fingerprint = fingerprint
         self.config_file = config_file
@@ -113,27 +195,40 @@ class RunDirectory:
         self.resume = resume
         self.overwrite = overwrite
         self.check_inputs = check_inputs
+        self.inputs = [Path(p) for p in inputs if p is not None]
+        self.entries = tuple(entries)
         self.progress: dict[str, Any] = {"version": PROGRESS_VERSION, "completed": {}}
+        self.replaced: Path | None = None
+        """The old run ``--overwrite`` renamed aside, until the new run records its first phase."""
 
     # -- set-up -------------------------------------------------------------------------------------------
     @staticmethod
     def occupied(path: Path) -> bool:
-        """Whether ``path`` holds anything: :meth:`prepare` then continues it (``resume``) or replaces it
-        (``overwrite``) and refuses a fresh start. Experiment drivers resume exactly these directories (a run killed
-        before its first phase completed holds only its fingerprint and config)."""
+        """Whether ``path`` holds anything but the temporary fingerprint of a start killed while writing it
+        (:data:`START_LEFTOVER`: such a run has not started): :meth:`prepare`
+        then continues it (``resume``) or replaces it (``overwrite``) and refuses a fresh start. Experiment drivers
+        resume exactly these directories (a run killed before its first phase completed holds only its fingerprint
+        and config)."""
         path = Path(path)
-        return path.exists() and any(path.iterdir())
+        if not path.is_dir():
+            return path.exists() or path.is_symlink()
+        return any(not fnmatch.fnmatchcase(p.name, START_LEFTOVER) for p in path.iterdir())
 
     def starts_fresh(self) -> bool:
         """Whether :meth:`prepare` will start a new run (nothing there yet, or ``overwrite``)."""
         return self.overwrite or not self.occupied(self.path)
 
     def prepare(self) -> None:
-        """Create a fresh run or check a resumed one (see the module docstring)."""
+        """Create a fresh run or check a resumed one (see the module docstring). Call it after every input was
+        checked: with ``overwrite`` the old run is renamed aside here (:meth:`restore_replaced` undoes it)."""
         exists = self.occupied(self.path)
+        check_not_an_input(self.path, self.inputs, self.overwrite and exists)
         if exists and self.overwrite:
-            logger.warning("--overwrite: removing %s", self.path)
-            shutil.rmtree(self.path)
+            problem = run_entries_problem(self.path, self.entries)
+            if problem is not None:
+                raise OverwriteRefusedError(f"{self.path}: --overwrite=true refused: {problem}; remove or move it "
+                                            "yourself, or choose another output_dir (nothing was removed)")
+            self._set_aside()
             exists = False
         elif exists and not self.resume:
             raise FileExistsError(
@@ -151,9 +246,55 @@ class RunDirectory:
             verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, *LEGACY_CONFIG_FILES, FINGERPRINT_FILE))
             self._remove_leftovers()
             return
-        self.path.mkdir(parents=True, exist_ok=True)
-        write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
-        atomic_write_json(self.path / self.config_file, self.stored_config)
+        with self.undo_on_error():
+            try:
+                self.path.mkdir(parents=True, exist_ok=True)
+            except OSError as exc:
+                raise WriteError(self.path, exc) from exc
+            for leftover in sorted(self.path.glob(START_LEFTOVER)):  # a start killed while writing the fingerprint
+                leftover.unlink()
+            write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
+            atomic_write_json(self.path / self.config_file, self.stored_config)
+
+    def _set_aside(self) -> None:
+        """Rename the old run to a hidden sibling (:data:`REPLACED_MARK`), kept until the new run records a phase."""
+        stamp = time.strftime("%Y%m%dT%H%M%S")
+        aside = self.path.with_name(f".{self.path.name}{REPLACED_MARK}{stamp}-{os.getpid()}")
+        try:
+            os.replace(self.path, aside)
+            fsync_directory(self.path.parent)
+        except OSError as exc:
+            raise WriteError(self.path, exc, "nothing was removed") from exc
+        logger.warning("--overwrite: %s renamed to %s; it is deleted once the new run has recorded its first phase "
+                       "and renamed back if the start fails", self.path, aside.name)
+        self.replaced = aside
+
+    def restore_replaced(self) -> None:
+        """Undo :meth:`_set_aside` after a failed start: the new run's files are removed and the old run renamed back
+        (nothing if no run was set aside, or the new run already recorded a phase)."""
+        if self.replaced is None:
+            return
+        aside, self.replaced = self.replaced, None
+        shutil.rmtree(self.path, ignore_errors=True)
+        os.replace(aside, self.path)
+        fsync_directory(self.path.parent)
+        logger.warning("the new run did not start; %s restored as it was", self.path)
+
+    @contextlib.contextmanager
+    def undo_on_error(self) -> Iterator[None]:
+        """Run a block (the start of a run); if it raises before the first phase is recorded, the run that
+        ``--overwrite`` set aside is restored (:meth:`restore_replaced`)."""
+        try:
+            yield
+        except BaseException:
+            self.restore_replaced()
+            raise
+
+    def _drop_replaced(self) -> None:
+        if self.replaced is not None:
+            aside, self.replaced = self.replaced, None
+            shutil.rmtree(aside, ignore_errors=True)
+            logger.info("--overwrite: the replaced run %s deleted (the new run recorded its first phase)", aside.name)
 
     def check_settings_against_run(self) -> None:
         """Compare with the stored fingerprint: its inputs first (:attr:`check_inputs`), then every setting; raise
@@ -198,3 +339,4 @@ class RunDirectory:
         """Record several completed phases (keyed as :meth:`key`) in one write of ``progress.json``."""
         self.progress["completed"].update(records)
         write_checked_json(self.path / PROGRESS_FILE, self.progress)
+        self._drop_replaced()
