@@ -13,6 +13,7 @@ Example::
 from __future__ import annotations
 
 import contextlib
+import json
 import logging
 import os
 import shutil
@@ -289,7 +290,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
             fps=cfg.fps,
             features=dataset_features(cfg.image_size, cfg.image_width, cfg.video),
             root=tmp / "dataset",
-            robot_type="sr_needle_psm",
+            robot_type=ROBOT_TYPE,
             use_videos=cfg.video,
             vcodec=cfg.vcodec,
         )
@@ -333,14 +334,66 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
         shutil.rmtree(tmp, ignore_errors=True)
 
 
+DATASET_ENTRIES = ("meta", "data", "videos", "images")
+"""What a LeRobot dataset holds at its top level (``images/``: LeRobot's PNG staging folder)."""
+ROBOT_TYPE = "sr_needle_psm"
+"""The ``robot_type`` this program records (``meta/info.json``)."""
+
+
+def foreign_dataset_problem(target: Path) -> str | None:
+    """Why ``--overwrite`` may not replace ``target`` (``None`` if it may): it is not a LeRobot dataset recorded by
+    this program (``meta/sr_record.json``, or ``robot_type`` :data:`ROBOT_TYPE` in ``meta/info.json`` for datasets
+    recorded before that file existed), or it holds anything besides a dataset's folders. An empty folder may go."""
+    if not target.is_dir() or target.is_symlink():
+        return "it is not a folder"
+    if not any(target.iterdir()):
+        return None
+    info = target / "meta" / "info.json"
+    if not info.is_file():
+        return f"it is not a LeRobot dataset (no {info.relative_to(target)})"
+    if not (target / RECORD_SETTINGS_FILE).is_file():
+        try:
+            robot = json.loads(info.read_text()).get("robot_type")
+        except (OSError, ValueError, AttributeError):
+            robot = None
+        if robot != ROBOT_TYPE:
+            return f"it is a dataset sr-record did not record (robot_type {robot!r}, no {RECORD_SETTINGS_FILE})"
+    foreign = sorted(p.name for p in target.iterdir() if p.name not in DATASET_ENTRIES)
+    if foreign:
+        return f"it holds {', '.join(foreign[:3])}, which no dataset holds"
+    return None
+
+
+def check_overwrite(cfg: RecordConfig) -> None:
+    """Before anything is recorded: every target ``--overwrite`` would replace is a dataset of ours, every episode
+    video folder holds only episode videos; ``FileExistsError`` naming the first other one (nothing is removed)."""
+    for skill in cfg.skills:
+        target = cfg.target(skill)
+        if target.exists() or target.is_symlink():
+            problem = foreign_dataset_problem(target)
+            if problem is not None:
+                raise FileExistsError(f"{target}: --overwrite=true refused: {problem}; remove or move it yourself, "
+                                      "or choose another root (nothing was removed)")
+        videos = cfg.episode_video_dir(skill)
+        if cfg.episode_videos and (videos.exists() or videos.is_symlink()):
+            other = [p.name for p in videos.iterdir()] if videos.is_dir() and not videos.is_symlink() else ["?"]
+            other = [n for n in other if not (n.startswith("episode_") and n.endswith(".mp4"))]
+            if other:
+                raise FileExistsError(f"{videos}: --overwrite=true refused: it holds {', '.join(sorted(other)[:3])}, "
+                                      "which are not episode videos; remove or move it yourself (nothing was removed)")
+
+
 def record(cfg: RecordConfig) -> list[Path]:
-    """Record every skill in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``."""
+    """Record every skill in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``, or, with
+    ``overwrite``, if a target is not a dataset of ours (:func:`check_overwrite`)."""
     if not cfg.overwrite:
         existing = [str(cfg.target(s)) for s in cfg.skills if cfg.target(s).exists()]
         if existing:
             raise FileExistsError(
                 f"Dataset(s) already exist: {existing}; pass --overwrite=true to replace them"
             )
+    else:
+        check_overwrite(cfg)
     return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
 
 

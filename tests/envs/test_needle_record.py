@@ -107,10 +107,34 @@ def test_existing_target_is_not_overwritten(tmp_path):
     assert (target / "keep.txt").read_text() == "precious"
     with pytest.raises(SystemExit, match="already exist"):
         rec.main([f"--root={tmp_path}", "--skills=[approach]", "--num_episodes=1", f"--image_size={SIZE}"])
-    cfg.overwrite = True
+    cfg.overwrite = True  # --overwrite replaces a dataset of ours only: a folder of other files is refused
+    with pytest.raises(FileExistsError, match=r"approach: --overwrite=true refused: it is not a LeRobot dataset"):
+        rec.record(cfg)
+    assert (target / "keep.txt").read_text() == "precious"
+    (target / "keep.txt").unlink()
     rec.record(cfg)
-    assert not (target / "keep.txt").exists()
+    first = _load(tmp_path, "approach")
+    assert first.num_episodes == 1
+    rec.record(cfg)  # a dataset sr-record recorded: replaced
     assert _load(tmp_path, "approach").num_episodes == 1
+
+
+def test_overwrite_refuses_a_dataset_holding_foreign_files_or_recorded_by_another_program(tmp_path):
+    cfg = rec.RecordConfig(skills=["approach"], num_episodes=1, root=tmp_path, image_size=SIZE)
+    rec.record(cfg)
+    target = tmp_path / "approach"
+    cfg.overwrite = True
+    (target / "notes.txt").write_text("mine")
+    before = {p: p.read_bytes() for p in target.rglob("*") if p.is_file()}
+    with pytest.raises(FileExistsError, match="it holds notes.txt, which no dataset holds"):
+        rec.record(cfg)
+    (target / "notes.txt").unlink()
+    (target / rec.RECORD_SETTINGS_FILE).unlink()  # LeRobot's info.json names another robot
+    info = target / "meta" / "info.json"
+    info.write_text(info.read_text().replace(rec.ROBOT_TYPE, "so100"))
+    with pytest.raises(FileExistsError, match="a dataset sr-record did not record"):
+        rec.record(cfg)
+    assert all(p.is_file() for p in before if p.name not in ("notes.txt", "sr_record.json"))
 
 
 def test_interrupted_run_leaves_no_dataset(tmp_path, monkeypatch):
