@@ -32,7 +32,7 @@ from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
 from sr_imitation.io import atomic_write_json, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.stream.rundir import read_progress
+from sr_imitation.stream.rundir import OverwriteRefusedError, check_not_an_input, read_progress, run_entries_problem
 
 logger = logging.getLogger(__name__)
 
@@ -72,9 +72,15 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
     missing = [key for key in needed if key not in progress["completed"]]
     if missing:
         raise ValueError(f"{src / 'progress.json'}: stage {k} has not finished {missing}; nothing to replay")
+    check_not_an_input(out, [src, *(train.stream.dataset_path(i) for i in range(len(skills)))],
+                       cfg.overwrite and out.exists())
     if out.exists() and any(out.iterdir()):
         if not cfg.overwrite:
             raise FileExistsError(f"{out} already exists; pass --overwrite=true to replace it")
+        problem = run_entries_problem(out, ("replay.json",))  # only a replay (a run) is replaced
+        if problem is not None:
+            raise OverwriteRefusedError(f"{out}: --overwrite=true refused: {problem}; remove or move it yourself, or "
+                                        "choose another output_dir (nothing was removed)")
         shutil.rmtree(out)
     out.mkdir(parents=True, exist_ok=True)
     shutil.copy2(src / "stream_stats.safetensors", out / "stream_stats.safetensors")

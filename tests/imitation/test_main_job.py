@@ -322,5 +322,14 @@ def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_j
     assert "2.sleep" in json.loads((run / "progress.json").read_text())["completed"]
     with pytest.raises(FileExistsError, match="--overwrite"):
         replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "off", progress=False))
+    # --overwrite replaces a replay, never a folder of other files nor the source run
+    replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "off", overwrite=True, progress=False))
+    (tmp_path / "mine").mkdir()
+    (tmp_path / "mine" / "notes.txt").write_text("mine")
+    with pytest.raises(ValueError, match="refused: it holds no settings_fingerprint.json"):
+        replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "mine", overwrite=True, progress=False))
+    with pytest.raises(ValueError, match="refused: it holds the input"):
+        replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp, overwrite=True, progress=False))
+    assert (tmp_path / "mine" / "notes.txt").read_text() == "mine" and (run / "progress.json").is_file()
     with pytest.raises(ValueError, match="stage 1 has no sleep"):
         replay(SleepReplayConfig(run=run, stage=1, output_dir=tmp_path / "bad", progress=False))
