@@ -94,13 +94,58 @@ def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
 
 
 def check_data_files(meta: LeRobotDatasetMetadata) -> None:
-    """Every data (parquet) and video file the episodes reference exists and is non-empty."""
-    paths = {meta.get_data_file_path(e) for e in range(meta.total_episodes)}
+    """Every data (parquet) and video file the episodes reference exists, is non-empty and reads through
+    (:func:`read_through`): a corrupt or truncated file is one :class:`DatasetMismatchError` naming it, before the
+    first gradient, instead of a traceback when its skill's stage begins."""
+    data = {meta.get_data_file_path(e) for e in range(meta.total_episodes)}
+    videos: set[Path] = set()
     for key in meta.video_keys:
-        paths |= {meta.get_video_file_path(e, key) for e in range(meta.total_episodes)}
+        videos |= {meta.get_video_file_path(e, key) for e in range(meta.total_episodes)}
+    paths = data | videos
     missing = sorted(str(p) for p in paths if not (meta.root / p).is_file() or (meta.root / p).stat().st_size == 0)
     if missing:
         raise DatasetMismatchError(f"{meta.root}: missing or empty data files {missing}")
+    frames = sum(read_through(meta.root / p) for p in sorted(data))
+    if frames != meta.total_frames:
+        raise DatasetMismatchError(f"{dataset_info_path(meta.root)}: declares {meta.total_frames} frames, its data "
+                                   f"files hold {frames}")
+    for path in sorted(videos):
+        read_video_through(meta.root / path)
+
+
+def read_through(path: Path) -> int:
+    """Decode every column of the parquet file ``path`` once (every page decompressed and decoded, so flipped bytes
+    in compressed data and a truncated file are found); returns its number of rows. :class:`DatasetMismatchError`
+    naming the file if it does not read."""
+    import pyarrow.parquet as pq
+
+    try:
+        with pq.ParquetFile(path) as reader:
+            return sum(batch.num_rows for batch in reader.iter_batches())
+    except Exception as exc:  # noqa: BLE001 - Arrow raises OSError, ArrowInvalid and others for a damaged file
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise DatasetMismatchError(f"{path}: unreadable parquet file ({type(exc).__name__}: {first}); the dataset is "
+                                   "damaged: record or copy it again") from exc
+
+
+def read_video_through(path: Path) -> None:
+    """Demultiplex every packet of the video file ``path`` once (a truncated or damaged container is found without
+    decoding every frame); :class:`DatasetMismatchError` naming the file if it does not read or holds no video."""
+    import av
+
+    try:
+        with av.open(str(path)) as container:
+            if not container.streams.video:
+                raise DatasetMismatchError(f"{path}: holds no video stream")
+            packets = sum(1 for packet in container.demux(container.streams.video[0]) if packet.size)
+    except DatasetMismatchError:
+        raise
+    except Exception as exc:  # noqa: BLE001 - PyAV raises its own error classes per FFmpeg error code
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise DatasetMismatchError(f"{path}: unreadable video file ({type(exc).__name__}: {first}); the dataset is "
+                                   "damaged: record or copy it again") from exc
+    if packets == 0:
+        raise DatasetMismatchError(f"{path}: the video holds no frames")
 
 
 def check_stream_datasets(stream, use_images: bool) -> tuple[LeRobotDatasetMetadata, dict, dict]:

@@ -7,6 +7,7 @@ import re
 import shutil
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from sr_imitation.imitation.data import DatasetMismatchError
@@ -173,3 +174,36 @@ def test_push_to_hub_is_checked_before_training_and_pushes_the_final_policy(stat
     train_stream(cfg, fake_env_factory)
     assert len(uploads) == 1 and uploads[0][0] == "me/sr_policy"
     assert {"model.safetensors", "config.json", "README.md"} <= set(uploads[0][1])
+
+
+def _damage(path: Path, how: str) -> None:
+    data = bytearray(path.read_bytes())
+    if how == "inverted":  # 64 bytes in the middle, as a failing disk or a bad copy does
+        mid = len(data) // 2
+        data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
+    else:
+        data = data[: len(data) * 2 // 3]
+    path.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("how", ["inverted", "truncated"])
+def test_a_damaged_parquet_of_a_later_skill_is_named_before_anything_is_written(state_datasets, tmp_path, monkeypatch,
+                                                                               how):
+    """Before: stages 1-2 trained and 45 files were written, then two tracebacks ("Corrupt snappy compressed data",
+    "Parquet magic bytes not found") that did not name the file."""
+    root = _copy(state_datasets, tmp_path / "d")
+    parquet = next((root / "insert" / "data").rglob("*.parquet"))
+    _damage(parquet, how)
+    _fails_before_writing(root, tmp_path / "out", re.escape(str(parquet)) + ": unreadable parquet file", monkeypatch)
+
+
+def test_a_damaged_video_is_named_before_anything_is_written(tmp_path):
+    from sr_imitation.imitation.data import read_video_through
+    from sr_imitation.video import write_mp4
+
+    video = tmp_path / "episode.mp4"
+    write_mp4(video, [np.full((16, 16, 3), i, dtype=np.uint8) for i in range(8)], fps=10)
+    read_video_through(video)
+    _damage(video, "truncated")
+    with pytest.raises(DatasetMismatchError, match=re.escape(str(video)) + ": "):
+        read_video_through(video)
