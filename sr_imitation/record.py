@@ -43,6 +43,10 @@ VIDEO_CODECS = ("h264", "hevc", "libsvtav1")
 class RecordConfig:
     """Options of ``sr-record`` (one LeRobot dataset per skill at ``<root>/<skill>``)."""
 
+    env: str = "needle"
+    """Demonstration source: needle (this package's needle skills and scripted expert) or metaworld (Meta-World v3
+    tasks by metaworld.policies' scripted policies, sr_imitation.recorders.metaworld: sr-record --env=metaworld --help
+    lists its options)."""
     skills: list[str] = field(default_factory=lambda: list(SKILL_NAMES))
     """Skills to record, in stream order by default."""
     num_episodes: int = 100
@@ -83,6 +87,8 @@ class RecordConfig:
     threshold a demo that closes at 1.5 mm leaves it no room. Our choice."""
 
     def __post_init__(self) -> None:
+        if self.env != "needle":
+            raise ValueError(f"env must be needle or metaworld (give --env=metaworld as written), got {self.env!r}")
         if not self.skills:
             raise ValueError("skills must not be empty")
         self.skills = [skill_from_name(s).value for s in self.skills]

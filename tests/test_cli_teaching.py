@@ -19,6 +19,7 @@ from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation import cli, main_job, record
 from sr_imitation.imitation import cli as imitation_cli
 from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.recorders import cli as record_cli
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, RENAMED_FLAGS
 from tests.test_cli_errors import _one_line_error
 
@@ -32,6 +33,7 @@ COMMANDS = {  # the console entries' main functions, as run_cli runs them
     "sr-train --substrate=sac": (cli.train_main, ["--substrate=sac"]),
     "sr-train --config_path=<sr-main preset>": (cli.train_main, [f"--config_path={NEEDLE}"]),
     "sr-record": (record.main, []),
+    "sr-record --env=metaworld": (record_cli.main, ["--env=metaworld"]),
     "sr-eval": (imitation_cli.eval_main, []),
     "sr-sleep": (imitation_cli.sleep_main, []),
     "sr-main": (main_job.main, []),

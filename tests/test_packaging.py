@@ -76,7 +76,7 @@ def test_rendering_modules_set_up_egl_before_mujoco_loads(monkeypatch):
     monkeypatch.delenv("MUJOCO_GL", raising=False)
     monkeypatch.delenv("PYOPENGL_PLATFORM", raising=False)
     code = ("import json, os, sys\n"
-            "import sr_imitation.envs.needle.rendering, sr_imitation.rl.video\n"
+            "import sr_imitation.envs.needle.rendering, sr_imitation.envs.metaworld.video\n"
             "print(json.dumps({'gl': os.environ.get('MUJOCO_GL'), 'pyopengl': os.environ.get('PYOPENGL_PLATFORM'),\n"
             "                  'mujoco': 'mujoco' in sys.modules}))\n")
     assert _run_json(code, timeout=120) == {"gl": "egl", "pyopengl": "egl", "mujoco": True}

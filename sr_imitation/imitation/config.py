@@ -94,7 +94,8 @@ class StreamConfig(StreamSettings):
     video_backend: str = "pyav"
     """Decoder for video datasets (pyav - torchcodec does not load here)."""
     pairs: str = "surgicai"
-    """PRS pair list - surgicai (the paper's seven), all or adjacent."""
+    """PRS pair list - surgicai (the paper's seven needle pairs), mt5 (the paper's six MT5 pairs, for Meta-World
+    skills), all or adjacent."""
     stats: str = "first"
     """Normalization statistics fixed for the whole stream - first (the first skill's dataset) or union (all the
     stream's datasets, known before the first skill); see sr_imitation.imitation.data."""

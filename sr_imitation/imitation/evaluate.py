@@ -36,6 +36,8 @@ import torch
 from lerobot.envs.utils import preprocess_observation
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE
 
+from sr_imitation.envs.metaworld.env import SPI_FEATURES as METAWORLD_SPI_FEATURES
+from sr_imitation.envs.metaworld.tasks import OBS_DIM as METAWORLD_OBS_DIM
 from sr_imitation.progress import Progress
 from sr_imitation.video import write_mp4
 
@@ -53,21 +55,25 @@ SPI_FEATURES: tuple[int, ...] = tuple(range(7))
 NEEDLE_STATE_DIM = 35
 """Size of the needle env's ``agent_pos`` (``envs.needle.env.STATE_DIM``), the layout ``SPI_FEATURES`` refers to."""
 
+STATE_LAYOUTS: dict[int, tuple[int, ...]] = {NEEDLE_STATE_DIM: SPI_FEATURES, METAWORLD_OBS_DIM: METAWORLD_SPI_FEATURES}
+"""The robot's own entries of each known ``agent_pos`` layout: the needle env's 35 numbers, Meta-World's 39 (hand
+xyz and gripper, :data:`sr_imitation.envs.metaworld.env.SPI_FEATURES`)."""
+
 
 def spi_features(state_dim: int) -> tuple[int, ...]:
-    """The ``agent_pos`` entries SPI uses: ``SPI_FEATURES`` for the needle env's 35-d layout. Another environment
-    (a custom ``EnvFactory``) has no declared layout here; all its entries are used, with a warning (our choice)."""
-    if state_dim == NEEDLE_STATE_DIM:
-        return SPI_FEATURES
-    logger.warning("SPI: %d-d agent_pos is not the needle env's %d-d layout; using all %d entries", state_dim,
-                   NEEDLE_STATE_DIM, state_dim)
+    """The ``agent_pos`` entries SPI uses (:data:`STATE_LAYOUTS`). Another environment (a custom ``EnvFactory``) has
+    no declared layout here; all its entries are used, with a warning (our choice)."""
+    if state_dim in STATE_LAYOUTS:
+        return STATE_LAYOUTS[state_dim]
+    logger.warning("SPI: %d-d agent_pos is none of the known layouts %s; using all %d entries", state_dim,
+                   sorted(STATE_LAYOUTS), state_dim)
     return tuple(range(state_dim))
 
 EnvFactory = Callable[[str, bool], gym.Env]
 """(skill, with_scene_render) -> a gymnasium env with ``pixels``/``agent_pos`` observations."""
 
 
-EVAL_ENVS = ("needle", "gym", "lerobot", "none")
+EVAL_ENVS = ("needle", "metaworld", "gym", "lerobot", "none")
 """Values of ``--eval.env`` (module docstring)."""
 
 
@@ -81,7 +87,9 @@ class EvalConfig:
     """
 
     env: str = "needle"
-    """Where each skill is evaluated - needle (the MuJoCo needle environment, one task per needle skill name), gym
+    """Where each skill is evaluated - needle (the MuJoCo needle environment, one task per needle skill name),
+    metaworld (one Meta-World v3 task per skill: the skill's name, e.g. reach-v3, or --eval.env_tasks; Meta-World's
+    39-number observation and success, sr_imitation.envs.metaworld.env), gym
     (one gymnasium id per skill: --eval.gym_ids), lerobot (one LeRobot env config per skill, as lerobot-eval's
     --env.type/--env.task: --eval.env_type, --eval.env_tasks) or none (no closed-loop evaluation: results say
     "evaluation: none" and report every memory's loss and each skill's validation l1 instead of success; AFSR, PRS,
@@ -94,10 +102,11 @@ class EvalConfig:
     """--eval.env=lerobot: the LeRobot env type (lerobot-eval's --env.type, e.g. pusht, aloha, needle; the needle
     environment is registered by this package)."""
     env_tasks: list[str] | None = None
-    """--eval.env=lerobot: one task per skill (lerobot-eval's --env.task), in stream order; null - each skill's
-    name is its task (our choice)."""
+    """--eval.env=lerobot or metaworld: one task per skill (lerobot-eval's --env.task; a Meta-World v3 id), in
+    stream order; null - each skill's name is its task (our choice)."""
     env_options: dict[str, Any] = field(default_factory=dict)
-    """--eval.env=gym: keyword arguments of gym.make; --eval.env=lerobot: other fields of the LeRobot env config
+    """--eval.env=gym: keyword arguments of gym.make; --eval.env=metaworld: of MetaWorldEnv (camera, task_seed);
+    --eval.env=lerobot: other fields of the LeRobot env config
     (e.g. --eval.env_options='{obs_type: agent_pos, observation_height: 64}'). The same for every skill."""
     episodes: int = 20
     """Episodes per skill per evaluation seed (paper 20; 3 seeds x 20 = the paper's 60 per skill); 0 only with
@@ -110,9 +119,9 @@ class EvalConfig:
     """Episodes per skill (first seed) also saved as mp4; 0 disables videos (gym and lerobot environments must
     render rgb_array frames otherwise)."""
     video_height: int = 240
-    """Video frame height (needle environment; other environments render at their own size)."""
+    """Video frame height (needle and metaworld environments; gym and lerobot ones render at their own size)."""
     video_width: int = 320
-    """Video frame width (needle environment)."""
+    """Video frame width (needle and metaworld environments)."""
     thresholds: str = "learnable"
     """Success-threshold preset of the needle environment - learnable or surgicai (--eval.env=needle only; with
     --eval.env=lerobot --eval.env_type=needle give it in --eval.env_options)."""
@@ -134,8 +143,8 @@ class EvalConfig:
             raise ValueError(f"eval.videos_per_skill must be >= 0, got {self.videos_per_skill}")
         given = {"eval.gym_ids": self.gym_ids is not None, "eval.env_type": self.env_type is not None,
                  "eval.env_tasks": self.env_tasks is not None, "eval.env_options": bool(self.env_options)}
-        belongs = {"eval.gym_ids": ("gym",), "eval.env_type": ("lerobot",), "eval.env_tasks": ("lerobot",),
-                   "eval.env_options": ("gym", "lerobot")}
+        belongs = {"eval.gym_ids": ("gym",), "eval.env_type": ("lerobot",), "eval.env_tasks": ("lerobot", "metaworld"),
+                   "eval.env_options": ("gym", "lerobot", "metaworld")}
         for key, is_given in given.items():
             if is_given and self.env not in belongs[key]:
                 raise ValueError(f"{key} is a setting of --eval.env={'|'.join(belongs[key])}, not of "
@@ -245,6 +254,25 @@ def resolve_gym_id(gym_id: str) -> str:
     return name
 
 
+def metaworld_env_factory(skills: Sequence[str], image_size: tuple[int, int] | None, cfg: EvalConfig) -> EnvFactory:
+    """Factory for ``--eval.env=metaworld``: :class:`~sr_imitation.envs.metaworld.env.MetaWorldEnv` of the skill's
+    task (``cfg.tasks``), state only or with the dataset's camera image (``image_size``), episodes of
+    ``cfg.max_steps``, rollout videos at ``cfg.video_height`` x ``cfg.video_width``."""
+    tasks = dict(zip(skills, cfg.tasks(skills), strict=True))
+
+    def make(skill: str, with_video: bool) -> gym.Env:
+        from sr_imitation.envs.metaworld.env import MetaWorldEnv
+
+        kwargs: dict[str, Any] = {"max_episode_steps": cfg.max_steps, **cfg.env_options}
+        if image_size is not None:
+            kwargs.update(obs_type="pixels_agent_pos", image_height=image_size[0], image_width=image_size[1])
+        if with_video:
+            kwargs.update(render_mode="rgb_array", render_height=cfg.video_height, render_width=cfg.video_width)
+        return MetaWorldEnv(tasks[skill], **kwargs)
+
+    return make
+
+
 def gym_env_factory(skills: Sequence[str], gym_ids: Sequence[str], cfg: EvalConfig) -> EnvFactory:
     """Factory for ``--eval.env=gym``: ``gym.make(<the skill's id>, max_episode_steps=cfg.max_steps,
     **cfg.env_options)`` (the id resolved by :func:`resolve_gym_id`), with ``render_mode="rgb_array"`` for the
@@ -335,6 +363,8 @@ def make_env_factory(cfg: EvalConfig, skills: Sequence[str], image_size: tuple[i
     """The environment factory ``--eval.env`` names (``None`` for ``none``: nothing is evaluated)."""
     if cfg.env == "needle":
         return needle_env_factory(image_size, cfg)
+    if cfg.env == "metaworld":
+        return metaworld_env_factory(skills, image_size, cfg)
     if cfg.env == "gym":
         return gym_env_factory(skills, list(cfg.gym_ids or []), cfg)
     if cfg.env == "lerobot":
@@ -358,6 +388,14 @@ def resolve_eval_env(cfg: EvalConfig, skills: Sequence[str], index: int) -> str:
     task = cfg.tasks(skills)[index]
     key = (f"eval.env_tasks[{index}]" if cfg.env_tasks is not None
            else "eval.env_tasks (null: each skill's name is its task)")
+    if cfg.env == "metaworld":
+        from sr_imitation.envs.metaworld.tasks import check_task
+
+        try:
+            check_task(task)
+        except ValueError as exc:
+            raise ValueError(f"{key} (skill {skill!r}): {exc}") from None
+        return f"{key} (Meta-World task {task!r}, skill {skill!r})"
     try:
         lerobot_env_config(str(cfg.env_type), task, cfg.env_options)
     except ValueError as exc:

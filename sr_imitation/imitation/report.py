@@ -27,6 +27,7 @@ import numpy as np
 
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import all_pairs, policy_motion, spi_at_stage
+from sr_imitation.envs.metaworld.tasks import MT5_PAIRS, canonical_skill
 from sr_imitation.envs.needle.skills import PRS_PAIRS as SURGICAI_PAIRS
 from sr_imitation.imitation.evaluate import spi_features
 from sr_imitation.io import load_checked_safetensors, read_checked_json
@@ -42,7 +43,11 @@ from sr_imitation.stream.substrate import PHASES
 
 
 def pair_list(name: str, skills: Sequence[str]) -> list[tuple[str, str]]:
-    """``surgicai`` (the paper's 7 pairs, restricted to skills in the stream), ``all`` or ``adjacent``."""
+    """``surgicai`` (the paper's 7 pairs), ``mt5`` (the paper's 6 MT5 pairs, matched by Meta-World skill identity:
+    ``reach-v3`` is ``reach``), each restricted to the skills in the stream, ``all`` or ``adjacent``."""
+    if name == "mt5":
+        by_identity = {canonical_skill(s): s for s in skills}
+        return [(by_identity[a], by_identity[b]) for a, b in MT5_PAIRS if a in by_identity and b in by_identity]
     if name == "surgicai":
         present = set(skills)
         return [p for p in SURGICAI_PAIRS if p[0] in present and p[1] in present]
@@ -50,7 +55,7 @@ def pair_list(name: str, skills: Sequence[str]) -> list[tuple[str, str]]:
         return list(all_pairs(list(skills)))
     if name == "adjacent":
         return list(zip(skills[:-1], skills[1:], strict=True))
-    raise ValueError(f"unknown pair list {name!r}; choose surgicai, all or adjacent")
+    raise ValueError(f"unknown pair list {name!r}; choose surgicai, mt5, all or adjacent")
 
 
 def _load_eval(phase_dir: Path) -> dict[str, Any]:

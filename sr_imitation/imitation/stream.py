@@ -117,12 +117,13 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
     """Every skill resolves to its evaluation environment before the first gradient (``--eval.env``).
 
     ``needle``: every skill must be a needle skill (``ValueError`` naming ``stream.skills`` and the valid names).
-    ``gym`` / ``lerobot``: every gym id must be registered (its namespace module imported if needed), the LeRobot
-    env type known and its config valid for each task; then each environment is built once, its action space and a
-    reset observation must fit the policy's features (``input_features``, ``output_features``: those of the
-    datasets) and, with videos, its recording twin must render ``rgb_array`` frames. ``ValueError`` naming the key
-    (``eval.gym_ids[i]``, ``eval.env_type``, ``eval.env_tasks[i]``). ``none``: nothing to check. A factory given
-    to :class:`StreamTrainer` (``custom_env``, tests) replaces the environment ``--eval.env`` names."""
+    ``metaworld`` / ``gym`` / ``lerobot``: every task must be a Meta-World v3 task, every gym id registered (its
+    namespace module imported if needed), the LeRobot env type known and its config valid for each task; then each
+    environment is built once, its action space and a reset observation must fit the policy's features
+    (``input_features``, ``output_features``: those of the datasets) and, with videos, its recording twin must
+    render ``rgb_array`` frames. ``ValueError`` naming the key (``eval.gym_ids[i]``, ``eval.env_type``,
+    ``eval.env_tasks[i]``). ``none``: nothing to check. A factory given to :class:`StreamTrainer` (``custom_env``,
+    tests) replaces the environment ``--eval.env`` names."""
     mode, skills = cfg.eval.env, list(cfg.stream.skills)
     if mode == "none" or custom_env:
         return
@@ -133,7 +134,10 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
                              f"{list(SURGICAI_SKILLS)}); every skill needs a dataset and an environment: evaluate "
                              "them with --eval.env=gym|lerobot or switch evaluation off with --eval.env=none")
         return
-    make_env = make_env_factory(cfg.eval, skills, None)  # only the needle env takes the image size
+    images = [tuple(f.shape[:2]) if f.shape[-1] == 3 else tuple(f.shape[1:]) for key, f in input_features.items()
+              if key.startswith("observation.images.")]
+    size = images[0] if images and mode == "metaworld" else None  # the needle's own check is above; gym: their size
+    make_env = make_env_factory(cfg.eval, skills, size)
     if make_env is None:
         return
     for index, skill in enumerate(skills):

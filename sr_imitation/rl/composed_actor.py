@@ -6,8 +6,8 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
 from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
 from sr_imitation.rl.sac import Actor, RunningNormalizer
 
 SELF_BIAS = 2.0

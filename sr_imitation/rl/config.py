@@ -14,6 +14,8 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.envs.metaworld.tasks import STREAMS
+from sr_imitation.envs.metaworld.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
 from sr_imitation.infra.fingerprint import (
     RUN_DIRECTORY,
     SettingsFingerprint,
@@ -21,8 +23,6 @@ from sr_imitation.infra.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
-from sr_imitation.rl.envs import STREAMS
-from sr_imitation.rl.video import DEFAULT_CAMERA, VideoSpec, check_video_settings
 from sr_imitation.stream.config import RunConfig, StreamSettings, StreamSleepConfig, check_shared_settings
 
 
@@ -242,7 +242,7 @@ class StreamConfig(StreamSettings):
     """The Meta-World skill stream (paper Appendix A.1: MT5, its reverse, and MT8 continuing MT5)."""
 
     name: str = "mt5"
-    """A named stream - mt5, mt5-reverse or mt8 (``sr_imitation.rl.envs.STREAMS``)."""
+    """A named stream - mt5, mt5-reverse or mt8 (``sr_imitation.envs.metaworld.tasks.STREAMS``)."""
     skills: list[str] | None = None
     """Explicit skill list (Meta-World v3 ids); overrides ``name``."""
 

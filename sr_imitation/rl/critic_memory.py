@@ -24,8 +24,8 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory, register_memory
+from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
 from sr_imitation.rl.config import CriticMemoryConfig, SACConfig
-from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent, TwinQ, normalize
 
 logger = logging.getLogger(__name__)

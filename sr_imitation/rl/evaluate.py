@@ -16,9 +16,9 @@ episodes (our choice; the paper does not say how its evaluation configurations a
 
 SPI: only the robot's own state enters (``SPI_FEATURES``, :func:`sr_imitation.core.metrics.policy_motion`).
 
-Videos: with a :class:`~sr_imitation.rl.video.VideoSpec` the first ``spec.episodes`` episodes are also rendered
-offscreen (the frame after reset, then one per step) into ``<skill>_episode<i>_<success|failure>.mp4``. Rendering
-only reads the simulation state, so the outcome is identical with and without videos
+Videos: with a :class:`~sr_imitation.envs.metaworld.video.VideoSpec` the first ``spec.episodes`` episodes are also
+rendered offscreen (the frame after reset, then one per step) into ``<skill>_episode<i>_<success|failure>.mp4``.
+Rendering only reads the simulation state, so the outcome is identical with and without videos
 (``tests/rl/test_video.py``).
 """
 
@@ -32,8 +32,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sr_imitation.rl.envs import ACT_DIM, NUM_CONFIGURATIONS, SkillEnv, canonical_skill
-from sr_imitation.rl.video import SkillRenderer, VideoSpec, VideoWriter
+from sr_imitation.envs.metaworld.tasks import ACT_DIM, NUM_CONFIGURATIONS, SkillEnv, canonical_skill
+from sr_imitation.envs.metaworld.video import SkillRenderer, VideoSpec, VideoWriter
 
 logger = logging.getLogger(__name__)
 
@@ -185,24 +185,6 @@ def _rollout(
             break
     success = any_success if success_mode == "any_step" else bool(step is not None and step.success)
     return bool(success), total, _t + 1, observations
-
-
-def scripted_policy(skill: str) -> ActFn:
-    """Meta-World's own scripted expert for ``skill`` (``metaworld.policies.ENV_POLICY_MAP``)."""
-    import warnings
-
-    from metaworld.policies import ENV_POLICY_MAP
-
-    if skill not in ENV_POLICY_MAP:
-        raise ValueError(f"Meta-World has no scripted policy for {skill!r}")
-    policy = ENV_POLICY_MAP[skill]()
-
-    def act(obs: np.ndarray) -> np.ndarray:
-        with warnings.catch_warnings():  # "Constant(s) may be too high": Meta-World's own policies warn
-            warnings.simplefilter("ignore", UserWarning)
-            return np.clip(policy.get_action(np.asarray(obs, dtype=np.float64)), -1.0, 1.0)
-
-    return act
 
 
 def random_policy(seed: int) -> ActFn:

@@ -25,12 +25,12 @@ from typing import Any
 import numpy as np
 import torch
 
+from sr_imitation.envs.metaworld.tasks import SkillEnv, StepResult, canonical_skill
 from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
-from sr_imitation.rl.envs import SkillEnv, StepResult, canonical_skill
 from sr_imitation.rl.evaluate import evaluate_policy, evaluation_configurations
 from sr_imitation.rl.results import prs_pairs
 from sr_imitation.rl.sac import SACAgent

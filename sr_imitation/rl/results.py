@@ -15,9 +15,9 @@ import numpy as np
 
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import all_pairs, spi_at_stage
+from sr_imitation.envs.metaworld.tasks import MT5_PAIRS, canonical_skill
 from sr_imitation.io import load_checked_safetensors, read_checked_json
 from sr_imitation.rl.config import RLTrainConfig
-from sr_imitation.rl.envs import MT5_PAIRS, canonical_skill
 from sr_imitation.rl.evaluate import SPI_FEATURES
 from sr_imitation.stream import results as shared_results
 from sr_imitation.stream.results import build_results

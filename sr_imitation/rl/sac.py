@@ -25,8 +25,8 @@ import torch.nn.functional as F
 from torch import Tensor, nn
 
 from sr_imitation.core.excitability import ExcitabilityConfig, ExcitableReLU, update_excitability
+from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
 from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.envs import ACT_DIM, OBS_DIM
 
 
 # ---------------------------------------------------------------------------------------------------------

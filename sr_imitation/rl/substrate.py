@@ -32,6 +32,8 @@ import torch
 from sr_imitation.core.excitability import activity_recording_off, update_excitability
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.metrics import policy_motion
+from sr_imitation.envs.metaworld.tasks import STREAMS, SkillEnv, canonical_skill
+from sr_imitation.envs.metaworld.video import rendering_unavailable
 from sr_imitation.infra.runlog import RunLog
 from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import (
@@ -42,11 +44,9 @@ from sr_imitation.io import (
 )
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.envs import STREAMS, SkillEnv, canonical_skill
 from sr_imitation.rl.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
 from sr_imitation.rl.results import SUBSTRATE, write_results
 from sr_imitation.rl.sac import SACAgent, TwinQ
-from sr_imitation.rl.video import rendering_unavailable
 from sr_imitation.rl.wake import train_skill
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem, seed_sequence
 

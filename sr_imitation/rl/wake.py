@@ -14,10 +14,10 @@ import numpy as np
 from torch import Tensor
 
 from sr_imitation.core.excitability import ExcitabilityConfig, activity_recording_off
+from sr_imitation.envs.metaworld.tasks import SkillEnv
 from sr_imitation.progress import Progress
 from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
 from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
-from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent
 from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
 

@@ -289,7 +289,8 @@ def test_a_lerobot_env_whose_observation_does_not_fit_the_datasets_is_refused(st
                                                                      r"--eval.env=gym\|lerobot"),
     (lambda root, out: EvalConfig(env="gym", gym_ids=["A-v0"], thresholds="surgicai"),
      r"^eval.thresholds is the needle environment's success preset"),
-    (lambda root, out: EvalConfig(env="elsewhere"), r"^eval.env must be one of \['needle', 'gym', 'lerobot', 'none'\]"),
+    (lambda root, out: EvalConfig(env="elsewhere"),
+     r"^eval.env must be one of \['needle', 'metaworld', 'gym', 'lerobot', 'none'\]"),
 ])
 def test_malformed_evaluation_and_dataset_settings_are_refused_when_parsed(own_datasets, tmp_path, build, match):
     with pytest.raises(ValueError, match=match) as info:

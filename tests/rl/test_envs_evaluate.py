@@ -7,13 +7,20 @@ import numpy as np
 import pytest
 
 from sr_imitation.core.metrics import policy_motion, subspace_preservation
-from sr_imitation.rl.envs import ACT_DIM, MT5_STREAM, OBS_DIM, STREAMS, SkillEnv, stream_skills
+from sr_imitation.envs.metaworld.tasks import (
+    ACT_DIM,
+    MT5_STREAM,
+    OBS_DIM,
+    STREAMS,
+    SkillEnv,
+    scripted_policy,
+    stream_skills,
+)
 from sr_imitation.rl.evaluate import (
     SPI_FEATURES,
     evaluate_policy,
     evaluation_configurations,
     random_policy,
-    scripted_policy,
 )
 
 

@@ -12,6 +12,7 @@ import draccus
 import pytest
 import torch
 
+from sr_imitation.envs.metaworld.tasks import SkillEnv
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.rl.config import (
@@ -22,7 +23,6 @@ from sr_imitation.rl.config import (
     StreamConfig,
     WakeConfig,
 )
-from sr_imitation.rl.envs import SkillEnv
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.trainer import StreamTrainer
 from sr_imitation.stream.config import StreamSleepConfig

@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from sr_imitation.core.metrics import prs_curve
+from sr_imitation.envs.metaworld.tasks import MT5_PAIRS, STREAMS, canonical_skill
 from sr_imitation.envs.needle.skills import PRS_PAIRS, SKILL_NAMES
 from sr_imitation.imitation.report import pair_list
-from sr_imitation.rl.envs import MT5_PAIRS, STREAMS, canonical_skill
 from sr_imitation.rl.trainer import prs_pairs
 
 

@@ -1,9 +1,9 @@
 """Offscreen rollout videos of Meta-World skills (EGL by default; shadows, reflections and multisampling off).
 
-:class:`SkillRenderer` draws RGB frames of a :class:`~sr_imitation.rl.envs.SkillEnv` from one of Meta-World's
-fixed cameras with its own ``mujoco.Renderer``; it only reads the simulation state, so recording never changes a
-rollout. :class:`VideoWriter` streams frames to an mp4 under a temporary name and renames it once the outcome is
-known (``<skill>_episode<i>_<success|failure>.mp4``, the imitation substrate's naming).
+:class:`SkillRenderer` draws RGB frames of a :class:`~sr_imitation.envs.metaworld.tasks.SkillEnv` from one of
+Meta-World's fixed cameras with its own ``mujoco.Renderer``; it only reads the simulation state, so recording never
+changes a rollout. :class:`VideoWriter` streams frames to an mp4 under a temporary name and renames it once the
+outcome is known (``<skill>_episode<i>_<success|failure>.mp4``, the imitation substrate's naming).
 
 Meta-World's ``corner*`` cameras are defined with their image "up" axis pointing at the floor, so raw frames come
 out upside down; frames from such cameras are rotated by 180 degrees (a rotation, not a mirror).
@@ -26,7 +26,7 @@ from typing import TYPE_CHECKING, Any  # noqa: E402
 import numpy as np  # noqa: E402
 
 if TYPE_CHECKING:
-    from sr_imitation.rl.envs import SkillEnv
+    from sr_imitation.envs.metaworld.tasks import SkillEnv
 
 logger = logging.getLogger(__name__)
 

@@ -16,6 +16,7 @@ Streams (skill names are Meta-World v3 ids; the metrics strip the ``-v3`` suffix
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -60,6 +61,39 @@ ACT_DIM = 4
 """Meta-World action size (Appendix A.1: 4-d end-effector motion + gripper)."""
 NUM_CONFIGURATIONS = 50
 """Randomized task configurations per skill (Appendix A.1: 50, sampled uniformly per episode)."""
+
+
+def check_task(task: str) -> None:
+    """``ValueError`` unless ``task`` is a Meta-World v3 environment with a scripted policy (``metaworld.MT1``'s
+    names; a close name is suggested)."""
+    import difflib
+
+    import metaworld
+
+    names = list(metaworld.MT1.ENV_NAMES)
+    if task not in names:
+        close = difflib.get_close_matches(task, names, n=1)
+        hint = f"; did you mean {close[0]!r}?" if close else " (use '-v3' names, e.g. 'reach-v3')"
+        raise ValueError(f"{task!r} is not a Meta-World v3 task{hint}")
+
+
+def scripted_policy(skill: str) -> Callable[[np.ndarray], np.ndarray]:
+    """Meta-World's own scripted expert for ``skill`` (``metaworld.policies.ENV_POLICY_MAP``): observation -> action
+    in [-1, 1]^4."""
+    import warnings
+
+    from metaworld.policies import ENV_POLICY_MAP
+
+    if skill not in ENV_POLICY_MAP:
+        raise ValueError(f"Meta-World has no scripted policy for {skill!r}")
+    policy = ENV_POLICY_MAP[skill]()
+
+    def act(obs: np.ndarray) -> np.ndarray:
+        with warnings.catch_warnings():  # "Constant(s) may be too high": Meta-World's own policies warn
+            warnings.simplefilter("ignore", UserWarning)
+            return np.clip(policy.get_action(np.asarray(obs, dtype=np.float64)), -1.0, 1.0)
+
+    return act
 
 
 def stream_skills(stream: str) -> tuple[str, ...]:
@@ -143,7 +177,7 @@ class SkillEnv:
 
     @property
     def mj_model(self) -> Any:
-        """The underlying ``mujoco.MjModel`` (for offscreen rendering, :mod:`sr_imitation.rl.video`)."""
+        """The underlying ``mujoco.MjModel`` (for offscreen rendering, :mod:`sr_imitation.envs.metaworld.video`)."""
         return self._env.model
 
     @property

@@ -1,0 +1,33 @@
+"""``sr-record``: the needle recorder (:mod:`sr_imitation.record`, the default) or, with ``--env=metaworld``,
+Meta-World's scripted policies (:mod:`sr_imitation.recorders.metaworld`); ``sr-record --env=metaworld --help``
+lists the latter's options."""
+
+from __future__ import annotations
+
+import sys
+
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.record import main as record_needle
+
+
+def main(args: list[str] | None = None) -> None:
+    argv = list(sys.argv[1:] if args is None else args)
+    if "--env=metaworld" not in argv:
+        record_needle(argv)
+        return
+    from sr_imitation.recorders.metaworld import main as record_metaworld
+
+    setup_offscreen_rendering()
+    setup_logging()
+    try:
+        paths = record_metaworld(argv)
+    except FileExistsError as e:
+        raise SystemExit(f"sr-record: {e}") from None
+    for path in paths:
+        print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
+
+
+def entry() -> None:
+    """Console script ``sr-record``: :func:`main` with one-line user errors."""
+    run_cli("sr-record", main)
