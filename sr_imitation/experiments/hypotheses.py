@@ -1,17 +1,17 @@
-"""The pre-registered tests of a comparison, computed from its archived raw results (docs/RESULTS.md, issue 28).
+"""The paired tests of a comparison, computed from its archived raw results (docs/RESULTS.md).
 
     python -m sr_imitation.experiments.hypotheses --archive=docs/results/needle_cpu_m16_compare \\
         '--tests=[sr>wake_only,sr!=replay]' --metric=afsr --output=docs/results/needle_cpu_m16_compare/hypotheses
 
 A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0, ``A!=B`` the two-sided one
-(:func:`sr_imitation.stream.stats.paired_test`), over the training seeds both variants have in the archive
-(``<variant>_seed<S>/results.json``, read and checked by :func:`sr_imitation.stream.results.load_results`); each
-seed's value is the run's final metric (its mean over evaluation units), or for runs without closed-loop
-evaluation (``--eval.env=none``: a real robot's datasets and no simulator) an offline one (:data:`LOSS_METRICS`:
-lower is better, so the test of "sleep helps" is ``sr<wake_only``). Written: ``hypotheses.md`` and
-``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference, t, p, bootstrap 95% CI) and
-``hypotheses.png`` (per test, each training seed's A and B joined by a line: the pairing the test uses).
-"""
+(:func:`sr_imitation.stream.stats.paired_test`, with the exact sign-flip p beside it), over the training seeds both
+variants have in the archive (``<variant>_seed<S>/results.json``, read and checked by
+:func:`sr_imitation.stream.results.load_results`); each seed's value is the run's final metric (its mean over
+evaluation units), or for runs without closed-loop evaluation (``--eval.env=none``: a real robot's datasets and no
+simulator) an offline one (:data:`LOSS_METRICS`: lower is better, so the test of "sleep helps" is ``sr<wake_only``).
+Written: ``hypotheses.md`` and ``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference,
+t, p, bootstrap 95% CI) and ``hypotheses.png`` (per test, each training seed's A and B joined by a line: the pairing
+the test uses). """
 
 from __future__ import annotations
 
@@ -32,7 +32,7 @@ from sr_imitation.stream.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
 
-_TEST = re.compile(r"^([\w.]+)(>|<|!=)([\w.]+)$")
+_TEST = re.compile(r"^(?:(.+)::)?([\w.]+)(>|<|!=)([\w.]+)$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
 
 
@@ -41,7 +41,8 @@ class HypothesesConfig:
     archive: Path = Path("docs/results/needle_cpu_m16_compare")
     """A folder of finished runs, ``<variant>_seed<S>/`` each (a comparison's archive)."""
     tests: list[str] = field(default_factory=lambda: ["sr>wake_only", "sr!=replay"])
-    """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided)."""
+    """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided), on ``archive``'s runs; a test
+    ``<folder>::A>B`` reads another archive's runs (one family over several streams, e.g. with ``--holm``)."""
     metric: str = "afsr"
     """The final metric compared: afsr, prs, bwt, bwt_wake, spi (evaluated runs) or val_l1, memory_loss (runs
     without evaluation, lower is better: :data:`LOSS_METRICS`)."""
@@ -52,11 +53,18 @@ class HypothesesConfig:
     holm: bool = False
     """Also report Holm-Bonferroni adjusted p values over the tests given (one family: give only the pre-registered
     tests in that call) and the verdict on them (family-wise error rate alpha)."""
+    preregistered: bool = False
+    """Label the tests "pre-registered" in hypotheses.md: only for tests whose text was committed before any run of
+    their preset (docs/RESULTS.md says which); otherwise they are labelled "exploratory"."""
 
     def __post_init__(self) -> None:
         bad = [t for t in self.tests if not _TEST.match(t)]
         if bad:
-            raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B")
+            raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B (or <folder>::A>B)")
+        for test in self.tests:
+            folder = _TEST.match(test).group(1)  # type: ignore[union-attr]
+            if folder is not None and not Path(folder).is_dir():
+                raise FileNotFoundError(f"tests: {test!r}: {folder} is not a folder")
         if self.metric not in METRICS and self.metric not in LOSS_METRICS:
             raise ValueError(f"metric: {self.metric!r} is not one of {[*METRICS, *LOSS_METRICS]}")
         if not 0 < self.alpha < 1:
@@ -98,28 +106,32 @@ def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float
 def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     rows = []
     for test in cfg.tests:
-        a, op, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked in __post_init__)
-        va, vb = archived_values(cfg.archive, a, cfg.metric), archived_values(cfg.archive, b, cfg.metric)
+        folder, a, op, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked in __post_init__)
+        archive = Path(folder) if folder is not None else Path(cfg.archive)
+        va, vb = archived_values(archive, a, cfg.metric), archived_values(archive, b, cfg.metric)
         for variant, values in ((a, va), (b, vb)):
             if not values:
-                logger.warning("%s: no finished %s runs in %s (yet)", test, variant, cfg.archive)
+                logger.warning("%s: no finished %s runs in %s (yet)", test, variant, archive)
         seeds = sorted(set(va) & set(vb))
         result = paired_test([va[s] for s in seeds], [vb[s] for s in seeds], _ALTERNATIVE[op])
-        rows.append({"test": test, "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
+        rows.append({"test": test, "archive": str(archive), "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
                      "a_values": [va[s] for s in seeds], "b_values": [vb[s] for s in seeds], **result.to_dict(),
                      "alpha": cfg.alpha, "significant": bool(result.p < cfg.alpha)})
     if cfg.holm:
         for row, adjusted in zip(rows, holm([r["p"] for r in rows]), strict=True):
             row["p_holm"], row["significant_holm"] = adjusted, bool(adjusted < cfg.alpha)
+        for row, adjusted in zip(rows, holm([r["sign_flip_p"] for r in rows]), strict=True):
+            row["sign_flip_p_holm"] = adjusted
     return rows
 
 
-def render(rows: list[dict[str, Any]], archive: Path) -> str:
+def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = False) -> str:
     adjusted = any("p_holm" in r for r in rows)
-    header = "| test | metric | seeds | mean diff +- SE | 95% bootstrap CI | t | p | at alpha |"
-    header += " Holm p | at alpha, Holm |" if adjusted else ""
-    lines = [f"Pre-registered paired tests over training seeds ({archive}):", "", header,
-             "|---" * (10 if adjusted else 8) + "|"]
+    header = "| test | metric | seeds | mean diff +- SE | 95% bootstrap CI | t | p | sign-flip p | at alpha |"
+    header += " Holm p | Holm sign-flip p | at alpha, Holm |" if adjusted else ""
+    label = "Pre-registered" if preregistered else "Exploratory (not pre-registered)"
+    lines = [f"{label} paired tests over training seeds ({archive}):", "", header,
+             "|---" * (12 if adjusted else 9) + "|"]
 
     def verdict(r: dict[str, Any], significant: bool) -> str:
         return "-" if r["n"] < 2 else ("reject H0" if significant else "not significant")
@@ -127,12 +139,16 @@ def render(rows: list[dict[str, Any]], archive: Path) -> str:
     for r in rows:
         line = (f"| {r['test']} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
                 f"{r['mean']:+.3f} +- {r['sem']:.3f} | [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}] | "
-                f"{r['t']:.2f} | {r['p']:.4f} | {verdict(r, r['significant'])} ({r['alpha']}) |")
+                f"{r['t']:.2f} | {r['p']:.4f} | {r['sign_flip_p']:.4f} | {verdict(r, r['significant'])} "
+                f"({r['alpha']}) |")
         if adjusted:
-            line += f" {r['p_holm']:.4f} | {verdict(r, r['significant_holm'])} |"
+            line += f" {r['p_holm']:.4f} | {r['sign_flip_p_holm']:.4f} | {verdict(r, r['significant_holm'])} |"
         lines.append(line)
     if adjusted:
-        lines += ["", f"Holm: adjusted over the {len(rows)} tests above as one family."]
+        lines += ["", f"Holm: adjusted over the {len(rows)} tests above as one family (the verdict on the t-test p; "
+                  "the sign-flip p beside it)."]
+    if any(r["archive"] != str(archive) for r in rows):
+        lines += ["", "Archives: " + "; ".join(sorted({f"{r['test']}: {r['archive']}" for r in rows}))]
     return "\n".join(lines) + "\n"
 
 
@@ -168,7 +184,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax.set_ylabel(f"final {r['metric']}")
         if r["n"] >= 2:
             ax.set_title(f"{r['test']}: {r['mean']:+.3f} +- {r['sem']:.3f}\n"
-                         f"CI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], p = {r['p']:.4f}", fontsize=8)
+                         f"CI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], p = {r['p']:.4f}, "
+                         f"sign-flip {r['sign_flip_p']:.4f}", fontsize=8)
         else:
             ax.set_title(f"{r['test']}: {r['n']} paired seed(s), no test", fontsize=8)
         ax.grid(alpha=0.3)
@@ -183,7 +200,7 @@ def main(args: list[str] | None = None) -> None:
     setup_logging()
     cfg = draccus.parse(HypothesesConfig, args=list(sys.argv[1:] if args is None else args))
     rows = run_tests(cfg)
-    text = render(rows, cfg.archive)
+    text = render(rows, cfg.archive, cfg.preregistered)
     if cfg.output is not None:
         write_checked_json(cfg.output / "hypotheses.json", {"archive": str(cfg.archive), "tests": rows})
         atomic_write_bytes(cfg.output / "hypotheses.md", text.encode())

@@ -1,4 +1,4 @@
-"""Paired tests over training seeds: the statistics the comparisons pre-register (docs/RESULTS.md, issue 28).
+"""Paired tests over training seeds: the statistics the comparisons pre-register (docs/RESULTS.md).
 
 For per-seed values ``a`` and ``b`` of two methods (the same training seeds), the paired differences
 ``d_s = a_s - b_s`` are tested with
@@ -7,6 +7,11 @@ For per-seed values ``a`` and ``b`` of two methods (the same training seeds), th
   one-sided (``greater``: H1 says mean(d) > 0) or two-sided. Student's t survival function through the regularized
   incomplete beta function, ``P(T > t) = I_{df / (df + t^2)}(df / 2, 1 / 2) / 2`` for ``t >= 0``, evaluated by its
   continued fraction (Lentz's method); checked against SciPy in the tests. No dependency beyond NumPy.
+- **the exact sign-flip permutation test** (Fisher's randomization test of the paired differences): under H0 each
+  difference's sign is as likely + as -, so the p-value is the fraction of all ``2^n`` sign assignments whose mean is
+  at least as extreme as the observed one (in the tested direction, or in absolute value for two-sided), enumerated
+  exactly (no sampling); no normality assumed. Its smallest possible value is ``2^-n`` one-sided (1/32 at 5 seeds,
+  1/1024 at 10) and ``2^(1-n)`` two-sided.
 - **a bootstrap confidence interval** of mean(d): percentile interval over resamples of the seeds with replacement
   (10,000 resamples, fixed generator seed: the interval is reproducible).
 
@@ -39,6 +44,7 @@ class PairedTest:
     ci_low: float
     ci_high: float
     ci_level: float
+    sign_flip_p: float = float("nan")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -104,7 +110,7 @@ def paired_test(a: Sequence[float], b: Sequence[float], alternative: str = "two-
     n = int(d.size)
     nan = float("nan")
     if n < 2:
-        return PairedTest(n, float(d.mean()) if n else nan, nan, nan, nan, alternative, nan, nan, ci_level)
+        return PairedTest(n, float(d.mean()) if n else nan, nan, nan, nan, alternative, nan, nan, ci_level, nan)
     mean, sd = float(d.mean()), float(d.std(ddof=1))
     sem = sd / math.sqrt(n)
     constant = sd <= 1e-12 * max(1.0, abs(mean))  # equal differences up to float rounding
@@ -121,7 +127,37 @@ def paired_test(a: Sequence[float], b: Sequence[float], alternative: str = "two-
     rng = np.random.default_rng(seed)
     means = d[rng.integers(0, n, size=(resamples, n))].mean(axis=1)
     low, high = np.quantile(means, [(1 - ci_level) / 2, 1 - (1 - ci_level) / 2])
-    return PairedTest(n, mean, sem, t, p, alternative, float(low), float(high), ci_level)
+    return PairedTest(n, mean, sem, t, p, alternative, float(low), float(high), ci_level, sign_flip_p(d, alternative))
+
+
+MAX_SIGN_FLIP_PAIRS = 20
+"""Up to 2^20 sign assignments are enumerated exactly (our bound: about a million rows of n numbers)."""
+
+
+def sign_flip_p(d: Sequence[float], alternative: str = "two-sided") -> float:
+    """Exact sign-flip permutation p of the mean of the paired differences ``d`` (module docstring): the fraction of
+    the ``2^n`` sign assignments ``s`` with ``mean(s * |d|)`` at least as extreme as ``mean(d)``. Ties within a
+    relative 1e-12 count as "at least as extreme" (exact ties occur: equal differences, zeros). NaN for fewer than
+    one pair; ``ValueError`` above :data:`MAX_SIGN_FLIP_PAIRS` pairs."""
+    if alternative not in ALTERNATIVES:
+        raise ValueError(f"alternative must be one of {ALTERNATIVES}, got {alternative!r}")
+    values = np.asarray(d, dtype=float)
+    n = int(values.size)
+    if n == 0:
+        return float("nan")
+    if n > MAX_SIGN_FLIP_PAIRS:
+        raise ValueError(f"sign-flip test: {n} pairs, exact enumeration stops at {MAX_SIGN_FLIP_PAIRS}")
+    signs = 1.0 - 2.0 * ((np.arange(2**n)[:, None] >> np.arange(n)[None, :]) & 1)
+    means = signs @ np.abs(values) / n
+    observed = float(values.mean())
+    tol = 1e-12 * max(1.0, float(np.abs(values).max()))
+    if alternative == "greater":
+        extreme = means >= observed - tol
+    elif alternative == "less":
+        extreme = means <= observed + tol
+    else:
+        extreme = np.abs(means) >= abs(observed) - tol
+    return float(extreme.mean())
 
 
 def holm(p_values: Sequence[float]) -> list[float]:

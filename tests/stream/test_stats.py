@@ -150,3 +150,57 @@ def test_a_flag_value_the_shell_cut_short_is_one_line_naming_the_value(tmp_path,
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and "not valid YAML: '[sr'" in err and "quote" in err
 
+
+
+def test_the_sign_flip_p_is_the_exact_fraction_of_sign_assignments():
+    import itertools
+
+    from sr_imitation.stream.stats import sign_flip_p
+
+    rng = np.random.default_rng(3)
+    for n in (1, 3, 5, 8):
+        d = rng.normal(0.05, 0.1, size=n)
+        brute = [np.mean(np.array(s) * np.abs(d)) for s in itertools.product((-1, 1), repeat=n)]
+        assert sign_flip_p(d, "greater") == pytest.approx(np.mean([m >= d.mean() - 1e-12 for m in brute]))
+        assert sign_flip_p(d, "less") == pytest.approx(np.mean([m <= d.mean() + 1e-12 for m in brute]))
+        assert sign_flip_p(d, "two-sided") == pytest.approx(np.mean([abs(m) >= abs(d.mean()) - 1e-12 for m in brute]))
+    assert sign_flip_p([0.1] * 5, "greater") == 1 / 32  # every pair positive: the floor 2^-n
+    assert sign_flip_p([0.1] * 10, "greater") == 1 / 1024
+    assert sign_flip_p([0.1] * 5, "two-sided") == 2 / 32
+    assert sign_flip_p([0.0, 0.0, 0.0], "greater") == 1.0  # no evidence either way
+    assert sign_flip_p(-np.array([0.3, 0.1, 0.2]), "greater") == 1.0
+    assert sign_flip_p([0.2, -0.1, 0.3], "greater") == sign_flip_p([-0.2, 0.1, -0.3], "less")  # mirror symmetry
+    with pytest.raises(ValueError, match="exact enumeration stops at 20"):
+        sign_flip_p(np.ones(21))
+
+
+def test_a_family_spans_archives_and_labels_are_exploratory_unless_pre_registered(tmp_path):
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, render, run_tests
+    from sr_imitation.stream.stats import holm
+
+    first, second = tmp_path / "one", tmp_path / "two"
+    _archive(first, {"sr": [0.7, 0.6, 0.65], "wake_only": [0.5, 0.55, 0.4]})
+    _archive(second, {"sr": [0.3, 0.4, 0.35, 0.5], "wake_only": [0.3, 0.2, 0.4, 0.4]})
+    cfg = HypothesesConfig(archive=first, tests=["sr>wake_only", f"{second}::sr>wake_only"], holm=True)
+    rows = run_tests(cfg)
+    assert [r["archive"] for r in rows] == [str(first), str(second)] and [r["n"] for r in rows] == [3, 4]
+    assert rows[1]["a_values"] == pytest.approx([0.3, 0.4, 0.35, 0.5])
+    assert rows[0]["sign_flip_p"] == 1 / 8  # all three pairs positive
+    assert [r["sign_flip_p_holm"] for r in rows] == holm([r["sign_flip_p"] for r in rows])
+    text = render(rows, first)
+    assert text.startswith("Exploratory (not pre-registered) paired tests") and "sign-flip p" in text
+    assert render(rows, first, preregistered=True).startswith("Pre-registered paired tests")
+    with pytest.raises(FileNotFoundError, match="is not a folder"):
+        HypothesesConfig(archive=first, tests=[f"{tmp_path / 'nowhere'}::sr>wake_only"])
+
+
+def _archive(folder, finals: dict[str, list[float]]) -> None:
+    """Runs ``<variant>_seed<S>`` whose final AFSR is the given value (the toy results' 0.7 shifted)."""
+    from sr_imitation.io import write_checked_json
+    from tests.stream.test_results import _results
+
+    for variant, values in finals.items():
+        for seed, value in enumerate(values):
+            run = folder / f"{variant}_seed{seed}"
+            run.mkdir(parents=True)
+            write_checked_json(run / "results.json", _results(seed=seed, shift=value - 0.7, sleep=variant == "sr"))
