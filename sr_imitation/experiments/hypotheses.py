@@ -56,6 +56,8 @@ class HypothesesConfig:
     preregistered: bool = False
     """Label the tests "pre-registered" in hypotheses.md: only for tests whose text was committed before any run of
     their preset (docs/RESULTS.md says which); otherwise they are labelled "exploratory"."""
+    note: str = ""
+    """A sentence printed under the label (e.g. what was known when the tests were written)."""
 
     def __post_init__(self) -> None:
         bad = [t for t in self.tests if not _TEST.match(t)]
@@ -125,12 +127,12 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     return rows
 
 
-def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = False) -> str:
+def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = False, note: str = "") -> str:
     adjusted = any("p_holm" in r for r in rows)
     header = "| test | metric | seeds | mean diff +- SE | 95% bootstrap CI | t | p | sign-flip p | at alpha |"
     header += " Holm p | Holm sign-flip p | at alpha, Holm |" if adjusted else ""
     label = "Pre-registered" if preregistered else "Exploratory (not pre-registered)"
-    lines = [f"{label} paired tests over training seeds ({archive}):", "", header,
+    lines = [f"{label} paired tests over training seeds ({archive}):", *(["", note] if note else []), "", header,
              "|---" * (12 if adjusted else 9) + "|"]
 
     def verdict(r: dict[str, Any], significant: bool) -> str:
@@ -200,7 +202,7 @@ def main(args: list[str] | None = None) -> None:
     setup_logging()
     cfg = draccus.parse(HypothesesConfig, args=list(sys.argv[1:] if args is None else args))
     rows = run_tests(cfg)
-    text = render(rows, cfg.archive, cfg.preregistered)
+    text = render(rows, cfg.archive, cfg.preregistered, cfg.note)
     if cfg.output is not None:
         write_checked_json(cfg.output / "hypotheses.json", {"archive": str(cfg.archive), "tests": rows})
         atomic_write_bytes(cfg.output / "hypotheses.md", text.encode())
