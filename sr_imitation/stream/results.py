@@ -205,6 +205,17 @@ def _cell(x: float | None, digits: int = 2) -> str:
     return "-" if x is None else f"{x:.{digits}f}"
 
 
+def _binomial_note(results: Mapping[str, Any]) -> list[str]:
+    """The evaluation noise of one success cell: a rate over N episodes has binomial SE sqrt(p (1 - p) / N), at most
+    sqrt(0.25 / N); the SE over a few evaluation units printed beside the metrics understates it."""
+    episodes = ((results.get("config") or {}).get("eval") or {}).get("episodes")
+    if not isinstance(episodes, int) or episodes < 1 or not results.get("eval_units"):
+        return []
+    n = episodes * int(results["eval_units"])
+    return [f"A success cell pools {n} episodes ({episodes} per evaluation unit): its binomial SE is up to "
+            f"{math.sqrt(0.25 / n):.3f} (at 0.5 success); the SE over evaluation units understates that noise."]
+
+
 def render_markdown(results: Mapping[str, Any]) -> str:
     """``results.md``: final metrics (mean +- SE over evaluation units), success matrix, success after own wake."""
     skills = results["skills"]
@@ -215,7 +226,7 @@ def render_markdown(results: Mapping[str, Any]) -> str:
     if results.get("evaluation"):
         lines += [f"Evaluation: {results['evaluation']} (--eval.env).", ""]
     lines += [f"Mean +- SE over {units} evaluation unit(s) (ACT: evaluation seeds; SAC: one set of fixed evaluation "
-              "configurations).", "",
+              "configurations).", *_binomial_note(results), "",
               "| metric | final (k = K) | per stage |", "|---|---|---|"]
     for name in METRICS:
         m = results["metrics"][name]

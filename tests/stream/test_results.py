@@ -252,3 +252,11 @@ def test_summary_command_over_the_committed_needle_runs(tmp_path, capsys):
         for m in ("afsr", "prs", "bwt"):
             assert saved["variants"][variant][m]["mean"] == pytest.approx(old[variant][m]["mean"]), (variant, m)
     assert "Paired difference variant - wake_only" in out
+
+
+def test_results_md_states_the_binomial_noise_of_a_success_cell():
+    from sr_imitation.stream.results import render_markdown
+
+    md = render_markdown(_results())  # config: 5 episodes per unit, two units: 10 episodes per cell
+    assert "A success cell pools 10 episodes (5 per evaluation unit): its binomial SE is up to 0.158" in md
+    assert "pools" not in render_markdown(_results(config={}))  # unknown episode count: nothing claimed
