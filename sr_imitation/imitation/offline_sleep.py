@@ -31,6 +31,13 @@ What the stream knows from its run directory is taken here from the inputs:
   through the snapshot's unnormalizer and the deployed policy's normalizer (our choice: the objective then compares
   the raw-space behaviours in the deployed policy's normalized action space, as the stream's fixed statistics do).
   Where the snapshot is not found, the targets are used as stored (reported as ``unchecked``).
+- **no standard deviation of ~0**: where the deployed policy's statistics have a standard deviation below
+  ``--min_std`` (a dimension constant in its dataset, e.g. the needle's jaw while placing), that dimension is
+  normalized with the statistics of the policy's and its memories' snapshots together and the policy re-expressed
+  with the same actions (:func:`settle_statistics`), so no memory is mapped through a division by ~1e-8.
+
+A sleep that cannot consolidate, or did not, is an error naming the memory, with nothing written: a memory loss that
+is non-finite or absurd (:data:`ABSURD_LOSS`) before or after the sleep, or no memory's loss moved.
 
 Every input is checked before the first gradient (one-line errors naming the file): the policy directory loads as
 an ACT-SR policy with its processors, every memory loads and matches the policy's observation features and action
@@ -40,16 +47,16 @@ directory and renamed into ``output_dir`` only when complete:
 - ``pretrained_model/``: the consolidated policy with its pre/post-processors (LeRobot layout: stock
   ``lerobot-eval --policy.path=...`` loads it), sealed by ``checksums.json``;
 - ``sleep.json`` (checked JSON) and ``sleep.md``: memory losses on each memory's whole buffer before and after the
-  sleep, success before and after on ``--eval.skills`` (the needle environment; off by default), the sleep's
+  sleep, success before and after on ``--eval.skills`` (in ``--eval.env``, as sr-train's; off by default), the sleep's
   summary; ``sleep_diagnostics.json``: every iteration's losses, weights and gradient norms (as the stream's);
   ``videos/`` when evaluating.
 """
 
 from __future__ import annotations
 
-import copy
 import dataclasses
 import logging
+import math
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -71,7 +78,21 @@ from sr_imitation.core.sleep import SleepConfig, SleepResult, sleep_consolidate
 from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
 from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.evaluate import EnvFactory, EvalConfig, evaluate_skills, needle_env_factory
+from sr_imitation.imitation.evaluate import (
+    EnvFactory,
+    EvalConfig,
+    evaluate_skills,
+    make_env_factory,
+    resolve_eval_env,
+)
+from sr_imitation.imitation.normalization import (
+    MIN_STD,
+    Stats,
+    map_actions,
+    pooled,
+    reexpress_policy,
+    same_stats,
+)
 from sr_imitation.imitation.substrate import (
     act_sleep_problem,
     deployed_parameters,
@@ -129,11 +150,22 @@ class AnchorConfig:
 @dataclass
 class SleepEvalConfig:
     """Success before and after the sleep: the stream's evaluation protocol (:class:`~sr_imitation.imitation.
-    evaluate.EvalConfig`'s settings of the same names) in the needle environment."""
+    evaluate.EvalConfig`'s settings of the same names), in any environment sr-train evaluates in."""
 
     skills: list[str] = field(default_factory=list)
-    """Needle skills to evaluate before and after the sleep; empty - no evaluation (the default: a deployed policy
-    may have no environment here; the memory losses are reported either way)."""
+    """Skills to evaluate before and after the sleep, in stream order; empty - no evaluation (the default: a
+    deployed policy may have no environment here; the memory losses are reported either way)."""
+    env: str = "needle"
+    """Where each skill is evaluated, as sr-train's --eval.env - needle (the needle skills), metaworld (a Meta-World
+    v3 task per skill), gym (--eval.gym_ids) or lerobot (--eval.env_type, --eval.env_tasks)."""
+    gym_ids: list[str] | None = None
+    """--eval.env=gym: one gymnasium id per skill, in the order of eval.skills."""
+    env_type: str | None = None
+    """--eval.env=lerobot: the LeRobot env type (lerobot-eval's --env.type)."""
+    env_tasks: list[str] | None = None
+    """--eval.env=lerobot or metaworld: one task per skill; null - each skill's name is its task."""
+    env_options: dict[str, Any] = field(default_factory=dict)
+    """Keyword arguments of the environment (as sr-train's --eval.env_options)."""
     episodes: int = 20
     """Episodes per skill per evaluation seed (paper 20)."""
     seeds: list[int] = field(default_factory=lambda: [0, 1, 2])
@@ -150,10 +182,17 @@ class SleepEvalConfig:
     """Success-threshold preset of the needle environment - learnable or surgicai."""
 
     def protocol(self) -> EvalConfig:
-        """The stream's evaluation settings (checked by :class:`EvalConfig`)."""
-        return EvalConfig(episodes=self.episodes, seeds=list(self.seeds), max_steps=self.max_steps,
-                          videos_per_skill=self.videos_per_skill, video_height=self.video_height,
-                          video_width=self.video_width, thresholds=self.thresholds)
+        """The stream's evaluation settings (checked by :class:`EvalConfig`, the per-skill lists against
+        ``skills``)."""
+        if self.env == "none":
+            raise ValueError("eval.env=none evaluates nothing; leave eval.skills empty instead")
+        protocol = EvalConfig(env=self.env, gym_ids=self.gym_ids, env_type=self.env_type, env_tasks=self.env_tasks,
+                              env_options=dict(self.env_options), episodes=self.episodes, seeds=list(self.seeds),
+                              max_steps=self.max_steps, videos_per_skill=self.videos_per_skill,
+                              video_height=self.video_height, video_width=self.video_width,
+                              thresholds=self.thresholds)
+        protocol.check_skills(self.skills)
+        return protocol
 
 
 @dataclass
@@ -184,9 +223,15 @@ class OfflineSleepConfig:
     torch_threads: int | None = None
     """torch's intra-op threads (null - this process's default); repeating a run's sleep bit for bit needs the
     run's number."""
+    min_std: float = MIN_STD
+    """Floor on the policy's normalization standard deviations - a dimension whose std is below it (constant in the
+    deployed policy's dataset) is normalized with the statistics of the policy's and its memories' snapshots
+    together, the policy re-expressed with the same actions (sr-train's --stream.stats_min_std; default 1e-2)."""
 
     def __post_init__(self) -> None:
         self.output_dir = Path(self.output_dir)
+        if not self.min_std > 0:
+            raise ValueError(f"min_std must be > 0, got {self.min_std}")
         self.memories = [Path(p) for p in self.memories]
         if self.policy.path is None:
             raise ValueError("policy.path: give the deployed policy's pretrained_model directory "
@@ -231,6 +276,10 @@ class LoadedPolicy:
     policy: ACTSRPolicy
     preprocessor: Any
     postprocessor: Any
+    stats: Stats = field(default_factory=dict)
+    """The statistics its processors normalize with (inputs: the normalizer's; the action: the unnormalizer's)."""
+    deployed_stats: Stats = field(default_factory=dict)
+    """Those of the checkpoint as deployed (``stats`` differ once :func:`settle_statistics` re-expressed it)."""
 
 
 @dataclass
@@ -292,7 +341,8 @@ def load_policy(path: Path, device: str | None) -> LoadedPolicy:
     except Exception as exc:  # LeRobot's pipeline loader names neither the file nor the step
         raise CorruptFileError(path, f"unreadable policy processors ({exc})") from exc
     policy.set_observation_normalizer(partial(normalize_raw_observations, pre))
-    return LoadedPolicy(path, config, policy, pre, post)
+    stats = processor_stats(pre, post)
+    return LoadedPolicy(path, config, policy, pre, post, stats, stats)
 
 
 def checkpoint_parameters(policy: ACTSRPolicy, path: Path, what: str) -> list[torch.Tensor]:
@@ -337,22 +387,38 @@ def expected_observations(config: ACTSRConfig, stored: Sequence[str]) -> dict[st
     return out
 
 
-def _action_steps(post: Any, pre: Any) -> tuple[UnnormalizerProcessorStep | None, NormalizerProcessorStep | None]:
+def _steps(post: Any, pre: Any) -> tuple[UnnormalizerProcessorStep | None, NormalizerProcessorStep | None]:
     unnorm = next((s for s in post.steps if isinstance(s, UnnormalizerProcessorStep)), None)
     norm = next((s for s in pre.steps if isinstance(s, NormalizerProcessorStep)), None)
     return unnorm, norm
 
 
-def _action_stats(step: Any) -> dict[str, torch.Tensor]:
-    if step is None:
-        return {}
-    return {k: v for k, v in step.state_dict().items() if k.startswith(f"{ACTION}.")}
+def processor_stats(pre: Any, post: Any) -> Stats:
+    """The statistics a policy's processors hold: its inputs' (the normalizer's) and its action's (the
+    unnormalizer's, which turns the policy's outputs into actions)."""
+    stats: Stats = {}
+    unnorm, norm = _steps(post, pre)
+    for step in (norm, unnorm):  # the unnormalizer's action statistics last: they are what the policy outputs in
+        for name, tensor in ({} if step is None else step.state_dict()).items():
+            key, stat = name.rsplit(".", 1)
+            stats.setdefault(key, {})[stat] = tensor.detach().float().cpu()
+    return stats
 
 
-def load_actor_memory(path: Path, loaded: LoadedPolicy) -> LoadedMemory:
+@dataclass
+class MemoryFile:
+    """One memory file read and checked against the policy, its targets as stored."""
+
+    path: Path
+    memory: ActorMemory
+    snapshot: Path | None
+    snapshot_stats: Stats | None
+    """The statistics of the snapshot's processors (the action space its targets are in), when found."""
+
+
+def read_actor_memory(path: Path, loaded: LoadedPolicy) -> MemoryFile:
     """Load one memory file and check it against the policy: an ACT actor memory whose observations are the
-    policy's inputs and whose targets are (size, chunk_size, action_dim) chunks; targets re-expressed in the policy's
-    action space where its snapshot normalizes actions otherwise (module docstring)."""
+    policy's inputs and whose targets are (size, chunk_size, action_dim) chunks; with its snapshot's statistics."""
     path = Path(path)
     memory = load_memory(path)  # a missing or damaged file: one line naming it
     if not isinstance(memory, ActorMemory):
@@ -378,25 +444,85 @@ def load_actor_memory(path: Path, loaded: LoadedPolicy) -> LoadedMemory:
     if snapshot is None or not (snapshot / "policy_postprocessor.json").is_file():
         logger.warning("%s: its snapshot checkpoint (%r) is not beside it; its targets are taken to be in the "
                        "policy's normalized action space", path, memory.config.get("snapshot", ""))
-        return LoadedMemory(path, memory, snapshot, "unchecked")
+        return MemoryFile(path, memory, snapshot, None)
     try:
-        _, snapshot_post = make_pre_post_processors(config, pretrained_path=str(snapshot))
+        snapshot_pre, snapshot_post = make_pre_post_processors(config, pretrained_path=str(snapshot))
     except Exception as exc:  # LeRobot's pipeline loader names neither the file nor the step
         raise CorruptFileError(snapshot, f"unreadable processors of the snapshot of {path} ({exc})") from exc
-    unnorm, _ = _action_steps(snapshot_post, loaded.preprocessor)
-    mine, norm = _action_steps(loaded.postprocessor, loaded.preprocessor)
-    theirs, own = _action_stats(unnorm), _action_stats(mine)
-    if theirs.keys() == own.keys() and all(torch.equal(theirs[k], own[k]) for k in own):
-        return LoadedMemory(path, memory, snapshot, "as stored")
-    if unnorm is None or norm is None:
-        raise ValueError(f"{path}: its snapshot {snapshot} and the policy {loaded.path} normalize actions "
+    return MemoryFile(path, memory, snapshot, processor_stats(snapshot_pre, snapshot_post))
+
+
+def settle_statistics(loaded: LoadedPolicy, snapshot_stats: Sequence[Stats | None], min_std: float) -> str | None:
+    """Where the deployed policy's statistics have a standard deviation below ``min_std`` (a dimension constant in
+    its dataset: LeRobot divides by std + 1e-8 there, and another skill's memory would sit ~1e8 standard deviations
+    away), that dimension's statistics become those of the deployed policy's and its memories' snapshots' together
+    (:func:`~sr_imitation.imitation.normalization.pooled`, floored); the policy's layers are re-expressed so its
+    actions are unchanged (:func:`~sr_imitation.imitation.normalization.reexpress_policy`) and its processors are
+    rebuilt with the new statistics (what the consolidated checkpoint is saved with). Our choice. Returns a
+    description of what changed, ``None`` when nothing did (every standard deviation at least ``min_std``: an
+    sr-train run's checkpoints, whose statistics are floored, are slept exactly as the run sleeps them)."""
+    own, config = loaded.stats, loaded.config
+    others = [s for s in snapshot_stats if s is not None]
+    new: Stats = {key: dict(entry) for key, entry in own.items()}
+    thin_dims: list[str] = []
+    for key in dict.fromkeys([*config.input_features, ACTION]):  # the policy's own inputs and output, in order
+        entry = own.get(key, {})
+        if key in config.image_features or "std" not in entry or "mean" not in entry:
+            continue
+        thin = entry["std"] < min_std
+        if not bool(thin.any()):
+            continue
+        together = pooled([{key: entry}] + [{key: s[key]} for s in others if key in s], min_std)[key]
+        new[key] = {**entry, "mean": torch.where(thin, together["mean"], entry["mean"]),
+                    "std": torch.where(thin, together["std"], entry["std"])}
+        thin_dims.append(f"{key}{thin.nonzero().flatten().tolist()}")
+    if not thin_dims:
+        return None
+    reexpress_policy(loaded.policy, own, new, min_std)
+    features = {**config.input_features, **config.output_features}
+    try:
+        pre, post = make_pre_post_processors(
+            config, pretrained_path=str(loaded.path),
+            preprocessor_overrides={"device_processor": {"device": config.device},
+                                    "normalizer_processor": {"stats": new, "features": features,
+                                                             "norm_map": config.normalization_mapping}},
+            postprocessor_overrides={"unnormalizer_processor": {"stats": new, "features": config.output_features,
+                                                                "norm_map": config.normalization_mapping}})
+    except Exception as exc:  # LeRobot's pipeline loader names neither the file nor the step
+        raise CorruptFileError(loaded.path, f"unreadable policy processors ({exc})") from exc
+    loaded.preprocessor, loaded.postprocessor, loaded.stats = pre, post, processor_stats(pre, post)
+    loaded.policy.set_observation_normalizer(partial(normalize_raw_observations, pre))
+    what = (f"standard deviation below {min_std:g} in {', '.join(thin_dims)} (constant in the deployed policy's "
+            "dataset): those dimensions normalized with the statistics of the policy's and its memories' snapshots "
+            "together, the policy re-expressed with the same actions")
+    logger.warning("%s: %s", loaded.path, what)
+    return what
+
+
+def express_targets(read: MemoryFile, loaded: LoadedPolicy) -> LoadedMemory:
+    """The memory with its targets in the policy's normalized action space: mapped from its snapshot's action
+    statistics (from the deployed checkpoint's when the snapshot is not found) where they differ."""
+    memory, target = read.memory, read.memory.tensors["target"]
+    source = loaded.deployed_stats if read.snapshot_stats is None else read.snapshot_stats
+    label = "unchecked" if read.snapshot_stats is None else "as stored"
+    if same_stats(source, loaded.stats, [ACTION]):
+        return LoadedMemory(read.path, memory, read.snapshot, label)
+    if ACTION not in source or ACTION not in loaded.stats:
+        raise ValueError(f"{read.path}: its snapshot {read.snapshot} and the policy {loaded.path} normalize actions "
                          "differently and one has no action (un)normalizer to map the targets with")
-    norm = copy.deepcopy(norm)  # the transform moves a step's statistics to the tensor's device: not the policy's
     with torch.no_grad():
-        mapped = norm._normalize_action(unnorm._normalize_action(target.float(), inverse=True), inverse=False)
-    logger.info("%s: targets re-expressed from %s's action statistics into the policy's", path, snapshot)
+        mapped = map_actions(target, source[ACTION], loaded.stats[ACTION])
+    logger.info("%s: targets re-expressed from %s's action statistics into the policy's", read.path,
+                read.snapshot or loaded.path)
     memory = ActorMemory(memory.skill, {**memory.tensors, "target": mapped}, dict(memory.config))
-    return LoadedMemory(path, memory, snapshot, "re-expressed")
+    return LoadedMemory(read.path, memory, read.snapshot, "re-expressed" if read.snapshot_stats is not None
+                        else label)
+
+
+def load_actor_memory(path: Path, loaded: LoadedPolicy) -> LoadedMemory:
+    """:func:`read_actor_memory` and :func:`express_targets`: the memory checked against the policy, its targets in
+    the policy's normalized action space (module docstring)."""
+    return express_targets(read_actor_memory(path, loaded), loaded)
 
 
 @dataclass
@@ -407,6 +533,8 @@ class SleepInputs:
     memories: list[LoadedMemory]
     anchor: list[torch.Tensor] | None
     wake_snapshots: list[list[torch.Tensor]]
+    statistics: str | None = None
+    """What :func:`settle_statistics` changed (``None``: the policy's statistics as deployed)."""
 
 
 def _inside(path: Path, directory: Path) -> bool:
@@ -423,12 +551,12 @@ def check_inputs(cfg: OfflineSleepConfig, custom_env: bool = False) -> SleepInpu
             raise ValueError(f"output_dir {out} holds the input {path}; choose another output_dir")
     if out.exists() and (not out.is_dir() or any(out.iterdir())) and not cfg.overwrite:
         raise FileExistsError(f"{out} already exists; pass --overwrite=true to replace it")
-    unknown = [s for s in cfg.eval.skills if s not in NEEDLE_SKILLS]
-    if unknown and not custom_env:
-        raise ValueError(f"eval.skills: {unknown} have no evaluation environment (the needle environment has "
-                         f"{list(NEEDLE_SKILLS)})")
+    if cfg.eval.skills and not custom_env:
+        check_eval_envs(cfg.eval)
     loaded = load_policy(Path(cfg.policy.path), cfg.policy.device)
-    memories = [load_actor_memory(path, loaded) for path in cfg.memories]
+    read = [read_actor_memory(path, loaded) for path in cfg.memories]
+    statistics = settle_statistics(loaded, [r.snapshot_stats for r in read], cfg.min_std)
+    memories = [express_targets(r, loaded) for r in read]
     anchor = None
     if cfg.sleep.anchor_strength > 0:
         if cfg.anchor.path is None:
@@ -446,7 +574,7 @@ def check_inputs(cfg: OfflineSleepConfig, custom_env: bool = False) -> SleepInpu
             wake_snapshots = []  # the distances are diagnostics only then: all or none
             break
         wake_snapshots.append(checkpoint_parameters(loaded.policy, m.snapshot, f"the wake snapshot of {m.path}"))
-    return SleepInputs(loaded, memories, anchor, wake_snapshots)
+    return SleepInputs(loaded, memories, anchor, wake_snapshots, statistics)
 
 
 # -- the sleep ---------------------------------------------------------------------------------------------------
@@ -460,6 +588,20 @@ def memory_loss(memory: ActorMemory, policy_fn: Callable[[Mapping[str, torch.Ten
     return total / memory.size
 
 
+def check_eval_envs(eval_cfg: SleepEvalConfig) -> None:
+    """Every skill of ``--eval.skills`` has its environment (``--eval.env``, as sr-train checks it): a needle skill
+    name, a Meta-World task, a registered gym id or a LeRobot env config; ``ValueError`` naming the key."""
+    protocol, skills = eval_cfg.protocol(), list(eval_cfg.skills)
+    if protocol.env == "needle":
+        unknown = [s for s in skills if s not in NEEDLE_SKILLS]
+        if unknown:
+            raise ValueError(f"eval.skills: {unknown} have no evaluation environment (the needle environment has "
+                             f"{list(NEEDLE_SKILLS)}); other environments: --eval.env=metaworld|gym|lerobot")
+        return
+    for index in range(len(skills)):
+        resolve_eval_env(protocol, skills, index)
+
+
 def _evaluate(cfg: OfflineSleepConfig, loaded: LoadedPolicy, make_env: EnvFactory | None, video_dir: Path
               ) -> dict[str, Any]:
     skills, protocol = list(cfg.eval.skills), cfg.eval.protocol()
@@ -467,7 +609,7 @@ def _evaluate(cfg: OfflineSleepConfig, loaded: LoadedPolicy, make_env: EnvFactor
     if make_env is None:
         images = list(loaded.config.image_features)
         size = None if not images else tuple(int(x) for x in loaded.config.image_features[images[0]].shape[1:])
-        make_env = needle_env_factory(size, protocol)
+        make_env = make_env_factory(protocol, skills, size)
     results = evaluate_skills(loaded.policy, loaded.preprocessor, loaded.postprocessor, skills, indices, make_env,
                               protocol, video_dir if cfg.eval.videos_per_skill else None, cfg.progress)
     return {s: {"success": r.success, "success_per_seed": r.success_per_seed,
@@ -491,6 +633,7 @@ def run_offline_sleep(cfg: OfflineSleepConfig, make_env: EnvFactory | None = Non
     try:
         with staged_directory(out) as tmp:
             before = [memory_loss(m.memory, problem.policy) for m in memories]
+            check_losses(memories, before, "before the sleep")
             success_before = _evaluate(cfg, loaded, make_env, tmp / "videos" / "before") if cfg.eval.skills else None
             seed_everything(cfg.sleep.seed)
             t0 = time.perf_counter()
@@ -500,6 +643,8 @@ def run_offline_sleep(cfg: OfflineSleepConfig, make_env: EnvFactory | None = Non
                                        on_iteration=_progress_logger(cfg.sleep))
             seconds = time.perf_counter() - t0
             after = [memory_loss(m.memory, problem.policy) for m in memories]
+            check_losses(memories, after, "after the sleep")
+            check_moved(memories, before, after, result.stop_iteration)
             success_after = _evaluate(cfg, loaded, make_env, tmp / "videos" / "after") if cfg.eval.skills else None
             record = _record(cfg, inputs, result, seconds, before, after, success_before, success_after)
             policy._reservoir = None  # the consolidated policy has no skill memory of its own to write beside it
@@ -512,6 +657,53 @@ def run_offline_sleep(cfg: OfflineSleepConfig, make_env: EnvFactory | None = Non
                                                "again") from exc
     logger.info("sr-sleep: summed memory loss %.4g -> %.4g; written %s", sum(before), sum(after), out)
     return record
+
+
+class SleepFailedError(ValueError):
+    """The sleep cannot be, or was not, a consolidation: a memory's loss is non-finite or absurd, or the sleep moved
+    no memory's loss. Nothing is written (the input checkpoint is only ever read)."""
+
+
+ABSURD_LOSS = 1e4
+"""A memory loss above this per action-chunk element (a mean squared difference of normalized actions: 100 standard
+deviations on average) is absurd (our choice): its targets are not in the policy's action space, e.g. mapped through
+statistics with a standard deviation of ~0."""
+
+
+def _per_element(memory: ActorMemory, loss: float) -> float:
+    """The loss per action-chunk element (a ``sum``-reduced memory sums over the chunk's elements)."""
+    target = memory.tensors["target"]
+    return loss / max(1, target[0].numel()) if memory.config.get("reduction") == "sum" else loss
+
+
+def check_losses(memories: Sequence[LoadedMemory], losses: Sequence[float], when: str) -> None:
+    """:class:`SleepFailedError` naming the first memory whose loss is non-finite or absurd (:data:`ABSURD_LOSS`)."""
+    for m, loss in zip(memories, losses, strict=True):
+        if not math.isfinite(loss):
+            raise SleepFailedError(f"{m.path}: memory loss {loss} {when} (non-finite): the sleep cannot consolidate "
+                                   f"it; nothing was written")
+        if _per_element(m.memory, loss) > ABSURD_LOSS:
+            raise SleepFailedError(
+                f"{m.path}: memory loss {loss:.4g} {when} is absurd (targets {m.targets}; a policy near its data has "
+                f"losses of order 1): its targets are not in the policy's action space{_stats_hint(m)}; nothing was "
+                "written")
+
+
+def _stats_hint(m: LoadedMemory) -> str:
+    if m.targets == "unchecked":
+        return " (its snapshot checkpoint is not beside it, so its statistics are unknown)"
+    return " (its snapshot's and the policy's action statistics differ by orders of magnitude)"
+
+
+def check_moved(memories: Sequence[LoadedMemory], before: Sequence[float], after: Sequence[float],
+                iterations: int) -> None:
+    """:class:`SleepFailedError` when the sleep changed no memory's loss (its updates never reached the policy)."""
+    if any(not math.isclose(a, b, rel_tol=1e-9, abs_tol=1e-12) for a, b in zip(after, before, strict=True)):
+        return
+    raise SleepFailedError(
+        f"{memories[0].path}: memory loss {before[0]:.6g} before and after {iterations} sleep iterations, and no "
+        "other memory's moved either: the sleep changed nothing (raise --sleep.lr or --sleep.max_iterations); "
+        "nothing was written")
 
 
 def _progress_logger(config: SleepConfig) -> Callable[[int, dict[str, Any]], None]:
@@ -548,6 +740,7 @@ def _record(cfg: OfflineSleepConfig, inputs: SleepInputs, result: SleepResult, s
                                                                "the deployed policy"),
         "final_skill": cfg.final_skill,
         "gate_snapshots": len(inputs.wake_snapshots),
+        "statistics": inputs.statistics or "as deployed",
         "sleep_settings": to_jsonable(cfg.sleep),
         "memories": memories,
         "summed_loss": {"before": sum(before), "after": sum(after)},
@@ -566,6 +759,7 @@ def report_markdown(record: dict[str, Any]) -> str:
         f"Policy `{record['policy']}`, anchor: {record['anchor'] or 'none (sleep.anchor_strength=0)'}; "
         f"{sleep['stop_iteration']} iterations ({sleep['stop_reason']}), anchor coefficient "
         f"{sleep['anchor_lambda']:g}, {sleep['seconds']:.1f} s. Consolidated checkpoint: `{record['checkpoint']}/`.",
+        "", f"Normalization statistics: {record.get('statistics', 'as deployed')}.",
         "", "Memory losses L_i on each memory's whole buffer (squared action-chunk difference to its frozen snapshot, "
         "in the policy's normalized action space):", "",
         "| # | memory | skill | size | targets | loss before | loss after | change |",

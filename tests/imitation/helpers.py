@@ -31,16 +31,22 @@ def features(image: bool = True, state_dim: int = STATE_DIM, action_dim: int = A
 
 
 def make_skill_dataset(root: Path, skill: str, index: int, episodes: int = 3, frames: int = 10,
-                       image: bool = True, state_dim: int = STATE_DIM, action_dim: int = ACTION_DIM) -> Path:
-    """A dataset whose action is a fixed linear function of the state, different per skill."""
+                       image: bool = True, state_dim: int = STATE_DIM, action_dim: int = ACTION_DIM,
+                       constant: dict[str, dict[int, float]] | None = None, offset: float | None = None) -> Path:
+    """A dataset whose action is a fixed linear function of the state, different per skill; ``constant`` holds
+    dimensions of ``observation.state`` / ``action`` at a fixed value (a gripper that never moves: std 0),
+    ``offset`` shifts the state (default ``index``)."""
     rng = np.random.default_rng(index)
     weights = rng.normal(size=(state_dim, action_dim)).astype(np.float32) * 0.3
     ds = LeRobotDataset.create(repo_id=f"local/sr_needle_{skill}", fps=10, root=root / skill, robot_type="sim",
                                use_videos=False, features=features(image, state_dim, action_dim))
     for _ in range(episodes):
         for _ in range(frames):
-            state = rng.normal(size=state_dim).astype(np.float32) + index
+            state = rng.normal(size=state_dim).astype(np.float32) + (index if offset is None else offset)
             frame = {"observation.state": state, "action": np.tanh(state @ weights), "task": skill}
+            for key, dims in (constant or {}).items():
+                for dim, value in dims.items():
+                    frame[key][dim] = value
             if image:
                 frame["observation.images.wrist"] = rng.integers(0, 255, (IMAGE, IMAGE, 3), dtype=np.uint8)
             ds.add_frame(frame)
