@@ -45,6 +45,7 @@ from sr_imitation.imitation.evaluate import (
 from sr_imitation.imitation.hub import check_push, push_policy
 from sr_imitation.imitation.substrate import ACTSubstrate, seed_everything, stage_name
 from sr_imitation.infra import distributed
+from sr_imitation.stream.methods import check_method
 from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.rundir import point_last
 
@@ -65,6 +66,7 @@ class StreamTrainer(StreamRun):
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None,
                  after_phase: Callable[[int, str], None] | None = None) -> None:
         substrate = ACTSubstrate(cfg, make_env)
+        check_method(cfg.method, substrate)  # before the datasets are read for their digests
         inputs = stream_inputs(cfg)
         stored = stored_config_dict(cfg)
         super().__init__(cfg, substrate, fingerprint=resume_fingerprint(cfg, inputs), stored_config=stored,

@@ -44,7 +44,6 @@ class CompoNet(ContinualMethod):
     """A growing set of frozen per-skill modules on a frozen trunk, composed by attention."""
 
     name = "componet"
-    substrates = frozenset({"sac"})
     requires = (ReplaceableActor,)
 
     def setup(self, substrate: Substrate) -> None:

@@ -12,7 +12,9 @@ from sr_imitation.stream.engine import StreamEngine
 from sr_imitation.stream.methods import (
     METHODS,
     ContinualMethod,
+    check_method,
     make_method,
+    method_class,
     method_config,
     methods_for,
     register_method,
@@ -21,4 +23,5 @@ from sr_imitation.stream.rundir import RunDirectory
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem, Substrate
 
 __all__ = ["METHODS", "ContinualMethod", "MethodSettings", "RunDirectory", "SleepProblem", "StreamEngine",
-           "Substrate", "make_method", "method_config", "methods_for", "register_method"]
+           "Substrate", "check_method", "make_method", "method_class", "method_config", "methods_for",
+           "register_method"]

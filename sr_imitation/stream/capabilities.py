@@ -25,6 +25,7 @@ state tensors); a method passes them from one member to another without looking 
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Mapping, Sequence
 from typing import Protocol, TypeVar, runtime_checkable
 
@@ -145,16 +146,26 @@ def capability(substrate: object, required: type[C]) -> C:
     lacks it (the engine has refused such a method already: this guards direct use)."""
     if not isinstance(substrate, required):
         raise TypeError(f"{type(substrate).__name__} does not provide {required.__name__} "
-                        f"({', '.join(_members(required))})")
+                        f"({', '.join(protocol_members(required))})")
     return substrate
 
 
-def _members(protocol: type) -> list[str]:
-    return sorted(name for name in vars(protocol) if not name.startswith("_"))
+def protocol_members(protocol: type) -> list[str]:
+    """The public members a protocol declares: its methods and properties, and its annotated attributes (``name:
+    ClassVar[str]``, which have no value in the class)."""
+    names = set(vars(protocol).get("__annotations__", {})) | set(vars(protocol))
+    return sorted(name for name in names if not name.startswith("_"))
+
+
+def missing_members(obj: object, protocol: type) -> list[str]:
+    """The members of ``protocol`` that ``obj`` (an instance or a class) lacks, found without calling anything (a
+    property is not evaluated)."""
+    return [name for name in protocol_members(protocol) if inspect.getattr_static(obj, name, _ABSENT) is _ABSENT]
+
+
+_ABSENT = object()
 
 
 def missing_capabilities(substrate: object, required: Sequence[type]) -> list[str]:
     """The names of the capabilities in ``required`` that ``substrate`` (an instance or a class) lacks."""
-    if isinstance(substrate, type):
-        return [c.__name__ for c in required if not issubclass(substrate, c)]
-    return [c.__name__ for c in required if not isinstance(substrate, c)]
+    return [c.__name__ for c in required if missing_members(substrate, c)]

@@ -37,10 +37,10 @@ from sr_imitation.infra.fingerprint import (
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.infra.runlog import RunLog, WandbConfig
 from sr_imitation.io import read_checked_json
-from sr_imitation.stream.capabilities import missing_capabilities
 from sr_imitation.stream.methods import ContinualMethod
+from sr_imitation.stream.methods.registry import refusal
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
-from sr_imitation.stream.substrate import Substrate, phase_seed
+from sr_imitation.stream.substrate import Substrate, check_substrate, phase_seed
 
 logger = logging.getLogger(__name__)
 
@@ -63,16 +63,10 @@ class StreamEngine:
     def __init__(self, substrate: Substrate, method: ContinualMethod, run: RunDirectory, progress: bool = True,
                  after_phase: Callable[[int, str], None] | None = None, wandb: WandbConfig | None = None,
                  log_config: dict[str, Any] | None = None, extend_from: Path | None = None) -> None:
-        if substrate.name not in method.substrates:
-            raise ValueError(f"method {method.name!r} is not defined on the {substrate.name} substrate")
-        lacking = missing_capabilities(substrate, method.requires)
-        if lacking:
-            raise ValueError(f"method {method.name!r} needs a substrate with {', '.join(lacking)} "
-                             f"(sr_imitation.stream.capabilities); the {substrate.name} substrate does not provide it")
-        missing = sorted(method.wake_hooks_used() - set(substrate.wake_hooks))
-        if missing:
-            raise ValueError(f"method {method.name!r} needs the wake hooks {missing}; the {substrate.name} "
-                             "substrate's wake does not call them")
+        check_substrate(substrate)  # every protocol member, named in one line, before anything is written
+        reason = refusal(method, substrate)
+        if reason is not None:
+            raise ValueError(f"method {reason}")
         self.substrate = substrate
         self.method = method
         self.run_dir = run

@@ -1,7 +1,8 @@
 """One run entry for every substrate: :class:`StreamRun` builds what a run of a stream is made of, the same way
 whatever the policy family, and runs it.
 
-    method    = make_method(cfg.method, substrate.name, substrate.method_settings())
+    check_substrate(substrate)                                                  # the protocol, in one line
+    method    = make_method(cfg.method, substrate, substrate.method_settings())
     run_dir   = RunDirectory(cfg.output_dir, fingerprint, train_config.json, ...)  # checked before anything is written
     engine    = StreamEngine(substrate, method, run_dir, ...)                    # Algorithm 1, once
     preflight()                                                                 # the substrate's checks
@@ -25,7 +26,7 @@ from sr_imitation.stream.config import RunConfig
 from sr_imitation.stream.engine import StreamEngine
 from sr_imitation.stream.methods import ContinualMethod, make_method
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, RunDirectory
-from sr_imitation.stream.substrate import Substrate
+from sr_imitation.stream.substrate import Substrate, check_substrate
 
 
 class StreamRun:
@@ -50,8 +51,9 @@ class StreamRun:
                  after_phase: Callable[[int, str], None] | None = None, inputs: Sequence[Path] = ()) -> None:
         self.cfg = cfg
         self.out = Path(cfg.output_dir)
+        check_substrate(substrate)
         self.substrate = substrate
-        self.method: ContinualMethod = make_method(cfg.method, substrate.name, substrate.method_settings())
+        self.method: ContinualMethod = make_method(cfg.method, substrate, substrate.method_settings())
         self.run_dir = RunDirectory(self.out, fingerprint, RUN_CONFIG_FILE, stored_config, cfg.resume, cfg.overwrite,
                                     check_inputs=check_inputs, inputs=[*inputs, cfg.stream.extend_from])
         self.after_phase = after_phase

@@ -22,6 +22,7 @@ from torch import Tensor
 from sr_imitation.core.memory import Memory
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra.runlog import RunLog
+from sr_imitation.stream.capabilities import missing_members
 
 PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
 """Every phase of a stage, in the engine's order (a stage without sleep has the first three)."""
@@ -45,6 +46,11 @@ SEED_SCHEMES: dict[str, Callable[[int, int, str], int]] = {
 """How a phase's seed follows from the run seed, the stage (0-based) and the phase, by name. Two schemes, because the
 two substrates' archived results were produced with them and must stay reproducible bit for bit; a new substrate
 picks one (our choice: either; they differ only in how the numbers are spread)."""
+
+
+WAKE_HOOKS: tuple[str, ...] = ("wake_batch", "wake_loss", "adjust_gradients")
+"""The hooks a continual method may override in a substrate's wake loop (:attr:`Substrate.wake_hooks` names those
+its wake calls)."""
 
 
 def phase_seed(scheme: str, seed: int, k: int, phase: str) -> int:
@@ -184,3 +190,19 @@ class Substrate(Protocol):
                ) -> dict[str, Any]:
         """Build results, tables and plots from the recorded phases; ``final_phases[k]`` is the phase whose
         checkpoint ends stage k (``sleep`` or ``wake``)."""
+
+
+def check_substrate(substrate: object) -> None:
+    """Refuse, in one line and before anything is written, an object that is not a :class:`Substrate`: every
+    protocol member it lacks is named, then a ``seed_scheme`` outside :data:`SEED_SCHEMES` and ``wake_hooks``
+    outside :data:`WAKE_HOOKS`. Raises ``TypeError``."""
+    kind = type(substrate).__name__
+    missing = missing_members(substrate, Substrate)
+    if missing:
+        raise TypeError(f"{kind} is not a Substrate (sr_imitation.stream.substrate): it lacks {', '.join(missing)}")
+    if substrate.seed_scheme not in SEED_SCHEMES:  # type: ignore[attr-defined]
+        raise TypeError(f"{kind}.seed_scheme: unknown scheme {substrate.seed_scheme!r}; "  # type: ignore[attr-defined]
+                        f"choose from {sorted(SEED_SCHEMES)}")
+    unknown = sorted(set(substrate.wake_hooks) - set(WAKE_HOOKS))  # type: ignore[attr-defined]
+    if unknown:
+        raise TypeError(f"{kind}.wake_hooks: unknown hooks {unknown}; choose from {list(WAKE_HOOKS)}")

@@ -29,6 +29,7 @@ from sr_imitation.imitation.stream import (
     resume_fingerprint,
     train_stream,
 )
+from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -49,7 +50,7 @@ STREAM = SKILLS[:2]
 MAPPING = ["MEAN_STD", "MIN_MAX", "IDENTITY"]
 CHOICES: dict[str, list[Any]] = {
     # strings with a small set of valid values: the other ones
-    "method": methods_for("act"),
+    "method": methods_for(ACTSubstrate),
     "sleep.aggregator": sorted(AGGREGATORS),
     "policy.distill_reduction": ["mean", "sum"],
     "policy.backbone_norm": ["auto", "group", "frozen_batch"],

@@ -11,11 +11,11 @@ import pytest
 
 from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.stream.compare import compare_runs, leaves, main
-from tests.stream.test_engine import make_engine, toy_methods  # noqa: F401 (the fixture: toy runs of the methods)
+from tests.stream.conftest import make_engine
 
 
 @pytest.fixture
-def runs(tmp_path, toy_methods) -> dict[str, Path]:  # noqa: F811 (the imported fixture, requested)
+def runs(tmp_path) -> dict[str, Path]:
     for name, seed in (("a", 0), ("b", 0), ("other_seed", 1)):
         make_engine(tmp_path / "runs" / name, seed=seed).run()
     return {p.name: p for p in (tmp_path / "runs").iterdir()}

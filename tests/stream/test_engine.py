@@ -18,44 +18,14 @@ from sr_imitation.stream import (
     RunDirectory,
     StreamEngine,
     make_method,
+    method_class,
     methods_for,
     register_method,
 )
 from sr_imitation.stream import engine as engine_module
-from sr_imitation.stream.methods.registry import METHODS as REGISTRY
+from tests.stream.conftest import SKILLS, KilledError, make_engine
 from tests.stream.toy import ToySubstrate
 from tests.stream.wiring import same, sleep_recorder
-
-SKILLS = ["a", "b", "c"]
-
-
-class KilledError(Exception):
-    pass
-
-
-def make_engine(out: Path, method: str = "sr", resume: bool = False, settings: dict[str, Any] | None = None,
-                after_phase=None, skills: list[str] | None = None, extend_from: Path | None = None,
-                **substrate_kwargs: Any) -> StreamEngine:
-    skills = SKILLS if skills is None else skills
-    substrate = ToySubstrate(out, skills, **substrate_kwargs)
-    defaults = {"seed": 0, "sleep": True, "wake_steps": 30, "sleep_iterations": 15, "distill_weight": 0.5,
-                "anchor_after_final": False}
-    config = {"method": method, "skills": skills, "extend_from": None if extend_from is None else str(extend_from),
-              **defaults, **substrate_kwargs, **(settings or {})}
-    run = RunDirectory(out, settings_fingerprint(config), "config.json", config, resume=resume, overwrite=False)
-    return StreamEngine(substrate, make_method(method, "toy", substrate.method_settings()), run, progress=False,
-                        after_phase=after_phase, extend_from=extend_from)
-
-
-@pytest.fixture(autouse=True)
-def toy_methods():
-    """The toy substrate supports the built-in methods (they name their substrates; here we add 'toy')."""
-    saved = {name: cls.substrates for name, cls in REGISTRY.items()}
-    for cls in REGISTRY.values():
-        cls.substrates = cls.substrates | {"toy"}
-    yield
-    for name, substrates in saved.items():
-        REGISTRY[name].substrates = substrates
 
 
 @pytest.fixture
@@ -179,27 +149,28 @@ def _raise() -> None:
     raise KilledError
 
 
-def test_registry_names_choices_and_refuses_other_substrates():
-    import sr_imitation.rl  # noqa: F401  (registers CompoNet, the SAC-only method that lives with its substrate)
-
-    assert {"sr", "wake_only", "sequential_bc"} <= set(METHODS)
-    assert methods_for("act") == ["ewc", "lwf", "m2distill", "replay", "sequential_bc", "sr", "wake_only"]
-    assert methods_for("sac") == ["agem", "clear", "componet", "der", "ewc", "nash_mtl", "pcgrad",
-                                  "progress_compress", "reset_distill", "sequential_bc", "sr", "wake_only"]
-    with pytest.raises(ValueError, match=r"unknown method 'der' on the act substrate; choose from "
-                                         r"\['ewc', 'lwf', 'm2distill', 'replay', 'sequential_bc', 'sr', "
-                                         r"'wake_only'\]"):
-        make_method("der", "act", ToySubstrate(Path("."), SKILLS).method_settings())
-    with pytest.raises(ValueError, match=r"unknown method 'lwf' on the sac substrate; choose from"):
-        make_method("lwf", "sac", ToySubstrate(Path("."), SKILLS).method_settings())
-    with pytest.raises(ValueError, match=r"unknown method 'no_such'; choose from"):
-        make_method("no_such", "sac", ToySubstrate(Path("."), SKILLS).method_settings())
-    with pytest.raises(ValueError, match="on the mujoco substrate"):
-        make_method("sr", "mujoco", ToySubstrate(Path("."), SKILLS).method_settings())
-    with pytest.raises(TypeError, match="name and substrates"):
+def test_a_method_runs_on_every_substrate_with_what_it_requires_and_the_registry_names_the_choices():
+    """Methods are open to any substrate that provides what they ask; a comparison's restriction and a missing
+    capability are refused in one line naming the methods that do run there."""
+    toy = ToySubstrate(Path("."), SKILLS)
+    assert {"sr", "wake_only", "sequential_bc", "ewc", "der", "clear"} <= set(methods_for(ToySubstrate))
+    assert methods_for(toy) == methods_for(ToySubstrate)
+    assert "lwf" in METHODS and "lwf" not in methods_for(toy)  # the toy has no PolicySnapshots
+    with pytest.raises(ValueError, match=r"^method: 'lwf' needs a substrate with PolicySnapshots "
+                                         r"\(sr_imitation.stream.capabilities\); the toy substrate does not provide "
+                                         r"it; choose from \[.*'sr'.*\]$"):
+        make_method("lwf", toy, toy.method_settings())
+    with pytest.raises(ValueError, match=r"^method: 'agem' is compared on the sac substrate only, not on toy"):
+        make_method("agem", toy, toy.method_settings())
+    with pytest.raises(ValueError, match=r"^method: unknown method 'no_such'; choose from \['agem', "):
+        make_method("no_such", toy, toy.method_settings())
+    with pytest.raises(ValueError, match=r"^method: 'agem' is compared on the sac substrate only"):
+        method_class("agem", "toy")  # what a configuration checks before the substrate exists
+    assert method_class("der", "toy") is METHODS["der"]
+    with pytest.raises(TypeError, match="must set name"):
         register_method(type("Nameless", (ContinualMethod,), {}))
     with pytest.raises(ValueError, match="registered twice"):
-        register_method(type("Impostor", (ContinualMethod,), {"name": "sr", "substrates": frozenset({"act"})}))
+        register_method(type("Impostor", (ContinualMethod,), {"name": "sr"}))
 
 
 def test_a_new_method_is_one_class(tmp_path):
@@ -207,7 +178,6 @@ def test_a_new_method_is_one_class(tmp_path):
 
     class SleepAtTheEnd(ContinualMethod):
         name = "sleep_at_the_end"
-        substrates = frozenset({"toy"})
         stores_memories = True
 
         def sleeps_after(self, skill_number: int) -> bool:
@@ -220,13 +190,12 @@ def test_a_new_method_is_one_class(tmp_path):
         assert result["final_phases"] == ["wake", "wake", "sleep"]
         assert ("sleep", 2) in engine.substrate.calls and ("sleep", 1) not in engine.substrate.calls
     finally:
-        REGISTRY.pop("sleep_at_the_end")
+        METHODS.pop("sleep_at_the_end")
 
 
 def test_a_method_needing_a_wake_hook_the_substrate_does_not_call_is_refused(tmp_path, monkeypatch):
     class BatchMixer(ContinualMethod):
         name = "batch_mixer"
-        substrates = frozenset({"toy"})
 
         def wake_batch(self, step):
             return step.batch
@@ -239,7 +208,7 @@ def test_a_method_needing_a_wake_hook_the_substrate_does_not_call_is_refused(tmp
         with pytest.raises(ValueError, match=r"needs the wake hooks \['wake_batch'\]; the toy substrate's wake"):
             make_engine(tmp_path / "refused", "batch_mixer")
     finally:
-        REGISTRY.pop("batch_mixer")
+        METHODS.pop("batch_mixer")
 
 
 def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(tmp_path):
@@ -267,7 +236,7 @@ def test_wandb_offline_mirrors_the_log_without_network(tmp_path, monkeypatch):
     substrate = ToySubstrate(tmp_path / "r", SKILLS[:2])
     config = {"method": "sr"}
     run = RunDirectory(tmp_path / "r", settings_fingerprint(config), "config.json", config, False, False)
-    engine = StreamEngine(substrate, make_method("sr", "toy", substrate.method_settings()), run, progress=False,
+    engine = StreamEngine(substrate, make_method("sr", substrate, substrate.method_settings()), run, progress=False,
                           wandb=WandbConfig(enable=True, mode="offline"), log_config=config)
     engine.run()
     runs = list((tmp_path / "r" / "wandb").glob("offline-run-*"))

@@ -14,7 +14,9 @@ from sr_imitation.stream import METHODS
 from sr_imitation.stream.methods._gradients import current_grad, flat_grad, set_grad
 from sr_imitation.stream.methods.agem import agem_project
 from sr_imitation.stream.methods.ewc import FisherMemory
-from tests.stream.test_engine import KilledError, make_engine, toy_methods  # noqa: F401 (fixture)
+from tests.stream.conftest import KilledError, make_engine
+
+pytestmark = pytest.mark.usefixtures("toy_methods")  # A-GEM, Nash-MTL and PCGrad on the toy too
 
 BASELINES = ["ewc", "der", "agem", "clear", "nash_mtl", "pcgrad", "reset_distill", "progress_compress"]
 

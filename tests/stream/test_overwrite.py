@@ -15,7 +15,6 @@ import pytest
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, settings_fingerprint
 from sr_imitation.stream import RunDirectory, StreamEngine, make_method
-from sr_imitation.stream.methods.registry import METHODS as REGISTRY
 from sr_imitation.stream.rundir import REPLACED_MARK, OverwriteRefusedError
 from tests.stream.toy import ToySubstrate
 from tests.stream.wiring import same
@@ -25,23 +24,13 @@ TOY_ENTRIES = ("stage*",)
 """What the toy substrate writes at a run's top level."""
 
 
-@pytest.fixture(autouse=True)
-def toy_methods():
-    saved = {name: cls.substrates for name, cls in REGISTRY.items()}
-    for cls in REGISTRY.values():
-        cls.substrates = cls.substrates | {"toy"}
-    yield
-    for name, substrates in saved.items():
-        REGISTRY[name].substrates = substrates
-
-
 def engine(out: Path, *, overwrite: bool = False, resume: bool = False, inputs: tuple[Path, ...] = (),
            substrate: ToySubstrate | None = None, **settings: Any) -> StreamEngine:
     substrate = substrate or ToySubstrate(out, SKILLS, wake_steps=5, sleep_iterations=3)
     config = {"method": "sr", "skills": SKILLS, **settings}
     run = RunDirectory(out, settings_fingerprint(config), "config.json", config, resume=resume, overwrite=overwrite,
                        inputs=inputs, entries=TOY_ENTRIES)
-    return StreamEngine(substrate, make_method("sr", "toy", substrate.method_settings()), run, progress=False)
+    return StreamEngine(substrate, make_method("sr", substrate, substrate.method_settings()), run, progress=False)
 
 
 def tree(root: Path) -> dict[str, bytes]:

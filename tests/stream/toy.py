@@ -1,11 +1,25 @@
-"""A toy substrate for the engine's tests (and the smallest example of implementing one): a 2-layer MLP regressing a
-fixed random linear map per skill. Wake = SGD on the skill's map plus distillation from the given memories; memory =
-the core's :class:`OutputDistillationMemory` on stored inputs; evaluation = fraction of test inputs within a
-tolerance; checkpoints = checked safetensors. Substrate-free (torch only), a few milliseconds per phase."""
+"""A toy substrate: the engine's test bed and the complete example of docs/ARCHITECTURE.md's "Adding a substrate".
+
+A 2-layer MLP regresses a fixed random linear map per skill. Wake = SGD on the skill's map plus distillation from the
+given memories, with the method's wake hooks (:class:`WakeHooks`); memory = the core's
+:class:`OutputDistillationMemory` on stored inputs; evaluation = fraction of test inputs within a tolerance;
+checkpoints = checked safetensors. Torch only, a few milliseconds per phase.
+
+The file holds all a substrate is: the :class:`~sr_imitation.stream.substrate.Substrate` protocol
+(:class:`ToySubstrate`, every member), a few capabilities beyond it (:mod:`sr_imitation.stream.capabilities`:
+``LikelihoodPolicy``, ``GaussianActor``, ``StoredTransitions``, ``ResettableNetworks``), its run configuration
+(:class:`ToyConfig`, a :class:`~sr_imitation.stream.config.RunConfig`), the settings fingerprint and stored config of
+a run, and the two functions ``sr-train`` calls (:func:`parse`, :func:`main`), registered in
+``sr_imitation.cli.SUBSTRATE_COMMANDS`` as ``"toy": ("tests.stream.toy", "parse", "main")``.
+"""
 
 from __future__ import annotations
 
+import dataclasses
+import shutil
+import sys
 from collections.abc import Sequence
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, ClassVar
 
@@ -13,28 +27,53 @@ import torch
 
 from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
 from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.infra.cli_errors import split_config_path
+from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.fingerprint import (
+    RUN_DIRECTORY,
+    SettingsFingerprint,
+    output_dir_for,
+    settings_fingerprint,
+    to_jsonable,
+)
+from sr_imitation.infra.runlog import RunLog
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
-from sr_imitation.stream import MethodSettings, SleepProblem
-from sr_imitation.stream.methods.base import WakeStep
+from sr_imitation.stream import MethodSettings, SleepProblem, method_class, method_config
+from sr_imitation.stream.config import RunConfig, StreamSettings, StreamSleepConfig, check_shared_settings
+from sr_imitation.stream.methods.base import WakeHooks
+from sr_imitation.stream.run import StreamRun
 
 
 class ToySubstrate:
+    """The :class:`~sr_imitation.stream.substrate.Substrate` protocol on a toy regression (module docstring)."""
+
     name: ClassVar[str] = "toy"
     seed_scheme: ClassVar[str] = "decimal"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
-
-    extension_keys: ClassVar[tuple[str, ...]] = ("skills", "extend_from")
-    run_log: Any = None
+    extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.extend_from")
 
     def __init__(self, out: Path, skills: Sequence[str], seed: int = 0, sleep: bool = True, wake_steps: int = 30,
-                 sleep_iterations: int = 15, distill_weight: float = 0.5, anchor_after_final: bool = False) -> None:
+                 sleep_iterations: int = 15, distill_weight: float = 0.5, anchor_after_final: bool = False,
+                 sleep_config: SleepConfig | None = None) -> None:
         self.out, self.skills, self.seed, self.sleep = Path(out), list(skills), seed, sleep
-        self.anchor_after_final = anchor_after_final
-        self.wake_steps, self.sleep_iterations, self.gamma = wake_steps, sleep_iterations, distill_weight
+        self.wake_steps, self.gamma = wake_steps, distill_weight
+        self.sleep_config = sleep_config or SleepConfig(max_iterations=sleep_iterations, batch_size=16, lr=1e-2,
+                                                        early_stop_window=5, anchor_after_final=anchor_after_final)
+        self.run_log: RunLog | None = None  # set by the engine before the first phase
         self.calls: list[tuple[str, int]] = []
 
+    @classmethod
+    def from_config(cls, cfg: ToyConfig) -> ToySubstrate:
+        core = {f.name: getattr(cfg.sleep, f.name) for f in dataclasses.fields(SleepConfig)}
+        return cls(cfg.output_dir, cfg.stream.skills, seed=cfg.seed, sleep=cfg.sleep.enabled,
+                   wake_steps=cfg.wake_steps, distill_weight=cfg.distill_weight, sleep_config=SleepConfig(**core))
+
+    # -- what continual methods read, set-up and seeding ---------------------------------------------------------
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma)
+
+    def memory_skill(self, k: int) -> str:
+        return self.skills[k]
 
     def setup(self) -> None:
         g = torch.Generator().manual_seed(1000 + self.seed)
@@ -52,30 +91,26 @@ class ToySubstrate:
 
     def begin_phase(self, k: int, phase: str, seed: int) -> None:
         torch.manual_seed(seed)
+        self.phase_seed = seed
 
-    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
+    # -- the phases -----------------------------------------------------------------------------------------
+    def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any
              ) -> tuple[dict[str, Any], dict[str, Any]]:
         self.calls.append(("wake", k))
         opt = torch.optim.SGD(self.policy.parameters(), lr=0.05)
-        hooks = method is not None and method.has_wake_hooks
-        generator = torch.Generator().manual_seed(100 + k)
-        for update in range(self.wake_steps):
+        hooks = WakeHooks(method, k, self.policy_parameters(), self.policy_fn, self.phase_seed)
+        for _ in range(self.wake_steps):
             x = torch.randn(32, 4)
-            step = WakeStep(k, update, self.policy_parameters(), self.policy_fn, {"obs": x, "y": x @ self.maps[k]},
-                            generator)
-            if hooks:
-                step.batch = method.wake_batch(step)
-            loss = (self.policy(step.batch["obs"]) - step.batch["y"]).pow(2).sum(1).mean()
+            batch = hooks.batch({"obs": x, "y": x @ self.maps[k]})
+            loss = (self.policy(batch["obs"]) - batch["y"]).pow(2).sum(1).mean()
             for m in memories:
                 loss = loss + distill_weight * m.objective(self.policy_fn, 16)
-            if hooks:
-                loss = method.wake_loss(loss, step)
+            loss = hooks.loss(loss)
             opt.zero_grad()
             loss.backward()
-            if hooks:
-                method.adjust_gradients(step)
+            hooks.adjust()
             opt.step()
-        return {"loss": loss.item()}, {"wake_history.json": {"final_loss": loss.item()}}
+        return {"loss": loss.item(), **hooks.summary()}, {"wake_history.json": {"final_loss": loss.item()}}
 
     def make_memory(self, k: int) -> Memory:
         self.calls.append(("memory", k))
@@ -89,42 +124,6 @@ class ToySubstrate:
     def load_memory(self, k: int, name: str = "memory") -> Memory:
         path = self.out / "memories" / (f"{k}.safetensors" if name == "memory" else f"{k}.{name}.safetensors")
         return load_memory(path, skill=self.skills[k])
-
-    # what continual methods ask of the policy (the SAC substrate's names)
-    def policy_parameters(self) -> list[torch.Tensor]:
-        return list(self.policy.parameters())
-
-    def state_sample(self, k: int, n: int | None = None) -> torch.Tensor:
-        return torch.randn(64, 4, generator=torch.Generator().manual_seed(200 + k))
-
-    def reset_networks(self, k: int) -> None:
-        saved = torch.random.get_rng_state()
-        torch.manual_seed(500 + k)
-        fresh = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Tanh(), torch.nn.Linear(16, 2))
-        torch.random.set_rng_state(saved)
-        self.policy.load_state_dict(fresh.state_dict())
-
-    def load_actor(self, k: int, phase: str) -> None:
-        self.load_policy(k, phase)
-
-    def memory_skill(self, k: int) -> str:
-        return self.skills[k]
-
-    def gaussian_policy(self, states: torch.Tensor) -> torch.Tensor:
-        return self.policy(states)
-
-    def log_likelihood(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
-        mean = self.policy(states)
-        with torch.no_grad():
-            u = mean + 0.1 * torch.randn(mean.shape, generator=generator)
-        return torch.distributions.Normal(mean, 0.1).log_prob(u).sum(-1)
-
-    def transition_sample(self, k: int) -> dict[str, torch.Tensor]:
-        x = torch.randn(64, 4, generator=torch.Generator().manual_seed(400 + k))
-        return {"obs": x, "y": x @ self.maps[k]}
-
-    def memory_states(self, k: int) -> torch.Tensor:
-        return torch.randn(64, 4, generator=torch.Generator().manual_seed(300 + k))
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         return [k] if sleeps else list(range(k + 1))
@@ -141,14 +140,15 @@ class ToySubstrate:
 
     def sleep_problem(self, k: int, memories: Sequence[Memory]) -> SleepProblem:
         self.calls.append(("sleep", k))
-        config = SleepConfig(max_iterations=self.sleep_iterations, batch_size=16, lr=1e-2, early_stop_window=5,
-                             seed=self.seed * 1000 + k, anchor_after_final=self.anchor_after_final)
+        config = dataclasses.replace(self.sleep_config, seed=self.seed * 1000 + k)
+
         def losses() -> dict[str, Any]:
             with torch.no_grad():
                 return {"memory_losses": [m.loss(self.policy_fn, dict(m.tensors)).item() for m in memories]}
 
         return SleepProblem(list(self.policy.parameters()), self.policy_fn, config, diagnostics=losses)
 
+    # -- checkpoints ----------------------------------------------------------------------------------------
     def _path(self, k: int, phase: str) -> Path:
         return self.out / f"stage{k}" / f"{phase}.safetensors"
 
@@ -165,12 +165,11 @@ class ToySubstrate:
         tensors, _ = load_checked_safetensors(self._path(k, phase))
         return [tensors[n] for n, _ in self.policy.named_parameters()]
 
+    # -- extending a finished stream, the report ------------------------------------------------------------
     def source_skills(self, settings: dict[str, Any]) -> list[str]:
-        return list(settings["skills"])
+        return list(settings["stream.skills"])
 
     def import_stages(self, source: Path, n: int) -> None:
-        import shutil
-
         for k in range(n):
             shutil.copytree(source / f"stage{k}", self.out / f"stage{k}")
             (self.out / "memories").mkdir(exist_ok=True)
@@ -181,5 +180,112 @@ class ToySubstrate:
                ) -> dict[str, Any]:
         final = {k: v for k, v in progress["completed"].items() if k.endswith(".eval")}
         return {"evals": {k: v["success"] for k, v in final.items()},
-                "weights": [p.detach().clone() for p in self.policy.parameters()],
+                "weights": self.parameters_at(len(self.skills) - 1, final_phases[-1]),  # also of a finished run
                 "final_phases": list(final_phases), "memories": [m.skill for m in memories]}
+
+    # -- capabilities beyond the protocol (sr_imitation.stream.capabilities) ---------------------------------
+    def policy_parameters(self) -> list[torch.Tensor]:  # LikelihoodPolicy
+        return list(self.policy.parameters())
+
+    def state_sample(self, k: int, n: int | None = None) -> torch.Tensor:  # LikelihoodPolicy
+        return torch.randn(64, 4, generator=torch.Generator().manual_seed(200 + k))
+
+    def log_likelihood(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:  # LikelihoodPolicy
+        mean = self.policy(states)
+        with torch.no_grad():
+            u = mean + 0.1 * torch.randn(mean.shape, generator=generator)
+        return torch.distributions.Normal(mean, 0.1).log_prob(u).sum(-1)
+
+    def gaussian_policy(self, states: torch.Tensor) -> torch.Tensor:  # GaussianActor
+        return self.policy(states)
+
+    def memory_states(self, k: int) -> torch.Tensor:  # GaussianActor
+        return torch.randn(64, 4, generator=torch.Generator().manual_seed(300 + k))
+
+    def transition_sample(self, k: int) -> dict[str, torch.Tensor]:  # StoredTransitions
+        x = torch.randn(64, 4, generator=torch.Generator().manual_seed(400 + k))
+        return {"obs": x, "y": x @ self.maps[k]}
+
+    def reset_networks(self, k: int) -> None:  # ResettableNetworks
+        saved = torch.random.get_rng_state()
+        torch.manual_seed(500 + k)
+        fresh = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Tanh(), torch.nn.Linear(16, 2))
+        torch.random.set_rng_state(saved)
+        self.policy.load_state_dict(fresh.state_dict())
+
+    def load_actor(self, k: int, phase: str) -> None:  # ResettableNetworks
+        self.load_policy(k, phase)
+
+
+# -- the run configuration and sr-train's two functions --------------------------------------------------------
+@dataclass
+class ToyStreamSettings(StreamSettings):
+    """``--stream.*``: the skills, each a fixed random linear map."""
+
+    skills: list[str] = field(default_factory=lambda: ["a", "b", "c"])
+    """The skills, in order."""
+
+
+@dataclass
+class ToySleepConfig(StreamSleepConfig):
+    """``--sleep.*`` with the toy's defaults (a short sleep on small batches)."""
+
+    max_iterations: int = 15
+    batch_size: int = 16
+    lr: float = 1e-2
+    early_stop_window: int = 5
+
+
+@dataclass
+class ToyConfig(RunConfig):
+    """``sr-train --substrate=toy``: the shared run settings (:class:`RunConfig`) and the toy's own."""
+
+    substrate: str = "toy"
+    """The substrate sr-train runs."""
+    stream: ToyStreamSettings = field(default_factory=ToyStreamSettings)
+    sleep: ToySleepConfig = field(default_factory=ToySleepConfig)
+    wake_steps: int = 30
+    """SGD steps per wake."""
+    distill_weight: float = 0.5
+    """gamma_k, the weight of the wake's distillation from the memories."""
+    output_dir: Path = Path("outputs/toy")
+    """Run directory."""
+
+    def __post_init__(self) -> None:
+        self.output_dir = Path(self.output_dir)
+        check_shared_settings(self, ToySubstrate.name)
+        method_class(self.method, ToySubstrate.name)
+
+
+RESUME_ALLOW_LIST = ("output_dir", "resume", "overwrite", "progress", "wandb")
+"""Settings a resume may change: where the run is and how it is watched, never what it computes."""
+
+
+def fingerprint(cfg: ToyConfig) -> SettingsFingerprint:
+    """What a resume must keep: every setting but :data:`RESUME_ALLOW_LIST`, plus the method's own settings with
+    their defaults (``method_config``)."""
+    return settings_fingerprint(cfg, RESUME_ALLOW_LIST,
+                                {"method_config": method_config(cfg.method, cfg.method_options)})
+
+
+def stored_config(cfg: ToyConfig) -> dict[str, Any]:
+    """``train_config.json``: the configuration ``--config_path`` reads back, without the per-invocation flags and
+    with ``output_dir`` "." (the run's own directory, wherever it is copied)."""
+    out = {k: v for k, v in to_jsonable(cfg).items() if k not in ("resume", "overwrite")}
+    out["output_dir"] = RUN_DIRECTORY
+    return out
+
+
+def parse(args: list[str]) -> ToyConfig:
+    """The configuration a command line describes (``SUBSTRATE_COMMANDS``' parse function)."""
+    config_path, rest = split_config_path(args)
+    cfg = parse_command(ToyConfig, rest, prog="sr-train", config_path=config_path)
+    cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
+    return cfg
+
+
+def main(args: list[str] | None = None) -> dict[str, Any]:
+    """Run or resume the stream a command line describes (``SUBSTRATE_COMMANDS``' run function)."""
+    cfg = parse(list(sys.argv[1:] if args is None else args))
+    run = StreamRun(cfg, ToySubstrate.from_config(cfg), fingerprint=fingerprint(cfg), stored_config=stored_config(cfg))
+    return run.run()

@@ -1,26 +1,27 @@
 """Continual methods as plugins of the stream engine: one file per method, registered by name.
 
-Adding a baseline: write ``sr_imitation/stream/methods/<name>.py`` with a :class:`ContinualMethod` subclass
-decorated by :func:`register_method`, and import it below.
+Adding a method: write ``sr_imitation/stream/methods/<name>.py`` with a :class:`ContinualMethod` subclass decorated
+by :func:`register_method` (docs/ARCHITECTURE.md, "Adding a method"). Every module of this package whose name does not
+start with ``_`` is imported here, so the file alone registers the method.
 """
 
-from sr_imitation.stream.methods import (  # noqa: F401  (register the methods)
-    agem,
-    clear,
-    der,
-    ewc,
-    lwf,
-    m2distill,
-    nash_mtl,
-    pcgrad,
-    progress_compress,
-    replay,
-    reset_distill,
-    sequential_bc,
-    sleeping_robots,
-)
-from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
-from sr_imitation.stream.methods.registry import METHODS, make_method, method_config, methods_for, register_method
+import importlib
+import pkgutil
 
-__all__ = ["METHODS", "ContinualMethod", "WakeStep", "make_method", "method_config", "methods_for",
-           "register_method"]
+from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
+from sr_imitation.stream.methods.registry import (
+    METHODS,
+    check_method,
+    make_method,
+    method_class,
+    method_config,
+    methods_for,
+    register_method,
+)
+
+for _module in pkgutil.iter_modules(__path__):
+    if not _module.name.startswith("_") and _module.name not in ("base", "registry"):
+        importlib.import_module(f"{__name__}.{_module.name}")  # registers the module's methods
+
+__all__ = ["METHODS", "ContinualMethod", "WakeStep", "check_method", "make_method", "method_class", "method_config",
+           "methods_for", "register_method"]

@@ -29,7 +29,7 @@ class WakeBargainingConfig:
 class WakeBargaining(ContinualMethod):
     """Base of Nash-MTL and PCGrad: subclasses name themselves and build their :meth:`aggregator`."""
 
-    substrates = frozenset({"sac"})
+    substrates = frozenset({"sac"})  # the MT5 comparison's: the past skills' gradients are of frozen-critic surrogates
     stores_memories = True
     config: ClassVar[WakeBargainingConfig] = WakeBargainingConfig()
 

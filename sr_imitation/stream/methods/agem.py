@@ -48,7 +48,7 @@ class AGEM(ContinualMethod):
     order)."""
 
     name = "agem"
-    substrates = frozenset({"sac"})
+    substrates = frozenset({"sac"})  # the MT5 comparison's: its reference gradient is of frozen-critic surrogates
     stores_memories = True
     config: ClassVar[AGEMConfig] = AGEMConfig()
 

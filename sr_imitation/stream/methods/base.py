@@ -31,7 +31,7 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
-from sr_imitation.stream.substrate import MethodSettings, SleepProblem, Substrate
+from sr_imitation.stream.substrate import WAKE_HOOKS, MethodSettings, SleepProblem, Substrate
 
 
 @dataclass
@@ -115,8 +115,10 @@ class ContinualMethod:
 
     Attributes:
         name: the registry name (``--method``).
-        substrates: the substrates (``Substrate.name``) the method is defined for (the streams whose comparison it
-            belongs to).
+        substrates: ``None`` (the default): the method runs on any substrate that provides what it :attr:`requires`
+            and calls the wake hooks it overrides. A set of substrate names (``Substrate.name``) restricts it to
+            those, where a comparison deliberately does (the paper's SAC baselines whose memories are frozen
+            critics).
         requires: the capabilities (:mod:`sr_imitation.stream.capabilities`) it asks of the substrate beyond the
             :class:`Substrate` protocol; the engine refuses a substrate without them when the run is built, and the
             method reaches them through :func:`~sr_imitation.stream.capabilities.capability`.
@@ -124,7 +126,7 @@ class ContinualMethod:
     """
 
     name: ClassVar[str] = ""
-    substrates: ClassVar[frozenset[str]] = frozenset()
+    substrates: ClassVar[frozenset[str] | None] = None
     requires: ClassVar[tuple[type, ...]] = ()
     stores_memories: ClassVar[bool] = False
     memory_name: ClassVar[str] = "memory"
@@ -160,7 +162,7 @@ class ContinualMethod:
         numbers to log. Default: nothing."""
         return {}
 
-    WAKE_HOOKS: ClassVar[tuple[str, ...]] = ("wake_batch", "wake_loss", "adjust_gradients")
+    WAKE_HOOKS: ClassVar[tuple[str, ...]] = WAKE_HOOKS
 
     @property
     def wake_state_sample(self) -> int:
@@ -172,10 +174,10 @@ class ContinualMethod:
         """Transitions a SAC wake keeps from its replay at skill end for this method (CLEAR's); 0: none."""
         return 0
 
-    def wake_hooks_used(self) -> set[str]:
+    @classmethod
+    def wake_hooks_used(cls) -> set[str]:
         """The wake hooks this method overrides (a substrate must call every one of them)."""
-        cls = type(self)
-        return {hook for hook in self.WAKE_HOOKS if getattr(cls, hook) is not getattr(ContinualMethod, hook)}
+        return {hook for hook in cls.WAKE_HOOKS if getattr(cls, hook) is not getattr(ContinualMethod, hook)}
 
     @property
     def has_wake_hooks(self) -> bool:

@@ -68,7 +68,6 @@ class CLEAR(ContinualMethod):
     """Replay of earlier skills' transitions in every update, with behaviour cloning toward the stored policy."""
 
     name = "clear"
-    substrates = frozenset({"sac"})
     requires = (GaussianActor, StoredTransitions)
     stores_memories = True
     memory_name = "clear"

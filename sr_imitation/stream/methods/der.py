@@ -54,7 +54,6 @@ class DER(ContinualMethod):
     """Dark experience replay: keep the actor's Gaussian outputs on stored states close to what they were."""
 
     name = "der"
-    substrates = frozenset({"sac"})
     requires = (GaussianActor,)
     stores_memories = True
     memory_name = "der"

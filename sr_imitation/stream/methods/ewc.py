@@ -97,7 +97,6 @@ class EWC(ContinualMethod):
     """Elastic weight consolidation: a Fisher-weighted pull toward every earlier skill's parameters in each wake."""
 
     name = "ewc"
-    substrates = frozenset({"sac", "act"})
     requires = (LikelihoodPolicy,)
     stores_memories = True
     memory_name = "ewc"

@@ -37,7 +37,6 @@ class LwF(ContinualMethod):
     """Output distillation from the policy as it was before this skill's wake, on this skill's observations."""
 
     name = "lwf"
-    substrates = frozenset({"act"})
     requires: ClassVar[tuple[type, ...]] = (PolicySnapshots,)
     config: ClassVar[LwFConfig] = LwFConfig()
 

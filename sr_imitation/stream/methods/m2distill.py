@@ -52,7 +52,6 @@ class M2Distill(LwF):
     """LwF's rolling teacher, distilled through the intermediate features as well as the actions."""
 
     name = "m2distill"
-    substrates = frozenset({"act"})
     requires = (PolicySnapshots, IntermediateFeatures)
     config: ClassVar[M2DistillConfig] = M2DistillConfig()  # type: ignore[assignment]
 

@@ -1,4 +1,9 @@
-"""The method registry: ``--method=<name>`` looks methods up here."""
+"""The method registry: ``--method=<name>`` looks methods up here.
+
+Which methods run on a substrate follows from what each method asks (:attr:`ContinualMethod.requires`, the wake
+hooks it overrides, and an explicit :attr:`ContinualMethod.substrates` where a comparison restricts it) and what the
+substrate provides, so a new substrate gets every method it can run without any method file changing.
+"""
 
 from __future__ import annotations
 
@@ -6,6 +11,7 @@ from collections.abc import Mapping
 from typing import Any, TypeVar
 
 from sr_imitation.infra.fingerprint import to_jsonable
+from sr_imitation.stream.capabilities import missing_capabilities
 from sr_imitation.stream.methods.base import ContinualMethod, with_options
 from sr_imitation.stream.substrate import MethodSettings
 
@@ -16,27 +22,69 @@ M = TypeVar("M", bound=type[ContinualMethod])
 
 
 def register_method(cls: M) -> M:
-    """Class decorator: register ``cls`` under ``cls.name`` (names are unique; each method names its substrates)."""
-    if not cls.name or not cls.substrates:
-        raise TypeError(f"{cls.__name__} must set name and substrates")
+    """Class decorator: register ``cls`` under ``cls.name`` (names are unique)."""
+    if not cls.name:
+        raise TypeError(f"{cls.__name__} must set name")
     if cls.name in METHODS and METHODS[cls.name] is not cls:
         raise ValueError(f"method {cls.name!r} is registered twice ({METHODS[cls.name].__name__}, {cls.__name__})")
     METHODS[cls.name] = cls
     return cls
 
 
-def methods_for(substrate: str) -> list[str]:
-    """Names of the methods defined on ``substrate``."""
-    return sorted(name for name, cls in METHODS.items() if substrate in cls.substrates)
-
-
-def make_method(name: str, substrate: str, settings: MethodSettings) -> ContinualMethod:
-    """The method ``name`` for ``substrate``; a ``ValueError`` naming the valid choices otherwise."""
+def method_class(name: str, substrate: str | None = None) -> type[ContinualMethod]:
+    """The method registered as ``name``; with ``substrate`` (a substrate's name), also refused when the method is
+    restricted to other substrates. ``ValueError`` naming ``method`` and the choices otherwise. What the substrate
+    must provide is checked once the substrate exists (:func:`make_method`)."""
     cls = METHODS.get(name)
-    if cls is None or substrate not in cls.substrates:
-        where = "" if cls is None else f" on the {substrate} substrate"
-        raise ValueError(f"unknown method {name!r}{where}; choose from {methods_for(substrate)}")
-    return cls(settings)
+    if cls is None:
+        raise ValueError(f"method: unknown method {name!r}; choose from {sorted(METHODS)}")
+    if substrate is not None and cls.substrates is not None and substrate not in cls.substrates:
+        open_here = sorted(n for n, c in METHODS.items() if c.substrates is None or substrate in c.substrates)
+        raise ValueError(f"method: {_restricted(cls, substrate)}; choose from {open_here}")
+    return cls
+
+
+def refusal(method: type[ContinualMethod] | ContinualMethod, substrate: Any) -> str | None:
+    """Why ``method`` (a class or an instance) cannot run on ``substrate`` (a substrate instance or class), in one
+    sentence that begins with the method's quoted name; ``None`` when it can."""
+    cls = method if isinstance(method, type) else type(method)
+    if cls.substrates is not None and substrate.name not in cls.substrates:
+        return _restricted(cls, substrate.name)
+    lacking = missing_capabilities(substrate, cls.requires)
+    if lacking:
+        return (f"{cls.name!r} needs a substrate with {', '.join(lacking)} (sr_imitation.stream.capabilities); "
+                f"the {substrate.name} substrate does not provide it")
+    hooks = sorted(cls.wake_hooks_used() - set(substrate.wake_hooks))
+    if hooks:
+        return (f"{cls.name!r} needs the wake hooks {hooks}; the {substrate.name} substrate's wake does not "
+                "call them")
+    return None
+
+
+def _restricted(cls: type[ContinualMethod], substrate: str) -> str:
+    return (f"{cls.name!r} is compared on the {', '.join(sorted(cls.substrates or ()))} substrate only, "
+            f"not on {substrate}")
+
+
+def methods_for(substrate: Any) -> list[str]:
+    """Names of the methods that run on ``substrate`` (a substrate instance or class)."""
+    return sorted(name for name, cls in METHODS.items() if refusal(cls, substrate) is None)
+
+
+def check_method(name: str, substrate: Any) -> type[ContinualMethod]:
+    """The method registered as ``name`` if it runs on ``substrate`` (a substrate instance or class); a one-line
+    ``ValueError`` naming ``method``, why, and the methods that run on the substrate otherwise."""
+    cls = method_class(name)
+    reason = refusal(cls, substrate)
+    if reason is not None:
+        raise ValueError(f"method: {reason}; choose from {methods_for(substrate)}")
+    return cls
+
+
+def make_method(name: str, substrate: Any, settings: MethodSettings) -> ContinualMethod:
+    """The method ``name`` for ``substrate`` (a substrate instance or class), refused as :func:`check_method`
+    says."""
+    return check_method(name, substrate)(settings)
 
 
 def method_config(name: str, options: Mapping[str, Any] | None = None) -> dict[str, Any]:
@@ -44,10 +92,7 @@ def method_config(name: str, options: Mapping[str, Any] | None = None) -> dict[s
     (``--method_options``) applied; ``{}`` for a method without settings of its own. Runs fingerprint this (key
     ``method_config``), so a changed default in the code (EWC's lambda, ...) refuses a resume or an archived run
     instead of changing results silently. ``ValueError`` naming ``method_options`` for an option the method lacks."""
-    cls = METHODS.get(name)
-    if cls is None:
-        raise ValueError(f"method: unknown method {name!r}; choose from {sorted(METHODS)}")
-    config = getattr(cls, "config", None)
+    config = getattr(method_class(name), "config", None)
     if options:
         config = with_options(name, config, options)
     return to_jsonable(config) if config is not None else {}

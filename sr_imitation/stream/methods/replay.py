@@ -96,7 +96,6 @@ class ExperienceReplay(ContinualMethod):
     """Behaviour cloning on stored demonstration frames of earlier skills, mixed into every wake batch."""
 
     name = "replay"
-    substrates = frozenset({"act"})
     requires = (StoredDemonstrations,)
     stores_memories = True
     memory_name = "replay"

@@ -46,7 +46,6 @@ class ResetDistill(ContinualMethod):
     """A fresh network per skill, then all experts distilled into one shared actor."""
 
     name = "reset_distill"
-    substrates = frozenset({"sac"})
     requires: ClassVar[tuple[type, ...]] = (GaussianActor, ResettableNetworks, LikelihoodPolicy)
     stores_memories = True
     memory_name = "expert"

@@ -11,4 +11,3 @@ class SequentialFinetuning(ContinualMethod):
     """Each skill trains the shared policy on its own data only; nothing protects earlier skills."""
 
     name = "sequential_bc"
-    substrates = frozenset({"act", "sac"})

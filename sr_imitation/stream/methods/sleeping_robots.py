@@ -21,7 +21,6 @@ class SleepingRobots(ContinualMethod):
     ablation, as :class:`WakeOnly` is by name."""
 
     name = "sr"
-    substrates = frozenset({"act", "sac"})
 
     @property
     def stores_memories(self) -> bool:  # type: ignore[override]

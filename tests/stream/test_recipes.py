@@ -1,0 +1,145 @@
+"""docs/ARCHITECTURE.md's two recipes, done exactly as written, so that they cannot go stale: a method is one file
+(``tests/stream/l2_anchor.py``) plus its test; a substrate is one file (``tests/stream/toy.py``) plus one line in
+``sr_imitation.cli.SUBSTRATE_COMMANDS`` plus its test; both run by ``sr-train``. A substrate missing any member of
+the protocol is refused in one line before anything is written."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import pytest
+import torch
+
+import sr_imitation.stream.methods as methods_package
+import tests.stream.l2_anchor  # noqa: F401  (registers l2_anchor, as the methods package registers its files)
+from sr_imitation import cli
+from sr_imitation.stream import METHODS, RunDirectory, StreamEngine, make_method, methods_for
+from sr_imitation.stream.capabilities import protocol_members
+from sr_imitation.stream.run import StreamRun
+from sr_imitation.stream.substrate import Substrate
+from tests.stream import toy
+from tests.stream.conftest import KilledError
+from tests.stream.toy import ToySubstrate
+
+
+@pytest.fixture
+def sr_train(monkeypatch):
+    """``sr-train`` with the toy substrate registered: the recipe's one line in ``SUBSTRATE_COMMANDS``."""
+    monkeypatch.setitem(cli.SUBSTRATE_COMMANDS, "toy", ("tests.stream.toy", "parse", "main"))
+    return cli.train_main
+
+
+def _weights(result) -> list[torch.Tensor]:
+    return result["weights"]
+
+
+def _moved_since_wake(out: Path, k: int, result) -> float:
+    """The squared distance of a finished run's final weights from its weights after wake ``k``."""
+    substrate = ToySubstrate(out, ["a", "b", "c"])
+    substrate.setup()
+    return float(sum((w - a).pow(2).sum() for w, a in zip(_weights(result), substrate.parameters_at(k, "wake"),
+                                                           strict=True)))
+
+
+# -- adding a method ---------------------------------------------------------------------------------------------
+def test_every_file_of_the_methods_package_registers_itself():
+    """A method file needs no import elsewhere: the package imports each of its public modules."""
+    registered = {cls.__module__.rsplit(".", 1)[-1] for cls in METHODS.values()}
+    files = {p.stem for p in Path(methods_package.__file__).parent.glob("*.py")
+             if not p.stem.startswith("_") and p.stem not in ("base", "registry")}
+    assert files <= registered
+
+
+def test_the_example_method_runs_on_any_substrate_through_sr_train_and_resumes_to_the_same_weights(tmp_path, sr_train,
+                                                                                                  monkeypatch):
+    assert "l2_anchor" in methods_for(ToySubstrate)  # nothing asked beyond the protocol: every substrate
+    flags = ["--substrate=toy", "--stream.skills=[a,b,c]", "--progress=false"]
+    l2 = tmp_path / "l2"
+    anchored = sr_train([*flags, "--method=l2_anchor", "--method_options={lam: 10.0}", f"--output_dir={l2}"])
+    plain = sr_train([*flags, "--method=sequential_bc", f"--output_dir={tmp_path / 'plain'}"])
+    assert anchored["final_phases"] == ["wake"] * 3 and anchored["memories"] == []
+    # the pull keeps the policy nearer the previous skill's weights than plain fine-tuning does
+    assert _moved_since_wake(l2, 1, anchored) < _moved_since_wake(tmp_path / "plain", 1, plain)
+    # its settings are fingerprinted with their defaults
+    assert '"method_config.lam": 10.0' in (l2 / "settings_fingerprint.json").read_text()
+    # killed after the second wake, resumed from the run's stored config: the same weights
+    killed = tmp_path / "killed"
+    real = ToySubstrate.evaluate
+
+    def dying(self, k, phase, skills):
+        if (k, phase) == (1, "wake.eval"):
+            raise KilledError
+        return real(self, k, phase, skills)
+
+    monkeypatch.setattr(ToySubstrate, "evaluate", dying)
+    with pytest.raises(KilledError):
+        sr_train([*flags, "--method=l2_anchor", "--method_options={lam: 10.0}", f"--output_dir={killed}"])
+    monkeypatch.setattr(ToySubstrate, "evaluate", real)
+    resumed = sr_train([f"--config_path={killed / 'train_config.json'}", "--resume=true"])
+    assert all(torch.equal(a, b) for a, b in zip(_weights(resumed), _weights(anchored), strict=True))
+
+
+# -- adding a substrate --------------------------------------------------------------------------------------------
+def test_the_toy_substrate_runs_through_sr_train_like_any_substrate(tmp_path, sr_train):
+    out = tmp_path / "run"
+    result = sr_train(["--substrate=toy", "--method=sr", "--stream.skills=[a,b]", "--progress=false",
+                       f"--output_dir={out}"])
+    assert result["final_phases"] == ["wake", "sleep"] and result["memories"] == ["a", "b"]
+    assert (out / "train_config.json").is_file() and (out / "settings_fingerprint.json").is_file()
+    # the same run through StreamRun in Python, as toy.main builds it
+    cfg = toy.parse(["--method=sr", "--stream.skills=[a,b]", "--progress=false", f"--output_dir={tmp_path / 'py'}"])
+    same = StreamRun(cfg, ToySubstrate.from_config(cfg), fingerprint=toy.fingerprint(cfg),
+                     stored_config=toy.stored_config(cfg)).run()
+    assert all(torch.equal(a, b) for a, b in zip(_weights(same), _weights(result), strict=True))
+    # a resume with another setting is refused naming it; the sleep's flags are the shared --sleep.*
+    with pytest.raises(Exception, match=r"wake_steps"):
+        sr_train([f"--config_path={out / 'train_config.json'}", "--resume=true", "--wake_steps=5"])
+    off = sr_train(["--substrate=toy", "--sleep.enabled=false", "--stream.skills=[a,b]", "--progress=false",
+                    f"--output_dir={tmp_path / 'off'}"])
+    assert off["final_phases"] == ["wake", "wake"]
+
+
+def test_the_toy_substrate_gets_every_method_it_provides_for_and_only_those():
+    for name in methods_for(ToySubstrate):
+        make_method(name, ToySubstrate, ToySubstrate(Path("."), ["a"]).method_settings())
+    assert "lwf" not in methods_for(ToySubstrate)  # PolicySnapshots: the toy has no frozen copies
+
+
+def _lacking(member: str) -> ToySubstrate:
+    """A toy substrate without ``member`` (neither in its class nor on the instance)."""
+    namespace = {k: v for k, v in vars(ToySubstrate).items() if k not in (member, "__dict__", "__weakref__")}
+    substrate = type("ToySubstrate", (), namespace)(Path("unused"), ["a", "b"])
+    if member in vars(substrate):
+        delattr(substrate, member)
+    return substrate
+
+
+@pytest.mark.parametrize("member", protocol_members(Substrate))
+def test_a_substrate_lacking_any_protocol_member_is_refused_in_one_line_before_anything_is_written(tmp_path, member):
+    out = tmp_path / "run"
+    cfg = toy.parse(["--stream.skills=[a,b]", f"--output_dir={out}"])
+    substrate = _lacking(member)
+    with pytest.raises(TypeError) as err:
+        StreamRun(cfg, substrate, fingerprint=toy.fingerprint(cfg), stored_config=toy.stored_config(cfg)).run()
+    message = str(err.value)
+    assert message == f"ToySubstrate is not a Substrate (sr_imitation.stream.substrate): it lacks {member}"
+    run = RunDirectory(out, toy.fingerprint(cfg), "config.json", {}, resume=False, overwrite=False)
+    with pytest.raises(TypeError, match=f"it lacks {member}$"):
+        StreamEngine(substrate, METHODS["sr"](ToySubstrate(out, ["a"]).method_settings()), run, progress=False)
+    assert not out.exists()
+
+
+def test_every_missing_member_is_named_at_once_and_declared_values_are_checked(tmp_path):
+    class Nearly:
+        name = "nearly"
+
+    with pytest.raises(TypeError, match=r"^Nearly is not a Substrate \(sr_imitation.stream.substrate\): it lacks "
+                                        r"begin_phase, evaluate, extension_keys, .*wake_eval_skills, wake_hooks$"):
+        StreamEngine(Nearly(), METHODS["sr"](ToySubstrate(tmp_path, ["a"]).method_settings()),  # type: ignore[arg-type]
+                     RunDirectory(tmp_path / "r", toy.fingerprint(toy.parse([])), "c.json", {}, False, False))
+    substrate = ToySubstrate(tmp_path / "r", ["a"])
+    substrate.seed_scheme = "mine"  # type: ignore[misc]
+    with pytest.raises(TypeError, match=r"ToySubstrate.seed_scheme: unknown scheme 'mine'; choose from"):
+        StreamEngine(substrate, METHODS["sr"](substrate.method_settings()),
+                     RunDirectory(tmp_path / "r", toy.fingerprint(toy.parse([])), "c.json", {}, False, False))
+    assert not (tmp_path / "r").exists()
