@@ -8,8 +8,8 @@ And every such file is checksummed over header and data: safetensors files carry
 of their header (:func:`save_checked_safetensors`), JSON records a sha256 entry over all their other entries
 (:func:`write_checked_json`), third-party checkpoint directories a sealed ``checksums.json``
 (:func:`write_manifest`). The exceptions are files written for people or other programs to read and never read
-back as state: a run's config copy (``config.json`` / ``train_config.json``, which draccus must be able to parse;
-the checked copy of its settings is ``settings_fingerprint.json``), reports, plots, videos and logs.
+back as state: reports, plots, videos and logs. A run's ``train_config.json`` is sealed too (draccus reads it with the
+seal left out: :func:`read_config_json`); configs a person writes are not.
 
 The lowest layer of the package (``tests/test_architecture.py``): it imports nothing of ``sr_imitation``, and the
 core's memories, the run infrastructure (:mod:`sr_imitation.infra`) and everything above are saved through it.
@@ -136,14 +136,28 @@ def read_checked_json(path: str | os.PathLike[str]) -> dict[str, Any]:
     return body
 
 
+def read_config_json(path: str | os.PathLike[str]) -> tuple[dict[str, Any], bool]:
+    """A config file's JSON object and whether it was sealed: a run's ``train_config.json`` carries a ``sha256``
+    entry (:func:`write_checked_json`), checked here and left out of the object returned; a config a person wrote
+    has none. ``CorruptFileError`` naming the file if it is not a JSON object or does not match its seal."""
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise CorruptFileError(path, "not a JSON object")
+    if JSON_CHECKSUM not in data:
+        return data, False
+    return read_checked_json(path), True
+
+
 def read_json(path: str | os.PathLike[str]) -> Any:
-    """Parse a JSON file; ``CorruptFileError`` naming the file if it is not valid JSON (a missing file raises
-    ``FileNotFoundError``)."""
+    """Parse a JSON file; ``CorruptFileError`` naming the file if it is not valid JSON or not UTF-8 text (a missing
+    file raises ``FileNotFoundError``)."""
     path = Path(path)
     try:
         return json.loads(path.read_text())
     except json.JSONDecodeError as exc:
         raise CorruptFileError(path, f"not valid JSON ({exc})") from exc
+    except UnicodeDecodeError as exc:  # a flipped byte outside ASCII
+        raise CorruptFileError(path, f"not valid JSON (not UTF-8 text: {exc.reason} at byte {exc.start})") from exc
 
 
 def tensors_digest(tensors: Mapping[str, torch.Tensor]) -> str:

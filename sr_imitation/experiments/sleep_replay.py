@@ -30,7 +30,7 @@ from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, resu
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
-from sr_imitation.io import atomic_write_json, write_checked_json
+from sr_imitation.io import write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.rundir import OverwriteRefusedError, check_not_an_input, read_progress, run_entries_problem
 
@@ -95,7 +95,7 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
     keep = {key: rec for key, rec in progress["completed"].items()
             if int(key.split(".")[0]) < k or key in (f"{k}.wake", f"{k}.memory", f"{k}.wake.eval")}
     write_checked_json(out / "progress.json", {**progress, "completed": keep})
-    atomic_write_json(out / "train_config.json", {**stored_config_dict(train), "output_dir": str(out)})
+    write_checked_json(out / "train_config.json", {**stored_config_dict(train), "output_dir": str(out)})
     train.output_dir, train.resume, train.progress = out, True, cfg.progress
     write_fingerprint(out / FINGERPRINT_FILE, resume_fingerprint(train))  # the replay's own settings, its data too
     return train

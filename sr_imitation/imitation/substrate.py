@@ -30,6 +30,7 @@ from typing import Any, ClassVar
 import numpy as np
 import torch
 from lerobot.policies.factory import make_policy, make_pre_post_processors
+from lerobot.utils.constants import ACTION, OBS_STATE
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
@@ -47,6 +48,14 @@ from sr_imitation.imitation.data import (
     stream_stats,
 )
 from sr_imitation.imitation.evaluate import EnvFactory, evaluate_skills, make_env_factory
+from sr_imitation.imitation.normalization import (
+    far_outside,
+    map_actions,
+    reexpress_policy,
+    reexpress_state_dict,
+    retarget,
+    same_stats,
+)
 from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
 from sr_imitation.imitation.wake import validation_l1, wake_train
 from sr_imitation.infra import distributed
@@ -55,7 +64,7 @@ from sr_imitation.io import (
     CorruptFileError,
     atomic_write_json,
     read_checked_json,
-    read_json,
+    read_config_json,
     save_checked_safetensors,
     staged_directory,
     verify_manifest,
@@ -70,6 +79,13 @@ logger = logging.getLogger(__name__)
 PER_SKILL_EVAL_KEYS = ("eval.gym_ids", "eval.env_tasks")
 """Evaluation settings with one entry per skill: an extended stream has more; its first entries must equal the run
 it extends (:meth:`ACTSubstrate.source_skills`)."""
+STATS_FILE = "stream_stats.safetensors"
+"""The stream's statistics: in the run directory (the first skill's, or those ``--stream.stats`` fixes), and under
+``--stream.stats=seen`` in each later stage's folder (those of skills 1..k)."""
+SEEN_METHODS = ("sr", "wake_only", "sequential_bc", "nash_mtl", "pcgrad")
+"""Methods that ``--stream.stats=seen`` supports: their memories are the substrate's actor memories (raw
+observations, targets it re-expresses) or none; the others store normalized frames, weights or Fisher information
+that would stay in the earlier statistics."""
 OFFLINE_BATCH = 64
 """Batch size of the memory losses and validation l1 of ``--eval.env=none`` (no randomness; any size gives the same
 numbers up to float rounding)."""
@@ -136,6 +152,14 @@ class ACTSubstrate:
         self.run_log: Any = None  # set by the engine: wake epochs are logged there
         self.train_config: dict[str, Any] | None = None
         """The run's stored config, written beside each checkpoint as LeRobot does (set by ``StreamTrainer``)."""
+        if cfg.stream.stats == "seen" and cfg.method not in SEEN_METHODS:
+            raise ValueError(f"stream.stats=seen (the default) re-expresses actor memories when the statistics "
+                             f"change; method {cfg.method!r} keeps normalized data of earlier skills: give "
+                             f"--stream.stats=first or --stream.stats=union (seen supports {list(SEEN_METHODS)})")
+        self._stage_stats: dict[int, dict] = {}
+        self._stats_stage = 0  # the stage whose statistics the processors hold
+        self._policy_stage = 0  # the stage whose statistics the policy's weights are expressed in
+        self._memory_origin: dict[int, tuple[Any, int, torch.Tensor]] = {}  # id -> (memory, stage, its targets)
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=self.policy_cfg.distill_weight,
@@ -147,12 +171,14 @@ class ACTSubstrate:
         first_meta = load_metadata(self.cfg.stream.dataset_path(0), self.cfg.stream.repo_id(0))
         inputs, outputs = policy_features(first_meta, self.policy_cfg.use_images)
         self.policy_cfg.input_features, self.policy_cfg.output_features = inputs, outputs
-        stats_path = self.out / "stream_stats.safetensors"
+        stats_path = self.out / STATS_FILE
         if stats_path.exists():
             self.stats = load_stats(stats_path)
         else:
             self.stats = stream_stats(self.stats_metas(first_meta), inputs, self.cfg.stream.stats_min_std)
             save_stats(stats_path, self.stats)
+        self._stage_stats = {0: self.stats}
+        self._stats_stage = self._policy_stage = 0
         seed_everything(self.cfg.seed)
         self.policy: ACTSRPolicy = make_policy(self.policy_cfg, ds_meta=first_meta)  # type: ignore[assignment]
         self.preprocessor, self.postprocessor = make_pre_post_processors(self.policy_cfg, dataset_stats=self.stats)
@@ -166,15 +192,81 @@ class ACTSubstrate:
         self.make_env = self._make_env or make_env_factory(self.cfg.eval, self.skills, size)
 
     def stats_metas(self, first_meta: Any) -> list[Any]:
-        """The datasets whose statistics normalize the stream (``--stream.stats``: the first, or all)."""
+        """The datasets whose statistics normalize the stream from its start (``--stream.stats``: the first - also
+        for ``seen``, until the second skill's wake - or all)."""
         stream = self.cfg.stream
-        if stream.stats == "first":
+        if stream.stats in ("first", "seen"):
             return [first_meta]
         return [first_meta] + [load_metadata(stream.dataset_path(i), stream.repo_id(i))
                                for i in range(1, len(self.skills))]
 
     def _normalize_raw(self, raw: Mapping[str, torch.Tensor]) -> dict[str, torch.Tensor]:
         return normalize_raw_observations(self.preprocessor, raw)
+
+    # -- --stream.stats=seen: the statistics of skills 1..k at stage k ----------------------------------------------
+    def stage_stats(self, k: int) -> dict:
+        """The statistics that normalize stage ``k``: the stream's fixed ones, or under ``seen`` those of skills
+        1..k (computed at the stage's first phase from datasets 1..k only, saved in its folder, read back on
+        resume)."""
+        if self.cfg.stream.stats != "seen" or k == 0:
+            return self._stage_stats[0]
+        if k not in self._stage_stats:
+            path = self.out / self.stage_dir_name(k) / STATS_FILE
+            if path.exists():
+                self._stage_stats[k] = load_stats(path)
+            else:
+                stream = self.cfg.stream
+                metas = [load_metadata(stream.dataset_path(i), stream.repo_id(i)) for i in range(k + 1)]
+                stats = stream_stats(metas, self.policy_cfg.input_features, stream.stats_min_std)
+                path.parent.mkdir(parents=True, exist_ok=True)
+                save_stats(path, stats)
+                self._stage_stats[k] = stats
+        return self._stage_stats[k]
+
+    def _use_stage(self, k: int) -> None:
+        """Under ``seen``: the processors normalize with stage ``k``'s statistics, the policy's weights are
+        re-expressed into them (the same actions, :func:`~sr_imitation.imitation.normalization.reexpress_policy`)
+        and every memory's targets are its stored targets mapped into them. Each is computed from what was stored
+        (the checkpoint's weights, the memory file's targets), so a resumed run computes the same numbers."""
+        if self.cfg.stream.stats != "seen":
+            return
+        new = self.stage_stats(k)
+        floor = self.cfg.stream.stats_min_std
+        if self._policy_stage != k:
+            old = self.stage_stats(self._policy_stage)
+            if not same_stats(old, new, list(new)):
+                reexpress_policy(self.policy, old, new, floor)
+            self._policy_stage = k
+        if self._stats_stage != k:
+            self.stats, self._stats_stage = new, k
+            self.preprocessor, self.postprocessor = make_pre_post_processors(self.policy_cfg, dataset_stats=new)
+            logger.info("stage %d: normalization statistics of skills %s (--stream.stats=seen)", k + 1,
+                        self.skills[: k + 1])
+        for memory, stage, targets in self._memory_origin.values():
+            source = self.stage_stats(stage)[ACTION]
+            retarget(memory, targets if stage == k else map_actions(targets, source, new[ACTION]))
+
+    def _remember(self, memory: Memory, k: int) -> Memory:
+        """Keep an actor memory of stage ``k`` (its targets in stage ``k``'s statistics) for :meth:`_use_stage`."""
+        if self.cfg.stream.stats == "seen" and isinstance(memory, ActorMemory):
+            self._memory_origin[id(memory)] = (memory, k, memory.tensors["target"])
+            if k != self._stats_stage:
+                retarget(memory, map_actions(memory.tensors["target"], self.stage_stats(k)[ACTION],
+                                             self.stats[ACTION]))
+        return memory
+
+    def warn_far_outside(self, k: int) -> None:
+        """One warning line, before skill ``k``'s first gradient, when its dataset's mean lies more than
+        :data:`~sr_imitation.imitation.normalization.FAR_OUTSIDE` standard deviations of the statistics in use
+        from their mean in some state or action dimension."""
+        stream = self.cfg.stream
+        meta = load_metadata(stream.dataset_path(k), stream.repo_id(k))
+        found = far_outside(meta.stats, self.stats, [OBS_STATE, ACTION])
+        if found is not None:
+            key, dim, z = found
+            logger.warning("skill %s: its %s[%d] lies %.0f standard deviations from the mean of the statistics in "
+                           "use (--stream.stats=%s); it may not be learned: use --stream.stats=seen", self.skills[k],
+                           key, dim, z, stream.stats)
 
     @property
     def run_seed(self) -> int:
@@ -187,6 +279,7 @@ class ACTSubstrate:
 
     def begin_phase(self, k: int, phase: str, seed: int) -> None:
         seed_everything(seed)
+        self._use_stage(k)
 
     # -- files -------------------------------------------------------------------------------------------
     def stage_dir_name(self, index: int) -> str:
@@ -206,7 +299,7 @@ class ACTSubstrate:
         with staged_directory(self.checkpoint_dir(k, phase)) as tmp:
             save_pretrained_model(tmp / "pretrained_model", self.policy, self.preprocessor, self.postprocessor)
             if self.train_config is not None:
-                atomic_write_json(tmp / "pretrained_model" / TRAIN_CONFIG_FILE, self.train_config)
+                write_checked_json(tmp / "pretrained_model" / TRAIN_CONFIG_FILE, self.train_config)
             for name, obj in files.items():
                 atomic_write_json(tmp / name, obj)
 
@@ -229,6 +322,7 @@ class ACTSubstrate:
         if missing or unexpected:
             raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
                                          f"unexpected {unexpected[:5]})")
+        self._policy_stage = k  # its weights are in stage k's statistics (seen)
 
     # -- what continual methods ask of the policy -------------------------------------------------------------
     def chunk_policy(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -302,6 +396,8 @@ class ACTSubstrate:
 
     def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
         state = self._checked_state(k, phase)
+        if self.cfg.stream.stats == "seen" and k != self._stats_stage:  # in the statistics in use
+            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std)
         return deployed_parameters(self.policy, state)
 
     # -- phases --------------------------------------------------------------------------------------------
@@ -317,6 +413,7 @@ class ACTSubstrate:
              ) -> tuple[dict[str, Any], dict[str, Any]]:
         self._data = None
         data = self._skill_data(k)
+        self.warn_far_outside(k)
         self.policy.set_wake_memories(list(memories), distill_weight, seed=self.phase_seed(k, "wake"))
         t0 = time.perf_counter()
         log = self.run_log
@@ -344,13 +441,13 @@ class ACTSubstrate:
         memory = ActorMemory.from_observations(self.skills[k], self.policy.memory_chunk, buffer, snapshot=snapshot,
                                                reduction=self.policy_cfg.distill_reduction)
         memory.save(self.memory_path(k))
-        return memory
+        return self._remember(memory, k)
 
     def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
         memory.save(self.memory_path(k, name))
 
     def load_memory(self, k: int, name: str = "memory") -> Memory:
-        return load_memory(self.memory_path(k, name), skill=self.skills[k])
+        return self._remember(load_memory(self.memory_path(k, name), skill=self.skills[k]), k)
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         return list(range(k + 1))  # every learned skill: the after-wake success matrix is reported too
@@ -407,6 +504,8 @@ class ACTSubstrate:
         if not isinstance(memory, ActorMemory):
             return None
         buffers = {key: memory.tensors[key] for key in memory.buffer_keys}
+        if self.cfg.stream.stats == "seen" and i != self._stats_stage:  # stored in stage i's statistics
+            buffers["target"] = map_actions(buffers["target"], self.stage_stats(i)[ACTION], self.stats[ACTION])
         total = 0.0
         with torch.no_grad():
             for start in range(0, memory.size, OFFLINE_BATCH):
@@ -464,7 +563,7 @@ class ACTSubstrate:
         # the configuration the run started with (train_config.json, written once at its start), not this
         # invocation's: a resume may change allow-listed settings only, and results say what held from the start
         stored = self.out / TRAIN_CONFIG_FILE
-        config = read_json(stored) if stored.is_file() else stored_config_dict(self.cfg)  # a run before this file
+        config = read_config_json(stored)[0] if stored.is_file() else stored_config_dict(self.cfg)  # (older runs)
         return write_report(self.out, self.skills, self.cfg.stream.pairs, progress, config,
                             [self.checkpoint_dir(i, final_phases[i]) for i in range(n)],
                             [self.checkpoint_dir(i, "wake") for i in range(n)], memories,

@@ -37,11 +37,15 @@ def _next(exc: BaseException) -> BaseException | None:
 
 
 def _user_error(exc: BaseException) -> BaseException | None:
-    """The innermost user error in ``exc``'s cause chain (draccus wraps __post_init__ errors), or None."""
+    """The innermost user error in ``exc``'s cause chain (draccus wraps __post_init__ errors), or None; an error that
+    names its file (:class:`~sr_imitation.io.CorruptFileError`, :class:`~sr_imitation.io.WriteError`) is taken as it
+    is, not the parser's or the system's error it was raised from (``JSONDecodeError`` names no file)."""
     found = None
     seen = set()
     while exc is not None and id(exc) not in seen:
         seen.add(id(exc))
+        if isinstance(exc, (CorruptFileError, WriteError)):
+            return exc
         if isinstance(exc, USER_ERRORS) or type(exc).__module__.startswith(("draccus", "yaml")):
             found = exc
         exc = _next(exc)

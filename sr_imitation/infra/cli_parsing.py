@@ -20,16 +20,19 @@
 from __future__ import annotations
 
 import ast
+import contextlib
 import dataclasses
 import difflib
 import functools
 import inspect
+import json
 import logging
 import re
+import tempfile
 import textwrap
 import types
 import typing
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
@@ -37,6 +40,7 @@ import draccus
 from draccus.argparsing import ArgumentParser
 
 from sr_imitation.infra.cli_errors import UsageError
+from sr_imitation.io import read_config_json
 
 logger = logging.getLogger(__name__)
 
@@ -162,21 +166,41 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
     ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix`` names (``--seed=1`` is
     ``--train.seed=1``); errors name the flags as given."""
     args = list(args)
-    parser = command_parser(cls, prog=prog, config_path=config_path)
-    if wants_help(args):
-        parser.parse_args(["--help"])  # prints the help and exits 0
-    known = option_names(parser, prefix)
-    args = apply_flag_names(args, known, names or {}, prog)
-    check_flags_known(args, known)
-    full = [f"--{prefix}{a[2:]}" if prefix and a.startswith("--") and a != "--" else a for a in args]
-    try:
-        return parser.parse_args(full)
-    except UsageError as exc:
-        message = str(exc).replace(f"--{prefix}", "--") if prefix else str(exc)
-        for flag, note in (notes or {}).items():
-            if message.startswith(f"argument {flag}:"):
-                message = f"{message}; {note}"
-        raise UsageError(message) from None
+    with readable_config(config_path) as readable:
+        parser = command_parser(cls, prog=prog, config_path=readable)
+        if wants_help(args):
+            parser.parse_args(["--help"])  # prints the help and exits 0
+        known = option_names(parser, prefix)
+        args = apply_flag_names(args, known, names or {}, prog)
+        check_flags_known(args, known)
+        full = [f"--{prefix}{a[2:]}" if prefix and a.startswith("--") and a != "--" else a for a in args]
+        try:
+            return parser.parse_args(full)
+        except UsageError as exc:
+            message = str(exc).replace(f"--{prefix}", "--") if prefix else str(exc)
+            for flag, note in (notes or {}).items():
+                if message.startswith(f"argument {flag}:"):
+                    message = f"{message}; {note}"
+            raise UsageError(message) from None
+
+
+@contextlib.contextmanager
+def readable_config(config_path: str | Path | None) -> Iterator[str | Path | None]:
+    """The ``--config_path`` file as draccus can read it: a run's sealed ``train_config.json`` is checked against its
+    seal (:func:`~sr_imitation.io.read_config_json`: one line naming the file if it was edited or damaged) and handed
+    over as a copy without the seal, in a temporary folder removed afterwards; any other file as it is (a missing or
+    unreadable one is reported by the caller or draccus)."""
+    if config_path is None or not Path(config_path).is_file():
+        yield config_path
+        return
+    config, sealed = read_config_json(config_path)
+    if not sealed:
+        yield config_path
+        return
+    with tempfile.TemporaryDirectory(prefix="sr-config-") as folder:
+        copy = Path(folder) / Path(config_path).name
+        copy.write_text(json.dumps(config, indent=2, sort_keys=True))
+        yield copy
 
 
 # --- help ------------------------------------------------------------------------------------------------------------

@@ -34,6 +34,9 @@ from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     check_settings,
+    diff_settings,
+    flatten_settings,
+    is_allowed,
     read_fingerprint,
     write_fingerprint,
 )
@@ -41,9 +44,9 @@ from sr_imitation.io import (
     JSON_CHECKSUM,
     CorruptFileError,
     WriteError,
-    atomic_write_json,
     fsync_directory,
     read_checked_json,
+    read_config_json,
     read_json,
     write_checked_json,
 )
@@ -242,6 +245,7 @@ class RunDirectory:
                 self.progress = read_checked_json(progress_path)
                 if not isinstance(self.progress.get("completed"), dict):
                     raise CorruptFileError(progress_path, "cannot resume: no 'completed' phases recorded")
+            self.check_stored_config()
             # every sealed file, before anything is written (the fingerprint: checked above by read_fingerprint)
             verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, *LEGACY_CONFIG_FILES, FINGERPRINT_FILE))
             self._remove_leftovers()
@@ -254,7 +258,7 @@ class RunDirectory:
             for leftover in sorted(self.path.glob(START_LEFTOVER)):  # a start killed while writing the fingerprint
                 leftover.unlink()
             write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
-            atomic_write_json(self.path / self.config_file, self.stored_config)
+            write_checked_json(self.path / self.config_file, self.stored_config)
 
     def _set_aside(self) -> None:
         """Rename the old run to a hidden sibling (:data:`REPLACED_MARK`), kept until the new run records a phase."""
@@ -310,6 +314,25 @@ class RunDirectory:
         if self.check_inputs is not None:
             self.check_inputs(path, stored)
         check_settings(path, stored, self.fingerprint)
+
+    def check_stored_config(self) -> dict[str, Any] | None:
+        """The run's stored config (``train_config.json``), checked before a resume writes anything; ``None`` if the
+        run has none (started before the file existed). A sealed one must match its seal; one written before configs
+        were sealed must hold the settings of the run's fingerprint (an edit there would otherwise be reported in
+        ``results.json`` as what the run trained with). :class:`~sr_imitation.io.CorruptFileError` naming the file."""
+        path = self.path / self.config_file
+        if not path.is_file():
+            return None
+        config, sealed = read_config_json(path)
+        if not sealed:
+            stored = read_fingerprint(self.path / FINGERPRINT_FILE)
+            ignore = (*self.fingerprint.allow, *self.fingerprint.derived)
+            written = {k: v for k, v in flatten_settings(config).items() if not is_allowed(k, ignore)}
+            diffs = diff_settings({k: v for k, v in stored.items() if not is_allowed(k, ignore)}, written)
+            if diffs:
+                raise CorruptFileError(path, f"differs from {FINGERPRINT_FILE} in {', '.join(sorted(diffs)[:4])} "
+                                             "(edited since the run started); restore it or start a new run")
+        return config
 
     def _remove_leftovers(self) -> None:
         for pattern in TEMPORARY_PATTERNS:

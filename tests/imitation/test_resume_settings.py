@@ -10,6 +10,7 @@ failed.
 from __future__ import annotations
 
 import json
+import re
 import shutil
 from pathlib import Path
 from typing import Any
@@ -30,6 +31,7 @@ from sr_imitation.imitation.stream import (
     train_stream,
 )
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -40,7 +42,7 @@ from sr_imitation.infra.fingerprint import (
     settings_digest,
     write_fingerprint,
 )
-from sr_imitation.io import CorruptFileError
+from sr_imitation.io import CorruptFileError, read_config_json
 from sr_imitation.stream import methods_for
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
@@ -162,7 +164,7 @@ def stored(state_datasets, tmp_path_factory) -> tuple[Path, dict[str, Any]]:
     """A run directory as a fresh run leaves it before its first step: fingerprint + train_config.json."""
     out = tmp_path_factory.mktemp("stored") / "run"
     StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False)).run_dir.prepare()
-    return out, json.loads((out / "train_config.json").read_text())
+    return out, read_config_json(out / "train_config.json")[0]  # as a person would write it: without the seal
 
 
 @pytest.fixture(scope="module")
@@ -395,3 +397,53 @@ def test_extending_a_finished_one_skill_run_equals_the_two_skill_run(state_datas
     with pytest.raises(SettingsMismatchError, match="sleep.lr"):
         StreamTrainer(other, fake_env_factory).run()
     assert not (tmp_path / "refused").exists()
+
+
+def _one_line_refusal(argv: list[str], capsys) -> str:
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as exc:
+        run_cli("sr-train", cli.train_main, argv)
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and err.startswith("sr-train: error: "), err
+    return err
+
+
+def test_an_edited_or_damaged_train_config_is_refused_naming_it_before_anything_is_written(
+        after_stage_1, state_datasets, tmp_path, fake_env_cli, capsys):
+    """Before: the sleep lr edited in train_config.json (valid JSON) resumed with the fingerprint's lr but
+    results.json recorded the edited one; one flipped byte redid stage 3, then failed with "Expecting ','
+    delimiter" without naming the file, at every further resume."""
+    for damage in ("edit", "flip", "unseal-edit"):
+        run = tmp_path / damage / "run"
+        shutil.copytree(after_stage_1, run)
+        path = run / "train_config.json"
+        text = path.read_text()
+        data = json.loads(text)
+        if damage == "flip":  # invalid JSON
+            at = text.index('"sleep"')
+            path.write_text(text[:at] + "'" + text[at + 1:])
+        else:  # valid JSON with another lr; "unseal-edit": the seal removed too, as a file of before seals
+            data["sleep"]["lr"] = data["sleep"]["lr"] * 2
+            if damage == "unseal-edit":
+                del data["sha256"]
+            path.write_text(json.dumps(data, indent=2, sort_keys=True))
+        before = tree_state(run)
+        cfg = tiny_stream_config(state_datasets, run, STREAM, use_images=False)
+        cfg.resume = True
+        with pytest.raises(CorruptFileError, match=re.escape(str(path))):
+            train_stream(cfg, fake_env_factory)
+        assert tree_state(run) == before, damage
+        err = _one_line_refusal([f"--config_path={path}", "--resume=true"], capsys)
+        assert str(path) in err or (damage == "unseal-edit" and "sleep.lr" in err), (damage, err)
+        assert tree_state(run) == before, damage
+
+
+def test_a_train_config_written_before_seals_resumes_when_it_holds_the_run_settings(after_stage_1, reference, tmp_path,
+                                                                                    fake_env_cli):
+    run = tmp_path / "run"
+    shutil.copytree(after_stage_1, run)
+    path = run / "train_config.json"
+    path.write_text(json.dumps(read_config_json(path)[0], indent=2, sort_keys=True))  # as older runs wrote it
+    cli.train_main([f"--config_path={path}", "--resume=true"])
+    assert json.loads((run / "results.json").read_text())["metrics"] == reference[1]["metrics"]
+
