@@ -61,8 +61,9 @@ class RunConfig:
     them and adds its own (policy, data, wake, memory, evaluation) and its defaults of ``output_dir`` and ``seed``."""
 
     method: str = "sr"
-    """Continual method (sr_imitation/stream/methods; act: sr, wake_only, sequential_bc, ewc, lwf, m2distill,
-    replay; sac: also der, clear, agem, pcgrad, nash_mtl, reset_distill, progress_compress, componet)."""
+    """Continual method, by its registry name - one file each in sr_imitation/stream/methods (sr is Sleeping Robots);
+    a method runs on every substrate that provides what it requires, and a name that does not run here is answered
+    with the list of those that do."""
     method_options: dict[str, float] = field(default_factory=dict)
     """Values for the method's own settings, e.g. --method_options='{lam: 100}' for EWC's lambda (each method's
     file lists them)."""

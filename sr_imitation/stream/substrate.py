@@ -107,7 +107,8 @@ class Substrate(Protocol):
     """The policy-specific half of a stream run (see the module docstring)."""
 
     name: ClassVar[str]
-    """Registry name methods refer to in :attr:`ContinualMethod.substrates` (``act``, ``sac``)."""
+    """The substrate's name (``act``, ``sac``): ``--substrate``, and what a method restricted to some substrates
+    names in :attr:`ContinualMethod.substrates`."""
 
     skills: list[str]
 

@@ -11,7 +11,7 @@ import pytest
 import torch
 
 import sr_imitation.stream.methods as methods_package
-import tests.stream.l2_anchor  # noqa: F401  (registers l2_anchor, as the methods package registers its files)
+import tests.stream.l2_anchor  # registers l2_anchor, as the methods package registers its files
 from sr_imitation import cli
 from sr_imitation.stream import METHODS, RunDirectory, StreamEngine, make_method, methods_for
 from sr_imitation.stream.capabilities import protocol_members
@@ -143,3 +143,20 @@ def test_every_missing_member_is_named_at_once_and_declared_values_are_checked(t
         StreamEngine(substrate, METHODS["sr"](substrate.method_settings()),
                      RunDirectory(tmp_path / "r", toy.fingerprint(toy.parse([])), "c.json", {}, False, False))
     assert not (tmp_path / "r").exists()
+
+
+def test_the_recipes_name_every_protocol_member_and_the_files_they_cite():
+    doc = (Path(__file__).resolve().parents[2] / "docs" / "ARCHITECTURE.md").read_text()
+    method = doc[doc.index("### Adding a method"):doc.index("### Adding a substrate")]
+    substrate = doc[doc.index("### Adding a substrate"):doc.index("## The imitation substrate")]
+    assert [m for m in protocol_members(Substrate) if f"`{m}" not in substrate] == []
+    for cited in ("WakeHooks", "StreamRun", "RunConfig", "settings_fingerprint", "train_config.json",
+                  "SUBSTRATE_COMMANDS", '"toy": ("tests.stream.toy", "parse", "main")'):
+        assert cited in substrate, cited
+    assert '"toy": ("tests.stream.toy", "parse", "main")' in (toy.__doc__ or "")
+    example = Path(tests.stream.l2_anchor.__file__).read_text()
+    for line in ('name = "l2_anchor"', 'substrate.parameters_at(k - 1, "wake")', "0.5 * self.config.lam"):
+        assert line in method and line in example, line
+    for path in ("tests/stream/toy.py", "tests/stream/l2_anchor.py", "tests/stream/test_recipes.py",
+                 "tests/stream/conftest.py"):
+        assert path in doc and (Path(__file__).resolve().parents[2] / path).is_file(), path
