@@ -96,11 +96,14 @@ class StreamConfig(StreamSettings):
     pairs: str = "surgicai"
     """PRS pair list - surgicai (the paper's seven needle pairs), mt5 (the paper's six MT5 pairs, for Meta-World
     skills), all or adjacent."""
-    stats: str = "first"
-    """Normalization statistics fixed for the whole stream - first (the first skill's dataset) or union (all the
-    stream's datasets, known before the first skill); see sr_imitation.imitation.data."""
+    stats: str = "seen"
+    """Normalization statistics - seen (default - the skills seen so far, updated at each wake; the policy and the
+    memories' targets are re-expressed when they change; what a continual learner may use), first (the first skill's
+    dataset for the whole stream; later skills may lie far outside it) or union (all the stream's datasets, read
+    before the first wake - future skills' data, which a continual learner may not read); see
+    sr_imitation.imitation.data."""
     stats_min_std: float = 1e-2
-    """Floor on the fixed stream statistics' standard deviations."""
+    """Floor on every standard deviation of the stream's statistics (a constant dimension stays constant)."""
 
     def __post_init__(self) -> None:
         if not self.skills:

@@ -5,16 +5,20 @@ writes them; or listed paths; or repo_ids resolved in the local Hugging Face cac
 them, :func:`lerobot_cache_path`), so users can run it on their own recordings.
 
 Statistics policy. LeRobot re-fits normalization statistics per dataset; a snapshot's outputs and the current
-policy's would then live in different action spaces. The stream fixes one set for its whole length
-(``--stream.stats``): ``first``, the statistics of the first skill's dataset (nothing from later skills is
-peeked at), or ``union``, the statistics of all the stream's datasets together (LeRobot's ``aggregate_stats``:
-count-weighted mean, pooled std), computed before the first skill - a fixed input scaling shared by every method;
-no later skill's data is trained on, but its range is known in advance. Either way with a floor on every standard
-deviation so that a dimension that is nearly constant cannot blow up other skills' inputs. They are saved once per
-run (``stream_stats.safetensors``) and written into every stage checkpoint's processors. Why ``union`` for the
-needle presets: under the first skill's (approach) statistics, regrasp's goal coordinates sit 30-55 standard
-deviations from the mean and the base learner reaches 0.33 on regrasp after its own wake instead of 0.93 with
-regrasp's own statistics (docs/RESULTS.md, "Why the base learner failed").
+policy's would then live in different action spaces. ``--stream.stats`` says which statistics normalize the stream:
+``seen`` (the default, our choice), the statistics of the skills seen so far (LeRobot's ``aggregate_stats`` of
+datasets 1..k: count-weighted mean, pooled std), updated at the start of each skill's wake, saved with the run
+(``stream_stats.safetensors`` for the first skill, ``skill_k_<name>/stream_stats.safetensors`` for each later one),
+with the policy re-expressed so its actions do not change and the memories' targets re-expressed into the new action
+space (:mod:`sr_imitation.imitation.normalization`) - what a continual learner may use; ``first``, the first skill's
+dataset's for the whole stream (nothing from later skills is read, but a later skill's data may lie far outside
+them); or ``union``, all the stream's datasets together, computed before the first skill (a fixed scaling shared by
+every method; no later skill's data is trained on, but its range is read in advance, which a continual learner may
+not do). Always with a floor on every standard deviation (``--stream.stats_min_std``) so that a nearly constant
+dimension cannot blow up other skills' inputs. The statistics in use are written into every stage checkpoint's
+processors. Why the needle presets fix ``union``: under the first skill's (approach) statistics, regrasp's goal
+coordinates sit 30-55 standard deviations from the mean and the base learner reaches 0.33 on regrasp after its own
+wake instead of 0.93 with regrasp's own statistics (docs/RESULTS.md, "Why the base learner failed").
 """
 
 from __future__ import annotations
@@ -208,7 +212,8 @@ def check_features(meta: LeRobotDatasetMetadata, input_features: dict, output_fe
             )
 
 
-STATS_SOURCES = ("first", "union")
+STATS_SOURCES = ("seen", "first", "union")
+"""Choices of ``--stream.stats`` (module docstring)."""
 
 
 def stream_stats(metas: Sequence[LeRobotDatasetMetadata], input_features: dict, min_std: float = 1e-2) -> dict:

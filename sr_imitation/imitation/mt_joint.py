@@ -32,7 +32,7 @@ import numpy as np
 import torch
 
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
-from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_skill_data
+from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_metadata, load_skill_data
 from sr_imitation.imitation.report import pair_list
 from sr_imitation.imitation.stream import (
     RESUME_ALLOW_LIST,
@@ -60,6 +60,15 @@ class JointSubstrate(ACTSubstrate):
 
     def stage_dir_name(self, index: int) -> str:
         return JOINT
+
+    def stats_metas(self, first_meta: Any) -> list[Any]:
+        """``--stream.stats=seen``: the joint policy has seen every skill before its first gradient, so its statistics
+        are those of all the datasets (``union``); ``first`` and ``union`` as for a stream."""
+        if self.cfg.stream.stats != "seen":
+            return super().stats_metas(first_meta)
+        stream = self.cfg.stream
+        return [first_meta] + [load_metadata(stream.dataset_path(i), stream.repo_id(i))
+                               for i in range(1, len(self.skills))]
 
 
 def union_data(substrate: ACTSubstrate) -> SkillData:

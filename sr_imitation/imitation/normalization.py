@@ -27,6 +27,8 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Mapping, Sequence
+from types import MappingProxyType
+from typing import Any
 
 import torch
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
@@ -164,3 +166,12 @@ def far_outside(data: Mapping[str, Mapping[str, object]], in_use: Mapping[str, M
         if z.numel() and float(z.max()) > limit and (worst is None or float(z.max()) > worst[2]):
             worst = (key, int(z.argmax()), float(z.max()))
     return worst
+
+
+def retarget(memory: Any, targets: Tensor) -> None:
+    """Replace an actor memory's ``target`` tensor (the same raw actions in other statistics: :func:`map_actions`).
+    Memories are immutable to everything that trains with them; only the stream, when ``--stream.stats=seen``
+    changes the statistics between phases, re-expresses them here (our choice)."""
+    tensors = dict(memory.tensors)
+    tensors["target"] = targets.detach().clone().requires_grad_(False)
+    object.__setattr__(memory, "_tensors", MappingProxyType(tensors))

@@ -109,12 +109,14 @@ def tiny_sleep(**overrides) -> SurgicAISleepConfig:
 
 
 def tiny_stream_config(
-    dataset_root: Path, output_dir: Path, skills: list[str], sleep: dict | None = None, **policy_overrides
+    dataset_root: Path, output_dir: Path, skills: list[str], sleep: dict | None = None, stats: str = "first",
+    **policy_overrides
 ) -> TrainStreamConfig:
-    """A tiny ACT-SR stream; ``sleep`` overrides :func:`tiny_sleep`'s settings, the keywords the policy's."""
+    """A tiny ACT-SR stream; ``sleep`` overrides :func:`tiny_sleep`'s settings, the keywords the policy's; ``stats``
+    is ``--stream.stats`` (``first`` here, as these tests were written: tests of ``seen`` say so)."""
     return TrainStreamConfig(
         policy=tiny_policy(**policy_overrides),
-        stream=StreamConfig(skills=skills, dataset_root=dataset_root),
+        stream=StreamConfig(skills=skills, dataset_root=dataset_root, stats=stats),
         memory=MemoryConfig(buffer_size=16),
         sleep=tiny_sleep(**(sleep or {})),
         wake=WakeConfig(max_epochs=2, min_epochs=1, patience=1, batch_size=4, max_steps_per_epoch=2),

@@ -1,0 +1,107 @@
+"""``--stream.stats=seen``, the default: the statistics of the skills seen so far, updated at each wake, saved with
+the run, the policy and the memories' targets re-expressed when they change; a resume computes the same numbers.
+A skill whose data lies far outside the statistics in use is reported before its first gradient; methods that keep
+normalized data of earlier skills are refused with seen (they give first or union)."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from sr_imitation.imitation.config import StreamConfig
+from sr_imitation.imitation.data import load_metadata, load_stats, stream_stats
+from sr_imitation.imitation.evaluate import EvalConfig
+from sr_imitation.imitation.offline_sleep import load_policy
+from sr_imitation.imitation.stream import StreamTrainer
+from sr_imitation.imitation.substrate import ACTSubstrate
+from tests.imitation.helpers import make_skill_dataset, tiny_stream_config
+
+SKILLS = ["approach", "place", "insert"]
+
+
+class StopError(Exception):
+    pass
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory) -> Path:
+    root = tmp_path_factory.mktemp("seen")
+    for i, skill in enumerate(SKILLS):
+        make_skill_dataset(root, skill, i, image=False, offset=3.0 * i)
+    return root
+
+
+def _config(root: Path, out: Path, skills=SKILLS, **kwargs):
+    cfg = tiny_stream_config(root, out, skills, use_images=False, stats=kwargs.pop("stats", "seen"), **kwargs)
+    cfg.eval = EvalConfig(env="none", episodes=0)
+    return cfg
+
+
+def test_seen_is_the_default_and_first_and_union_stay_choices():
+    assert StreamConfig().stats == "seen"
+    for choice in ("first", "union"):
+        assert StreamConfig(stats=choice).stats == choice
+    with pytest.raises(ValueError, match="stream.stats must be one of"):
+        StreamConfig(stats="all")
+
+
+def test_each_stage_normalizes_with_the_skills_seen_so_far_and_a_resume_gives_the_same_numbers(datasets, tmp_path):
+    whole = tmp_path / "whole"
+    results = StreamTrainer(_config(datasets, whole)).run()
+    metas = [load_metadata(datasets / s, f"local/sr_needle_{s}") for s in SKILLS]
+    first = load_stats(whole / "stream_stats.safetensors")
+    for k in (1, 2):
+        saved = load_stats(whole / f"skill_{k + 1}_{SKILLS[k]}" / "stream_stats.safetensors")
+        expected = stream_stats(metas[: k + 1], {"observation.state": None, "observation.environment_state": None})
+        assert torch.allclose(saved["observation.state"]["mean"], expected["observation.state"]["mean"])
+        assert not torch.equal(saved["action"]["mean"], first["action"]["mean"])
+        # the stage's checkpoints are saved with its statistics
+        policy = load_policy(whole / f"skill_{k + 1}_{SKILLS[k]}" / "sleep" / "pretrained_model", "cpu")
+        assert torch.allclose(policy.stats["action"]["mean"], saved["action"]["mean"])
+    # the earlier skills' memories are compared in the statistics in use: finite, of the order of the wake's losses
+    losses = results["losses"]["memory_loss"][-1]
+    assert all(x is not None and 0 <= x < 10 for x in losses), losses
+    # killed after the third skill's wake, resumed: the same weights and losses
+    cut = tmp_path / "cut"
+
+    def stop(k: int, phase: str) -> None:
+        if (k, phase) == (2, "wake"):
+            raise StopError
+
+    with pytest.raises(StopError):
+        StreamTrainer(_config(datasets, cut), after_phase=stop).run()
+    cfg = _config(datasets, cut)
+    cfg.resume = True
+    resumed = StreamTrainer(cfg).run()
+    for phase in ("skill_3_insert/wake", "skill_3_insert/sleep"):
+        a, b = (load_file(str(r / phase / "pretrained_model" / "model.safetensors")) for r in (whole, cut))
+        assert all(torch.equal(a[n], b[n]) for n in a), phase
+    assert resumed["losses"] == results["losses"]
+
+
+def test_a_skill_far_outside_the_statistics_in_use_is_reported_before_its_first_gradient(tmp_path, caplog):
+    root = tmp_path / "far"
+    make_skill_dataset(root, "approach", 0, image=False, offset=0.0)
+    make_skill_dataset(root, "place", 1, image=False, offset=40.0)
+    with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
+        StreamTrainer(_config(root, tmp_path / "first", ["approach", "place"], stats="first")).run()
+    lines = [r.getMessage() for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith("skill place: its observation.state[")
+    assert "(--stream.stats=first)" in lines[0] and "--stream.stats=seen" in lines[0]
+    caplog.clear()
+    with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
+        StreamTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
+    assert not [r for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
+
+
+def test_methods_that_keep_normalized_data_are_refused_with_seen(datasets, tmp_path):
+    cfg = _config(datasets, tmp_path / "replay")
+    cfg.method = "replay"
+    with pytest.raises(ValueError, match=r"^stream.stats=seen \(the default\) re-expresses .* method 'replay'"):
+        ACTSubstrate(cfg)
+    cfg.stream.stats = "first"
+    ACTSubstrate(cfg)
