@@ -74,7 +74,7 @@ def bench_actor_step(repeats: int) -> float:
 def bench_sleep(k: int, iterations: int, hidden: int = HIDDEN, batch: int = BATCH, rounds: int = 5) -> dict:
     """Per-iteration time of a sleep phase against two floors, alternating ``rounds`` times:
 
-    * ``floor``: k forward+backward passes on fixed batches (the issue's floor);
+    * ``floor``: k forward+backward passes on fixed batches (the floor of any per-memory method);
     * ``floor_step``: what any k-memory gradient step must do besides: drawing the k batches from the buffers
       and one Adam step on the summed gradient.
     """

@@ -1,4 +1,4 @@
-"""Where the scripted expert's demonstrations end, per skill and recording setting (issue 12's first finding).
+"""Where the scripted expert's demonstrations end, per skill and recording setting.
 
     python -m sr_imitation.benchmarks.demo_endings --episodes=40
 

@@ -2,7 +2,7 @@
 
     python -m sr_imitation.benchmarks.nash [--instances=200] [--calls=200] [--output=outputs/benchmarks/nash.json]
 
-1. **Exactness** (issue 9's family): random unit gradients, k = 3..5 in 3..7 dimensions, one memory opposing the
+1. **Exactness** (conflicting gradients): random unit gradients, k = 3..5 in 3..7 dimensions, one memory opposing the
    mean of the others, kept when an LP finds a simplex point where every memory agrees with margin >= 1e-3. For
    each solver: instances with some negative agreement u_i < 0, and instances whose Eq. 1 objective is more than
    1e-3 (and 1e-6 relative) below the reference maximizer (SciPy SLSQP with the agreement constraints
@@ -48,7 +48,7 @@ class NashBenchConfig:
 
 
 def conflict_family(rng: np.random.Generator, count: int, margin: float = 1e-3) -> list[np.ndarray]:
-    """Cosine matrices of the issue's family: k = 3..5 unit gradients in 3..7 dims, one opposing the others,
+    """Cosine matrices of the conflicting family: k = 3..5 unit gradients in 3..7 dims, one opposing the others,
     kept when some simplex point gives every memory agreement >= ``margin`` (checked by an LP)."""
     out = []
     while len(out) < count:

@@ -3,7 +3,7 @@
     python -m sr_imitation.benchmarks.needle_env                       # steps/s and fps
     python -m sr_imitation.benchmarks.needle_env --record_episodes=20  # + timed sr-record, all five skills
 
-Targets (issue 3): >= 20,000 steps/s on one core, >= 1,000 wrist fps at 96x96 and >= 100 at 640x480,
+Targets: >= 20,000 steps/s on one core, >= 1,000 wrist fps at 96x96 and >= 100 at 640x480,
 <= 10 minutes to record 100 demos x 5 skills at 96x96 on 2 cores.
 """
 

@@ -2,7 +2,7 @@
 
     python -m sr_imitation.benchmarks.needle_expert --episodes=100
 
-Issue 3 asks for >= 95% with the ``learnable`` (default) thresholds and >= 90% with ``surgicai``.
+The targets: >= 95% with the ``learnable`` (default) thresholds and >= 90% with ``surgicai``.
 """
 
 from __future__ import annotations

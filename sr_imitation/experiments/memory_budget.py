@@ -1,4 +1,4 @@
-"""The memory-budget curve (issue 28, item 3): final AFSR and BWT_wake against stored frames per skill.
+"""The memory-budget curve: final AFSR and BWT_wake against stored frames per skill.
 
     python -m sr_imitation.experiments.memory_budget \\
         --points=[8=docs/results/needle_cpu_m8_compare,16=docs/results/needle_cpu_m16_compare,...] \\

@@ -1,4 +1,4 @@
-"""Every continual method on the Meta-World stream, several training seeds, one table (issue: RL baselines on MT5).
+"""Every continual method on the Meta-World stream, several training seeds, one table.
 
     python -m sr_imitation.experiments.mt5_compare --preset=configs/sac_mt5_cpu.json \\
         --seeds=[0,1] --variants=[sr,wake_only,ewc] --output_root=outputs/mt5_compare

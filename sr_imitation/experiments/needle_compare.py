@@ -84,8 +84,8 @@ VARIANTS: dict[str, Variant] = {
     "ewc_lam100": Variant("ewc", _OFF, {"lam": 100.0}),
     "ewc_lam10000": Variant("ewc", _OFF, {"lam": 10000.0}),
     "ewc_lam1000000": Variant("ewc", _OFF, {"lam": 1e6}),  # 10000 kept approach for three stages, lost it at the 5th
-    # issue 28: at 1e6 every skill was still learned right after its own wake (0.73-1.00) and then forgotten: the
-    # penalty did not bind; the grid goes on until success right after the own wake drops (our choice of steps)
+    # the grid goes on until success right after a skill's own wake drops, i.e. until the penalty binds (at 1e6
+    # every skill was still learned right after its own wake and then forgotten; our choice of steps)
     "ewc_lam1e8": Variant("ewc", _OFF, {"lam": 1e8}),
     "ewc_lam1e10": Variant("ewc", _OFF, {"lam": 1e10}),
     # LwF's and M2Distill's distillation weights (the paper gives none; 1 is our default): at 1 LwF's teacher term on

@@ -294,7 +294,7 @@ SETTINGS_ADDED: dict[str, Any] = {
     "eval.env_options": {},
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
-(the needle environment, issue 27): a stored fingerprint without one of them resumes with that value and is refused
+(the needle environment): a stored fingerprint without one of them resumes with that value and is refused
 with another (:attr:`~sr_imitation.infra.fingerprint.SettingsFingerprint.added`)."""
 
 

@@ -1,4 +1,4 @@
-"""``sr-sleep``: consolidate an already deployed ACT-SR policy offline from saved skill memories (issue 27, item 4).
+"""``sr-sleep``: consolidate an already deployed ACT-SR policy offline from saved skill memories.
 
     sr-sleep --policy.path=outputs/place/checkpoints/last/pretrained_model \\
         --memories=[outputs/approach/memory.safetensors,outputs/place/memory.safetensors] --output_dir=outputs/slept

@@ -38,7 +38,7 @@ def train(cfg: RLTrainConfig) -> dict:
 
 
 def parse(args: list[str]) -> RLTrainConfig:
-    """The config ``args`` describe; a run's own ``train_config.json`` (``config.json`` before issue 29) stores
+    """The config ``args`` describe; a run's own ``train_config.json`` (older runs: ``config.json``) stores
     output_dir "." (the run directory itself), resolved to the file's directory unless ``--output_dir`` is given."""
     config_path, rest = split_config_path(args)
     rest = fold_alias_flags(rest)  # the flags only: a config file has no policy section here

@@ -4,7 +4,7 @@
 Output layout (every file written atomically; ``progress.json`` records each phase after its files)::
 
     <output_dir>/settings_fingerprint.json, train_config.json   (written once at the start, never on resume;
-                                                                  runs before issue 29: config.json)
+                                                                  older runs: config.json)
     <output_dir>/progress.json
     <output_dir>/stages/01_reach/{wake/agent.safetensors, memory.safetensors, trajectories.safetensors}
     <output_dir>/stages/02_door-open/{wake/, sleep/agent.safetensors, sleep/sleep_diagnostics.json, ...}
@@ -35,8 +35,8 @@ __all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "RESULTS_VERSION", "Stream
 
 
 def check_skill_names(skills: list[str]) -> None:
-    """Every skill is a Meta-World v3 environment: ``ValueError`` naming ``stream.skills`` and the unknown names
-    (before: a typo in the third skill surfaced after two stages had trained)."""
+    """Every skill is a Meta-World v3 environment: ``ValueError`` naming ``stream.skills`` and the unknown names,
+    before the first stage trains (a typo in a later skill would otherwise surface stages later)."""
     import metaworld  # noqa: PLC0415 (only the SAC substrate needs Meta-World)
 
     unknown = [s for s in skills if s not in metaworld.MT1.ENV_NAMES]

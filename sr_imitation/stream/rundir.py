@@ -63,7 +63,7 @@ RUN_CONFIG_FILE = "train_config.json"
 """The run's stored config, on every substrate (LeRobot's name; ``--config_path=<run>/train_config.json --resume=true``
 resumes the run)."""
 LEGACY_CONFIG_FILES = ("config.json",)
-"""Where SAC runs written before issue 29 stored their config (not sealed, not rewritten: read by ``--config_path``)."""
+"""Where older SAC runs stored their config (not sealed, not rewritten: read by ``--config_path``)."""
 LAST_POINTER = "last"
 """``<run>/last``: the newest consolidated policy's checkpoint folder (LeRobot's ``checkpoints/last``)."""
 TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")

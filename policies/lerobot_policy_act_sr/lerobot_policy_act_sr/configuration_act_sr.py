@@ -83,10 +83,9 @@ class ACTSRConfig(ACTConfig):
     """Normalization layers of the vision backbone - frozen_batch (LeRobot's ACT, FrozenBatchNorm2d with fixed
     statistics, right for ImageNet-pretrained weights), group (trainable GroupNorm with 16 channels per group; our
     choice, as Diffusion Policy does for a ResNet-18 trained from scratch) or auto (frozen_batch with
-    pretrained_backbone_weights, group without). A randomly initialized ResNet-18 with frozen batch norm has no
-    normalization at all - on the CPU vision preset its features reached an RMS of 95,000 after 1800 wake steps
-    (the robot-state token's 0.6), the image tokens drowned the state and approach was never learned (success 0.00;
-    docs/RESULTS.md)."""
+    pretrained_backbone_weights, group without). Why group without pretrained weights - a randomly initialized
+    ResNet-18 with frozen batch norm has no normalization at all, so its features grow without bound during the
+    wake and the image tokens drown the robot-state token (docs/RESULTS.md measures it on the CPU vision preset)."""
 
     # The design card's switch (``--policy.sleep=true``; None when not given).
     sleep: bool | None = None

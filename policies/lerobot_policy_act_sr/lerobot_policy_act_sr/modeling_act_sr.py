@@ -43,8 +43,8 @@ ObservationNormalizer = Callable[[Mapping[str, Tensor]], dict[str, Tensor]]
 TRAINING_ONLY_PREFIXES = ("model.vae_encoder",)
 """Parameters of modules only the training forward uses: ACT's VAE encoder (its CLS embedding, input projections,
 transformer and latent output projection) infers the style latent from the demonstration's actions; at inference
-the latent is zero and the encoder is never run. Sleep optimizes the deployed policy only (our choice, issue 10:
-in sleep these parameters received no memory gradient, only the anchor pull, and they inflated the gate distances
+the latent is zero and the encoder is never run. Sleep optimizes the deployed policy only (our choice, because
+in sleep these parameters would receive no memory gradient, only the anchor pull, and would inflate the gate distances
 c_i of Eq. 2)."""
 
 

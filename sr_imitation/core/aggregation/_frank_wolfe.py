@@ -4,7 +4,7 @@ The paper computes alpha* "with warm-started Frank-Wolfe iterations" (50 for MT5
 Frank-Wolfe ablation; the default ``nash`` aggregator solves Eq. 1 exactly (``_nash.py``). **This solver is
 approximate**: on 200 conflicting instances with k = 3-5 where a direction agreeing with every memory exists,
 50 iterations left some memory with negative agreement in 12 (5 iterations: 23), and the objective more than
-1e-3 below the maximum in 89 (issue 9; ``python -m sr_imitation.benchmarks.nash`` measures it).
+1e-3 below the maximum in 89 (``python -m sr_imitation.benchmarks.nash`` measures it).
 
 Objective. Frank-Wolfe from the uniform or warm start can sit where Eq. 1 is undefined (some u_i <= -eps_nash),
 so it maximizes a continuation: ``h(u) = log(u + eps_nash)`` for u >= 0 and its second-order Taylor expansion at

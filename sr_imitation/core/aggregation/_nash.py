@@ -80,7 +80,7 @@ except ImportError:  # pragma: no cover - other numpy layouts
 
 STALL_TOL = 1e-6
 """When f stops increasing (round-off), the solve still counts as optimal if the gap is within this relative
-tolerance (the accuracy issue 9 asks for); otherwise its status is ``stalled``."""
+tolerance (the accuracy the exact solver promises); otherwise its status is ``stalled``."""
 
 AGREEMENT_TOL = 1e-12
 """Agreement u_i below -AGREEMENT_TOL counts as opposing the memory (round-off level for unit vectors)."""
