@@ -116,7 +116,8 @@ def deployed_parameters(policy: ACTSRPolicy, state: Mapping[str, torch.Tensor]) 
 def act_sleep_problem(policy: ACTSRPolicy, config: SleepConfig) -> SleepProblem:
     """The sleep of an ACT-SR policy: theta is the deployed policy's parameters (ACT's training-only VAE encoder
     excluded, our choice: :meth:`ACTSRPolicy.deployed_named_parameters` says why) and each memory evaluates the
-    deployed action chunk of its raw observations (:meth:`ACTSRPolicy.memory_chunk`). The stream's sleep and ``sr-sleep`` both use it."""
+    deployed action chunk of its raw observations (:meth:`ACTSRPolicy.memory_chunk`). The stream's sleep and
+    ``sr-sleep`` both use it."""
     return SleepProblem([p for _, p in policy.deployed_named_parameters()], policy.memory_chunk, config)
 
 
