@@ -17,18 +17,18 @@ import sys
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import TypeVar
+from typing import Any, TypeVar
 
 from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
-from sr_imitation.imitation.config import MainJobConfig
+from sr_imitation.imitation.config import LEGACY_DEFAULTS, MainJobConfig
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory
 from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command, wants_help
-from sr_imitation.infra.fingerprint import output_dir_for
+from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
 from sr_imitation.io import write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
@@ -79,6 +79,7 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     if preset and wants_help(args):
         parse_config(TrainStreamConfig, None, ["--help"])  # the flags that address the preset's train section; exits
     args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
+    args = legacy_flags(data, args)
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
         cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **lerobot).train
@@ -87,6 +88,24 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     cfg = parse_config(TrainStreamConfig, config_path, args, **lerobot)
     cfg.output_dir = output_dir_for(config_path, args, cfg.output_dir)
     return cfg
+
+
+def legacy_flags(data: dict, args: list[str]) -> list[str]:
+    """``args`` with, for a run's own config file (``output_dir`` "."), the recorded value of every
+    :data:`~sr_imitation.imitation.config.LEGACY_DEFAULTS` setting the file lacks and no flag gives."""
+    if data.get("output_dir") != RUN_DIRECTORY:
+        return args
+    extra = []
+    for key, value in LEGACY_DEFAULTS.items():
+        node: Any = data
+        for part in key.split("."):
+            node = node.get(part, _MISSING) if isinstance(node, dict) else _MISSING
+        if node is _MISSING and not any(a.split("=", 1)[0] == f"--{key}" for a in args):
+            extra.append(f"--{key}={value}")
+    return [*extra, *args]
+
+
+_MISSING = object()
 
 
 def parse_train_args(args: list[str]) -> TrainStreamConfig:

@@ -292,10 +292,17 @@ SETTINGS_ADDED: dict[str, Any] = {
     "eval.env_type": None,
     "eval.env_tasks": None,
     "eval.env_options": {},
+    "stream.stats": "first",
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
 (the needle environment): a stored fingerprint without one of them resumes with that value and is refused
 with another (:attr:`~sr_imitation.infra.fingerprint.SettingsFingerprint.added`)."""
+
+
+LEGACY_DEFAULTS: dict[str, Any] = {"stream.stats": "first"}
+"""Settings whose default changed after runs stored their configs without them (``stream.stats``: runs before the
+setting normalized with the first skill's statistics; the default is now ``seen``): a run's own config file
+(``train_config.json``) that lacks one is read with this value, so it resumes and repeats as it ran."""
 
 
 def stream_inputs(cfg: TrainStreamConfig) -> dict[str, str]:

@@ -105,3 +105,25 @@ def test_methods_that_keep_normalized_data_are_refused_with_seen(datasets, tmp_p
         ACTSubstrate(cfg)
     cfg.stream.stats = "first"
     ACTSubstrate(cfg)
+
+
+def test_archived_runs_and_presets_keep_their_recorded_setting(tmp_path):
+    import json
+
+    from sr_imitation.imitation.cli import parse_train_config
+    from sr_imitation.imitation.config import stored_config_dict
+    from sr_imitation.imitation.stream import SETTINGS_ADDED
+
+    root = Path(__file__).resolve().parents[2]
+    # a run written before the setting existed normalized with the first skill's statistics: its config is read so
+    stored = stored_config_dict(_config(tmp_path, tmp_path / "old", stats="first"))
+    del stored["stream"]["stats"]
+    archived = tmp_path / "old" / "train_config.json"
+    archived.parent.mkdir()
+    archived.write_text(json.dumps(stored))
+    assert parse_train_config(str(archived), []).stream.stats == "first"
+    assert parse_train_config(str(archived), ["--stream.stats=seen"]).stream.stats == "seen"
+    assert SETTINGS_ADDED["stream.stats"] == "first"  # its fingerprint, without the key, resumes with first
+    # every ACT preset states its statistics
+    for preset in ("needle_cpu", "needle_cpu_m16", "needle_cpu_vision", "needle_paper", "needle_try"):
+        assert parse_train_config(str(root / "configs" / f"{preset}.json"), []).stream.stats == "union", preset
