@@ -20,6 +20,7 @@ import copy
 import dataclasses
 import logging
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
@@ -114,6 +115,24 @@ class StreamTrainer(StreamRun):
             point_last(self.out, self.substrate.checkpoint_dir(done[-1], self.final_phase(done[-1])))
 
 
+def check_recorded_tasks(cfg: TrainStreamConfig) -> None:
+    """``--eval.env=metaworld``: a dataset that ``sr-record --env=metaworld`` recorded (its ``meta/sr_record.json``)
+    must hold the Meta-World task its skill is evaluated on; ``ValueError`` naming the file and both tasks. Datasets
+    of other origin carry no such record and are not checked here."""
+    from sr_imitation.io import read_checked_json
+
+    skills = list(cfg.stream.skills)
+    for index, task in enumerate(cfg.eval.tasks(skills)):
+        record = Path(cfg.stream.dataset_path(index)) / "meta" / "sr_record.json"
+        if not record.is_file():
+            continue
+        recorded = read_checked_json(record)
+        if recorded.get("env") == "metaworld" and recorded.get("skill") != task:
+            raise ValueError(f"{record}: skill {skills[index]!r}'s dataset was recorded on Meta-World task "
+                             f"{recorded.get('skill')!r}, but it is evaluated on {task!r}; check the order of "
+                             "stream.skills, the datasets and eval.env_tasks")
+
+
 def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],
                           custom_env: bool = False) -> None:
     """Every skill resolves to its evaluation environment before the first gradient (``--eval.env``).
@@ -136,6 +155,8 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
                              f"{list(SURGICAI_SKILLS)}); every skill needs a dataset and an environment: evaluate "
                              "them with --eval.env=gym|lerobot or switch evaluation off with --eval.env=none")
         return
+    if mode == "metaworld":
+        check_recorded_tasks(cfg)
     images = [tuple(f.shape[:2]) if f.shape[-1] == 3 else tuple(f.shape[1:]) for key, f in input_features.items()
               if key.startswith("observation.images.")]
     size = images[0] if images and mode == "metaworld" else None  # the needle's own check is above; gym: their size

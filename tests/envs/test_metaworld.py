@@ -164,3 +164,19 @@ def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written
                                          r"Meta-World v3 task; did you mean 'reach-v3'\?"):
         train_stream(cfg)
     assert not out.exists()
+
+
+def test_a_dataset_recorded_on_another_task_is_refused_naming_its_file(tmp_path_factory):
+    from sr_imitation.imitation.stream import train_stream
+    from tests.imitation.helpers import tiny_stream_config
+
+    root = tmp_path_factory.mktemp("mw_swap")
+    record(MetaWorldRecordConfig(skills=TASKS, num_episodes=1, root=root))
+    out = tmp_path_factory.mktemp("mw_swap_run") / "run"
+    cfg = tiny_stream_config(root, out, list(TASKS), use_images=False)
+    cfg.eval = EvalConfig(env="metaworld", env_tasks=list(reversed(TASKS)), episodes=1, seeds=[0], max_steps=5)
+    with pytest.raises(ValueError, match=r"reach-v3/meta/sr_record\.json: skill 'reach-v3''s dataset was recorded "
+                                         r"on Meta-World task 'reach-v3', but it is evaluated on "
+                                         r"'button-press-topdown-v3'"):
+        train_stream(cfg)
+    assert not out.exists()
