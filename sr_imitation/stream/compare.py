@@ -17,7 +17,8 @@ Numbers agree when ``|a - b| <= tol`` (0: exactly); anything else must be equal.
 as context, not compared: two
 runs of different settings may agree. Prints the differing values (the first ``--show``), a count and the largest
 numeric difference; exits 0 when the runs agree, 1 when they do not (a user error, such as a folder without
-``progress.json``, is one line and exit 2). Reads only; writes nothing.
+``progress.json`` or a ``results.json`` that does not match its seal, is one line and exit 2; one of a schema before
+seals is read as the summaries read it and marked unsealed). Reads only; writes nothing.
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.io import read_json
+from sr_imitation.stream.results import read_results_file
 from sr_imitation.stream.rundir import PROGRESS_FILE, read_progress
 from sr_imitation.stream.status import find_runs, is_run  # the same run search as status (one or two levels down)
 
@@ -61,8 +63,8 @@ def measured(run: Path) -> dict[str, Any]:
     completed = (read_progress(progress).get("completed") or {}) if progress.is_file() else {}
     found = [(f"progress:{p}", v) for p, v in leaves(completed)]
     results_path = run / "results.json"
-    if results_path.is_file():
-        results = read_json(results_path)
+    if results_path.is_file():  # checked as the summaries check it: a file that does not match its seal is refused
+        results, _ = read_results_file(results_path)
         found += [(f"results:{p}", v) for key in RESULTS_KEYS if key in results for p, v in leaves(results[key], key)]
     return {p: v for p, v in found if not TIMING_KEYS & set(re.split(r"[.:\[]", p))}
 
@@ -89,9 +91,11 @@ def compare_runs(run_a: Path, run_b: Path, tol: float = 0.0) -> dict[str, Any]:
             max_diff, max_path = diff, path
         if not ok:
             differences.append((path, a[path], b[path], diff))
+    unsealed = [side for side, run in (("A", run_a), ("B", run_b))
+                if (run / "results.json").is_file() and read_results_file(run / "results.json")[1]]
     return {"compared": len(a.keys() & b.keys()), "differences": differences,
             "only_a": sorted(a.keys() - b.keys()), "only_b": sorted(b.keys() - a.keys()),
-            "max_diff": max_diff, "max_path": max_path}
+            "max_diff": max_diff, "max_path": max_path, "unsealed": unsealed}
 
 
 def run_commit(run: Path) -> str:
@@ -129,6 +133,9 @@ def render(report: dict[str, Any], show: int = 20) -> str:
     verdict = ("the runs agree" if agree else "nothing measured yet" if not report["compared"] else
                f"the runs differ in {len(report['differences'])} values")
     lines.append(f"{report['compared']} measured values compared: {verdict}{largest}")
+    for side in report.get("unsealed", []):
+        lines.append(f"  run {side}'s results.json is unsealed (a schema before seals, checked against its own "
+                     "success matrix only)")
     return "\n".join(lines) + "\n"
 
 
@@ -147,8 +154,9 @@ def compare_folders(folder_a: Path, folder_b: Path, tol: float = 0.0) -> tuple[s
     for name in sorted(runs_a.keys() & runs_b.keys()):
         report = compare_runs(runs_a[name], runs_b[name], tol)
         ok &= _agrees(report)
+        mark = f" (unsealed: {', '.join(report['unsealed'])})" if report["unsealed"] else ""
         lines.append(f"| {name} | {report['compared']} | {len(report['differences'])} | {report['max_diff']:.3g} | "
-                     f"{'agree' if _agrees(report) else 'differ'} |")
+                     f"{'agree' if _agrees(report) else 'differ'}{mark} |")
     for name in sorted(runs_a.keys() ^ runs_b.keys()):
         lines.append(f"| {name} | - | - | - | only in {'A' if name in runs_a else 'B'} |")
     return "\n".join(lines) + "\n", ok

@@ -45,7 +45,14 @@ import numpy as np
 from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
 from sr_imitation.infra.provenance import process_code_version
-from sr_imitation.io import JSON_CHECKSUM, atomic_write_bytes, read_checked_json, read_json, write_checked_json
+from sr_imitation.io import (
+    JSON_CHECKSUM,
+    CorruptFileError,
+    atomic_write_bytes,
+    read_checked_json,
+    read_json,
+    write_checked_json,
+)
 
 RESULTS_VERSION = 5
 """5: the schema of 4, and a file without its ``sha256`` seal is refused (4: one schema for both substrates; before:
@@ -389,17 +396,60 @@ def upgrade_results(results: Mapping[str, Any]) -> dict[str, Any]:
     raise ValueError(f"results_version {version!r} is not a version this code reads (it reads 1-{RESULTS_VERSION})")
 
 
+def read_results_file(path: Path) -> tuple[dict[str, Any], bool]:
+    """A ``results.json`` as written (not upgraded) and whether it is unsealed. A sealed file must match its seal; a
+    file without one is read only if its ``results_version`` predates :data:`SEALED_SINCE` and its numbers are what
+    that schema wrote (:func:`unsealed_problem`: the AFSR it records is the one its success matrix gives);
+    :class:`~sr_imitation.io.CorruptFileError` naming the file otherwise."""
+    path = Path(path)
+    data = read_json(path)
+    if not isinstance(data, dict):
+        raise CorruptFileError(path, "not a JSON object")
+    if JSON_CHECKSUM in data or _version_number(data) >= SEALED_SINCE:
+        return read_checked_json(path), False
+    problem = unsealed_problem(data)
+    if problem is not None:
+        raise CorruptFileError(path, f"unsealed (results_version {data.get('results_version')}) and {problem}: "
+                                     "edited or damaged, not read")
+    return data, True
+
+
+def unsealed_problem(data: Mapping[str, Any]) -> str | None:
+    """Why an unsealed results dictionary is not what its schema wrote (``None`` if it is): every recorded AFSR
+    (per stage and final) must be the mean of the success matrix's row up to the diagonal (Eq. 4), to 1e-6."""
+    try:
+        results = upgrade_results(data)
+    except (ValueError, KeyError, TypeError, IndexError) as exc:
+        return f"does not read as its schema ({type(exc).__name__}: {exc})"
+    matrix = results.get("success_matrix")
+    afsr = (results.get("metrics") or {}).get("afsr") or {}
+    if not isinstance(matrix, list) or afsr.get("final") is None:
+        return None  # nothing measured (no evaluation): no AFSR to check
+    try:
+        rows = [[np.nan if x is None else float(x) for x in row[: k + 1]] for k, row in enumerate(matrix)]
+        expected = [float(np.nanmean(row)) if not all(np.isnan(row)) else None for row in rows]
+    except (TypeError, ValueError):
+        return "holds a success matrix that is not numbers"
+    recorded = list(afsr.get("curve") or [])
+    if len(recorded) == len(expected):
+        for k, (a, b) in enumerate(zip(recorded, expected, strict=True)):
+            if a is not None and b is not None and abs(float(a) - b) > 1e-6:
+                return f"its AFSR after stage {k + 1} ({a}) is not its success matrix's ({b:.6f})"
+    if expected and expected[-1] is not None and abs(float(afsr["final"]) - expected[-1]) > 1e-6:
+        return f"its final AFSR ({afsr['final']}) is not its success matrix's ({expected[-1]:.6f})"
+    return None
+
+
 def load_results(run: Path) -> dict[str, Any]:
     """``<run>/results.json`` in the current schema, its seal checked; a missing file is named. A file without a
-    seal is read only if its ``results_version`` predates :data:`SEALED_SINCE`; it is then marked
-    ``"unsealed": true`` (reports list such runs)."""
+    seal is read only as :func:`read_results_file` allows; it is then marked ``"unsealed": true`` (reports mark such
+    runs in their rows)."""
     path = Path(run) / "results.json"
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no results (unfinished run?)")
-    data = read_json(path)
-    unsealed = isinstance(data, dict) and JSON_CHECKSUM not in data and _version_number(data) < SEALED_SINCE
+    data, unsealed = read_results_file(path)
     try:
-        results = upgrade_results(data if unsealed else read_checked_json(path))
+        results = upgrade_results(data)
     except ValueError as exc:
         raise ValueError(f"{path}: {exc}") from None
     return {**results, "unsealed": unsealed}

@@ -9,7 +9,9 @@ recorded phase and how long ago it was recorded (a run whose last phase ended lo
 its completed stages' times (two at least) extrapolated linearly in the stage index (later stages distil from more
 memories and sleep over more of them; our choice) over the stages left, less what the current stage has recorded. A
 stage is complete when its last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``,
-stage >= 2), else its wake's (a method with other phases gets a rougher estimate). Reads only; writes nothing.
+stage >= 2), else its wake's (a method with other phases gets a rougher estimate). A ``results.json`` is read as the
+summaries read it (:func:`~sr_imitation.stream.results.load_results`): one that does not match its seal is shown as
+not trusted, without its numbers; one of a schema before seals is marked unsealed. Reads only; writes nothing.
 """
 
 from __future__ import annotations
@@ -24,8 +26,9 @@ from typing import Any
 import numpy as np
 
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE
+from sr_imitation.io import JSON_CHECKSUM, CorruptFileError
 from sr_imitation.progress import format_duration
-from sr_imitation.stream.results import final_headline, variant_label
+from sr_imitation.stream.results import final_headline, load_results, variant_label
 from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
 from sr_imitation.stream.substrate import PHASE_IDS
 
@@ -83,9 +86,14 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
                            "since_last": now - (progress if progress.is_file() else run / FINGERPRINT_FILE
                                                 ).stat().st_mtime, "finished": False,
                            "final": None, "left": None}
-    results = _read(run / "results.json")
-    if results is not None:
-        out.update(finished=True, final=final_headline(results))
+    if (run / "results.json").is_file():
+        try:
+            results = load_results(run)
+        except (CorruptFileError, ValueError) as exc:  # a damaged or edited file: its numbers are not shown
+            out.update(finished=True, final=f"results.json not trusted ({getattr(exc, 'problem', exc)})")
+            return out
+        mark = " (unsealed: a schema before seals)" if results.get("unsealed") else ""
+        out.update(finished=True, final=final_headline(results) + mark)
         return out
     if n_done >= 2:  # one stage says nothing about the growth
         times = [per_stage.get(k, 0.0) for k in range(1, n_done + 1)]
@@ -100,7 +108,7 @@ def _read(path: Path) -> dict[str, Any] | None:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         return None
-    return data if isinstance(data, dict) else None
+    return {k: v for k, v in data.items() if k != JSON_CHECKSUM} if isinstance(data, dict) else None
 
 
 def render(rows: Sequence[dict[str, Any]]) -> str:

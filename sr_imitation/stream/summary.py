@@ -147,6 +147,14 @@ def _fmt(d: Mapping[str, Any]) -> str:
     return f"{mean:.3f}" if sem is None or not math.isfinite(sem) else f"{mean:.3f} +- {sem:.3f}"
 
 
+def _seeds(row: Mapping[str, Any], seeds: Sequence[str] | None = None) -> str:
+    """A row's seeds, each whose ``results.json`` is unsealed (a schema before seals) marked ``*``: a mean never
+    mixes sealed and unsealed runs without the mark in its row."""
+    unsealed = row.get("unsealed") or {}
+    return ",".join(f"{seed}*" if unsealed.get(seed) else str(seed) for seed in (row["seeds"] if seeds is None
+                                                                                  else seeds))
+
+
 def _final_tables(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]:
     """The final-metrics table of ``names`` and their paired differences to the baseline (markdown lines)."""
     variants, paired = summary["variants"], summary["paired"]
@@ -156,7 +164,7 @@ def _final_tables(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]
     for v in names:
         row = variants[v]
         mb = row["memory_bytes_total"]["mean"] / 1e6
-        lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS)
+        lines.append(f"| {v} | {_seeds(row)} | " + " | ".join(_fmt(row[m]) for m in METRICS)
                      + f" | {mb:.2f} |")
     if any(v in paired for v in names):
         lines += ["", f"Paired difference variant - {summary['baseline']} (same training seed), mean +- SE:", "",
@@ -164,8 +172,8 @@ def _final_tables(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]
         for v in names:
             if v in paired:
                 row = paired[v]
-                lines.append(f"| {v} | {','.join(row['seeds'])} | " + " | ".join(_fmt(row[m]) for m in METRICS)
-                             + " |")
+                lines.append(f"| {v} | {_seeds(variants[v], row['seeds'])} | "
+                             + " | ".join(_fmt(row[m]) for m in METRICS) + " |")
     return lines
 
 
@@ -214,7 +222,7 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
             total += seconds or 0.0
             code = (row.get("code") or {}).get(seed) or {}
             commit = code.get("commit") and code["commit"][:7] + (" (dirty)" if code.get("dirty") else "")
-            lines.append(f"| {v} | {seed} | {row['runs'][seed]} | "
+            lines.append(f"| {v} | {_seeds(row, [seed])} | {row['runs'][seed]} | "
                          + " | ".join("-" if c is None else f"{c:.3f}" for c in cells)
                          + f" | {'-' if seconds is None else f'{seconds / 60:.1f}'} | {commit or '-'} |")
     lines += ["", f"Time: the sum of each run's completed phases (progress.json; wake, sleep, evaluation). All runs "
@@ -223,8 +231,9 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
     unsealed = [f"{v} seed {seed}" for v, row in variants.items() for seed in row["seeds"]
                 if (row.get("unsealed") or {}).get(seed)]
     if unsealed:
-        lines += ["", f"Unsealed: {', '.join(unsealed)} (results.json of a schema before seals; read as written, "
-                      "without a checksum to verify it)."]
+        lines += ["", f"Unsealed: {', '.join(unsealed)} (marked * in the seeds: results.json of a schema before "
+                      "seals, read because its recorded AFSR is its success matrix's, without a checksum to verify "
+                      "it)."]
     lines += _offline_table(summary)
     mixed = any(row["skills"] != skills for row in variants.values())
     for key, title in (("final_success", "Final success per skill (after the last stage)"),

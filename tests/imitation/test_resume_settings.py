@@ -446,4 +446,3 @@ def test_a_train_config_written_before_seals_resumes_when_it_holds_the_run_setti
     path.write_text(json.dumps(read_config_json(path)[0], indent=2, sort_keys=True))  # as older runs wrote it
     cli.train_main([f"--config_path={path}", "--resume=true"])
     assert json.loads((run / "results.json").read_text())["metrics"] == reference[1]["metrics"]
-

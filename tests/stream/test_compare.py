@@ -60,15 +60,36 @@ def test_results_files_are_compared_too(runs, tmp_path):
     a, b = tmp_path / "a", tmp_path / "b"
     shutil.copytree(runs["a"], a)
     shutil.copytree(runs["a"], b)
-    results = {"success_matrix_per_unit": [[[1.0]], [[0.5]]], "metrics": {"afsr": {"final": 0.75}},
-               "stages": [{"wake": {"seconds": 3.0}}], "config": {"output_dir": "x"}}
-    (a / "results.json").write_text(json.dumps(results))
+    results = {"results_version": 5, "success_matrix_per_unit": [[[1.0]], [[0.5]]],
+               "metrics": {"afsr": {"final": 0.75}}, "stages": [{"wake": {"seconds": 3.0}}],
+               "config": {"output_dir": "x"}}
+    write_checked_json(a / "results.json", results)
     results |= {"stages": [{"wake": {"seconds": 9.0}}], "config": {"output_dir": "y"}}  # neither is a measurement
-    (b / "results.json").write_text(json.dumps(results))
+    write_checked_json(b / "results.json", results)
     assert compare_runs(a, b)["differences"] == []
     results["success_matrix_per_unit"][1][0][0] = 0.6
-    (b / "results.json").write_text(json.dumps(results))
+    write_checked_json(b / "results.json", results)
     assert [d[0] for d in compare_runs(a, b)["differences"]] == ["results:success_matrix_per_unit[1][0][0]"]
+
+
+def test_a_results_file_that_does_not_match_its_seal_is_refused_not_compared(runs, tmp_path, capsys):
+    """Before: "the runs agree" after a digit of one run's results.json was flipped."""
+    from sr_imitation.infra.cli_errors import run_cli
+
+    a, b = tmp_path / "a", tmp_path / "b"
+    shutil.copytree(runs["a"], a)
+    for run in (a, b):
+        if run is b:
+            shutil.copytree(a, b)
+        write_checked_json(run / "results.json", {"results_version": 5, "metrics": {"afsr": {"final": 0.5}}})
+    path = b / "results.json"
+    text = path.read_text()
+    at = text.index('"final": ') + len('"final": ')
+    path.write_text(text[:at] + ("2" if text[at] != "2" else "3") + text[at + 1:])  # one flipped digit
+    with pytest.raises(SystemExit) as exc:
+        run_cli("sr_imitation.stream.compare", main, [str(a), str(b)])
+    err = capsys.readouterr().err
+    assert exc.value.code == 2 and err.count("\n") == 1 and f"{path}: contents do not match its sha256" in err
 
 
 @pytest.mark.parametrize("run_a", [True, False])

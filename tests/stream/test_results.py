@@ -207,13 +207,18 @@ def test_a_results_file_without_its_seal_is_refused_unless_its_schema_predates_s
         load_results(run)
     with pytest.raises(SystemExit, match="2"):  # the command: one line naming the file, exit status 2
         run_cli("sr_imitation.stream.summary", main, [str(run), f"--output={tmp_path / 'summary'}"])
-    old = {k: v for k, v in data.items() if k != "sha_256"} | {"results_version": 4}  # written before seals
+    old = {k: v for k, v in data.items() if k != "sha_256"} | {"results_version": 4}  # claims a schema before seals
+    (run / "results.json").write_text(json.dumps(old))  # ... with the edited AFSR: not what that schema wrote
+    with pytest.raises(CorruptFileError, match=r"results.json: unsealed \(results_version 4\) and its final AFSR"):
+        load_results(run)
+    old["metrics"]["afsr"]["final"] = _results()["metrics"]["afsr"]["final"]  # as written before seals
     (run / "results.json").write_text(json.dumps(old))
     assert load_results(run)["unsealed"]
     summary = summarize(load_groups({"sr": {"0": run}}))
     assert summary["variants"]["sr"]["unsealed"] == {"0": True}
     write_summary(tmp_path / "s", summary)
-    assert "Unsealed: sr seed 0" in (tmp_path / "s" / "summary.md").read_text()
+    md = (tmp_path / "s" / "summary.md").read_text()
+    assert "Unsealed: sr seed 0" in md and "| sr | 0* |" in md  # marked in its rows, not only below the tables
 
 
 def test_unknown_versions_and_missing_files_are_named(tmp_path):

@@ -45,7 +45,7 @@ def test_an_unfinished_run_extrapolates_its_stage_times(tmp_path):
 
 def test_finished_runs_folders_of_runs_and_the_table(tmp_path, capsys):
     done = _run(tmp_path / "grid", "sr_seed0", {k: v for s in range(1, 6) for k, v in _stage(s, 10, True).items()})
-    (done / "results.json").write_text(json.dumps({"metrics": {"afsr": {"final": 0.9333}}}))
+    write_checked_json(done / "results.json", {"results_version": 5, "metrics": {"afsr": {"final": 0.9333}}})
     oracle = _run(tmp_path / "grid", "mt_joint_seed0", {"1.wake": 50.0, "1.wake.eval": 5.0}, sleep=False,
                   mt_joint=True)
     assert run_status(oracle)["variant"] == "mt_joint" and run_status(oracle)["done"] == 1
@@ -70,3 +70,21 @@ def test_a_run_that_has_started_and_recorded_no_phase_is_listed_as_started(tmp_p
     assert (status["done"], status["stages"], status["last_phase"], status["variant"]) == (0, 1, None, "mt_joint")
     main([str(tmp_path / "grid")])
     assert "| 0/1 | started (" in capsys.readouterr().out
+
+
+def test_a_results_file_that_does_not_match_its_seal_is_not_shown_as_a_result(tmp_path, capsys):
+    """Before: "finished: AFSR 0.999" after the seal was removed and AFSR edited, "AFSR 0.100" (truly 0.000) after
+    one flipped byte."""
+    run = _run(tmp_path, "sr_seed0", {k: v for s in range(1, 6) for k, v in _stage(s, 10, True).items()})
+    path = run / "results.json"
+    write_checked_json(path, {"results_version": 5, "metrics": {"afsr": {"final": 0.0}}})
+    good = path.read_text()
+    path.write_text(good.replace('"final": 0.0', '"final": 0.1'))  # one flipped digit
+    assert run_status(run)["final"].startswith("results.json not trusted (contents do not match its sha256")
+    data = json.loads(good)
+    del data["sha256"]
+    data["metrics"]["afsr"]["final"] = 0.999
+    path.write_text(json.dumps(data))  # the seal removed: schema 5 must carry it
+    assert run_status(run)["final"].startswith("results.json not trusted (has no sha256")
+    main([str(run)])
+    assert "AFSR" not in capsys.readouterr().out
