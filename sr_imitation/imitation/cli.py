@@ -79,7 +79,7 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     if preset and wants_help(args):
         parse_config(TrainStreamConfig, None, ["--help"])  # the flags that address the preset's train section; exits
     args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
-    args = legacy_flags(data, args)
+    args = implied_policy_type(data.get("train") if preset else data, legacy_flags(data, args))
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
         cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **lerobot).train
@@ -106,6 +106,17 @@ def legacy_flags(data: dict, args: list[str]) -> list[str]:
 
 
 _MISSING = object()
+
+
+def implied_policy_type(data: object, args: list[str]) -> list[str]:
+    """``args`` with ``--policy.type=act_sr`` first when they set a ``--policy.*`` flag and neither they nor the
+    config file name the policy type: sr-train trains ACT-SR only (draccus would otherwise ask for a dict with a
+    'type' key)."""
+    flags = [a.split("=", 1)[0] for a in args if a.startswith("--policy.")]
+    policy = data.get("policy") if isinstance(data, dict) else None
+    if not flags or "--policy.type" in flags or (isinstance(policy, dict) and "type" in policy):
+        return args
+    return ["--policy.type=act_sr", *args]
 
 
 def parse_train_args(args: list[str]) -> TrainStreamConfig:

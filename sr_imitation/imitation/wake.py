@@ -68,8 +68,12 @@ class WakeConfig:
     (our choice for the CPU preset)."""
 
     def __post_init__(self) -> None:
-        if not 1 <= self.min_epochs <= self.max_epochs:
-            raise ValueError(f"need 1 <= min_epochs <= max_epochs, got {self.min_epochs}, {self.max_epochs}")
+        if self.min_epochs < 1:
+            raise ValueError(f"wake.min_epochs must be >= 1, got {self.min_epochs}")
+        if self.min_epochs > self.max_epochs:
+            raise ValueError(f"wake.max_epochs={self.max_epochs} is below wake.min_epochs={self.min_epochs} (the "
+                             f"epochs always trained before early stopping may end the wake); give "
+                             f"--wake.min_epochs={self.max_epochs} too, or a wake.max_epochs >= {self.min_epochs}")
         if self.patience < 1 or self.batch_size < 1:
             raise ValueError("patience and batch_size must be >= 1")
         if not 0.0 <= self.val_fraction < 1.0:
@@ -196,6 +200,9 @@ def wake_train(
     device = policy.config.device
     accelerator = Accelerator(cpu=device == "cpu")
     processes = current()
+    if policy.config.use_amp:
+        logger.info("policy.use_amp: the wake's forward passes run under bfloat16 autocast on %s (backward pass, "
+                    "weights, validation, sleep and evaluation in float32)", policy.config.device)
     optimizer = policy.config.get_optimizer_preset().build(policy.get_optim_params())
     train_loader = _loader(data, data.train_indices, cfg.batch_size, True, seed, cfg.num_workers)
     val_indices = data.val_indices or data.train_indices  # a one-episode dataset validates on its training data
