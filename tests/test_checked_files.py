@@ -162,3 +162,39 @@ def test_a_failed_write_names_the_file_and_leaves_the_old_one(tmp_path, monkeypa
     assert path.read_bytes() == b"old" and sorted(p.name for p in tmp_path.iterdir()) == ["progress.json"]
     with pytest.raises(SystemExit, match="2"):
         run_cli("sr-train", lambda args: atomic_write_bytes(path, b"new"), [])
+
+
+def test_a_full_disk_anywhere_is_one_line_naming_the_file_and_saying_the_run_can_resume(tmp_path, capsys):
+    """Before: a 68-line traceback ending "No space left on device" for a write outside the atomic helpers."""
+    import errno
+
+    from sr_imitation.infra.cli_errors import run_cli
+
+    log = tmp_path / "run" / "log.jsonl"
+
+    def full(args):
+        try:
+            raise OSError(errno.ENOSPC, "No space left on device", str(log))
+        except OSError as exc:
+            raise RuntimeError("a library's wrapper") from exc
+
+    with pytest.raises(SystemExit, match="2"):
+        run_cli("sr-train", full, [])
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and f"{log}: cannot write (No space left on device)" in err and "--resume=true" in err
+
+
+def test_a_flipped_byte_in_a_checkpoint_manifest_names_it(tmp_path):
+    """Before: a byte flipped to invalid UTF-8 in checksums.json gave a decoding error without the file's name."""
+    ckpt = tmp_path / "wake"
+    ckpt.mkdir()
+    (ckpt / "model.safetensors").write_bytes(b"weights")
+    write_manifest(ckpt)
+    manifest = ckpt / "checksums.json"
+    good = manifest.read_bytes()
+    for at in range(0, len(good), max(1, len(good) // 40)):
+        data = bytearray(good)
+        data[at] ^= 0x80
+        manifest.write_bytes(bytes(data))
+        with pytest.raises(CorruptFileError, match="checksums.json: "):
+            verify_manifest(ckpt)

@@ -11,6 +11,7 @@ dump.
 
 from __future__ import annotations
 
+import errno
 import logging
 import os
 import sys
@@ -24,6 +25,11 @@ USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, Fil
 """What counts as a user error (``ValueError`` includes settings mismatches, invalid values, dataset mismatches)."""
 
 T = TypeVar("T")
+
+DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
+"""Errors of a full disk or an exhausted quota: reported as one line naming the file, whatever wrote it."""
+DISK_FULL_ADVICE = ("free space, then continue with --resume=true (a phase is recorded only once all its files are "
+                    "written, so the interrupted one is redone)")
 
 
 class UsageError(ValueError):
@@ -46,6 +52,8 @@ def _user_error(exc: BaseException) -> BaseException | None:
         seen.add(id(exc))
         if isinstance(exc, (CorruptFileError, WriteError)):
             return exc
+        if isinstance(exc, OSError) and exc.errno in DISK_FULL:  # a write outside the atomic helpers (a log, a
+            return WriteError(exc.filename or "a file of the run", exc, DISK_FULL_ADVICE)  # third-party save)
         if isinstance(exc, USER_ERRORS) or type(exc).__module__.startswith(("draccus", "yaml")):
             found = exc
         exc = _next(exc)
