@@ -18,7 +18,8 @@ recompute than to send:
   processes would otherwise wait for the main one).
 - **evaluation**: on the main process only; the others wait at the next collective.
 - **files**: the main process writes the run directory (checkpoints, memories, logs, results, videos). The others
-  keep their own copy of the run's state in a private scratch folder (:func:`scratch_output`, removed at the end),
+  keep their own copy of the run's state in a private scratch folder (:func:`scratch_output`, removed at the end;
+  one a killed process left is removed when the next run starts, :func:`remove_stale_scratch`),
   so that the engine's loads and a resume work unchanged; a resume first copies the run directory there.
 """
 
@@ -26,6 +27,7 @@ from __future__ import annotations
 
 import logging
 import os
+import re
 import shutil
 import tempfile
 from collections.abc import Mapping, Sequence
@@ -136,12 +138,48 @@ def average_scalars(values: Sequence[float], share: float) -> list[float]:
 def scratch_output(output_dir: Path, resume: bool, processes: Processes) -> Path:
     """Where a process other than the main one keeps its copy of the run (a fresh private folder; on ``resume`` a
     copy of the run directory, taken before any process touches it). The main process: ``output_dir`` itself."""
+    remove_stale_scratch()  # what a killed process of an earlier run left
     if processes.is_main:
         return output_dir
-    scratch = Path(tempfile.mkdtemp(prefix=f"sr-train-rank{processes.rank}-")) / Path(output_dir).name
+    scratch = Path(tempfile.mkdtemp(prefix=f"{SCRATCH_PREFIX}{processes.rank}-pid{os.getpid()}-")) / Path(
+        output_dir).name
     if resume and Path(output_dir).is_dir():
         shutil.copytree(output_dir, scratch, symlinks=True)
     return scratch
+
+
+SCRATCH_PREFIX = "sr-train-rank"
+"""``<tmp>/sr-train-rank<rank>-pid<process id>-<random>/``: a non-main process's scratch (:func:`scratch_output`)."""
+
+
+def remove_stale_scratch(root: Path | None = None) -> list[Path]:
+    """Remove the scratch folders (:data:`SCRATCH_PREFIX`, in ``root``: the temporary folder) of processes that no
+    longer run (a killed rank skips :func:`remove_scratch`); a folder whose process still runs, or that another user
+    owns, is kept. Returns the folders removed."""
+    root = Path(tempfile.gettempdir() if root is None else root)
+    removed = []
+    for folder in root.glob(f"{SCRATCH_PREFIX}*-pid*-*"):
+        match = re.fullmatch(rf"{SCRATCH_PREFIX}\d+-pid(\d+)-.+", folder.name)
+        try:
+            mine = folder.is_dir() and not folder.is_symlink() and folder.stat().st_uid == os.getuid()
+        except OSError:
+            continue
+        if match is None or not mine or _running(int(match.group(1))):
+            continue
+        shutil.rmtree(folder, ignore_errors=True)
+        logger.info("removed %s (the scratch copy of a process that no longer runs)", folder)
+        removed.append(folder)
+    return removed
+
+
+def _running(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
 
 
 def remove_scratch(path: Path, processes: Processes) -> None:

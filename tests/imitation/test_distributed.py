@@ -89,3 +89,22 @@ def test_too_small_a_batch_for_the_processes_is_one_line(state_datasets, tmp_pat
     done = _train(config, tmp_path / "run", 2, tmp_path)
     assert done.returncode != 0 and "wake.batch_size: 1 rows cannot be split over 2 processes" in done.stderr
     assert not (tmp_path / "run").exists()
+
+
+def test_a_killed_process_s_scratch_folder_is_removed_at_the_next_start(tmp_path):
+    """Before: a rank killed mid-run left its scratch copy of the run in the temporary folder for good."""
+    import os
+    import subprocess
+    import sys
+
+    from sr_imitation.infra.distributed import SCRATCH_PREFIX, remove_stale_scratch
+
+    gone = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"], capture_output=True, text=True,
+                          check=True)
+    dead = tmp_path / f"{SCRATCH_PREFIX}1-pid{int(gone.stdout)}-abc"
+    alive = tmp_path / f"{SCRATCH_PREFIX}1-pid{os.getpid()}-def"
+    other = tmp_path / f"{SCRATCH_PREFIX}1-xyz"  # no process id: not known to be ours
+    for folder in (dead, alive, other):
+        (folder / "run").mkdir(parents=True)
+    assert remove_stale_scratch(tmp_path) == [dead]
+    assert not dead.exists() and alive.is_dir() and other.is_dir()
