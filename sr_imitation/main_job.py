@@ -21,7 +21,7 @@ from sr_imitation.imitation.config import MainJobConfig
 from sr_imitation.imitation.stream import train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import ensure_recorded
+from sr_imitation.recorders.needle import ensure_recorded
 
 logger = logging.getLogger(__name__)
 

@@ -25,19 +25,17 @@ ALLOWED: dict[str, set[str]] = {
     "offscreen": set(),
     "video": {"core", "io", "progress", "infra"},
     "envs": {"core", "io", "progress", "infra", "offscreen", "video"},
-    "record": {"core", "io", "progress", "infra", "envs", "offscreen", "video"},
-    "recorders": {"core", "io", "progress", "infra", "envs", "offscreen", "video", "record"},
+    "recorders": {"core", "io", "progress", "infra", "envs", "offscreen", "video"},
     # the two substrates (each with its own methods and configs); neither imports the other
-    "imitation": {"core", "io", "progress", "infra", "stream", "envs", "record", "recorders", "offscreen",
-                  "video"},
+    "imitation": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen", "video"},
     "rl": {"core", "io", "progress", "infra", "stream", "envs", "offscreen", "video"},  # Meta-World: envs/metaworld
     # drivers: commands, experiments, benchmarks (anything below them)
     "cli": {"core", "io", "progress", "infra", "stream"},
-    "main_job": {"core", "io", "progress", "infra", "stream", "envs", "record", "recorders", "offscreen",
+    "main_job": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen",
                  "video", "imitation"},
-    "experiments": {"core", "io", "progress", "infra", "stream", "envs", "record", "recorders", "offscreen",
+    "experiments": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen",
                     "video", "imitation", "rl", "main_job"},
-    "benchmarks": {"core", "io", "progress", "infra", "stream", "envs", "record", "recorders", "offscreen",
+    "benchmarks": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen",
                    "video", "imitation", "rl", "main_job", "experiments"},  # the grid benchmark times the runner
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""

@@ -16,10 +16,11 @@ from draccus.wrappers import docstring
 
 import sr_imitation.infra.cli_parsing as cli_parsing
 from lerobot_policy_act_sr import ACTSRConfig
-from sr_imitation import cli, main_job, record
+from sr_imitation import cli, main_job
 from sr_imitation.imitation import cli as imitation_cli
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.recorders import cli as record_cli
+from sr_imitation.recorders import needle
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, RENAMED_FLAGS
 from tests.test_cli_errors import _one_line_error
 
@@ -32,7 +33,7 @@ COMMANDS = {  # the console entries' main functions, as run_cli runs them
     "sr-train": (cli.train_main, []),
     "sr-train --substrate=sac": (cli.train_main, ["--substrate=sac"]),
     "sr-train --config_path=<sr-main preset>": (cli.train_main, [f"--config_path={NEEDLE}"]),
-    "sr-record": (record.main, []),
+    "sr-record": (needle.main, []),
     "sr-record --env=metaworld": (record_cli.main, ["--env=metaworld"]),
     "sr-eval": (imitation_cli.eval_main, []),
     "sr-sleep": (imitation_cli.sleep_main, []),
@@ -144,7 +145,7 @@ def test_help_works_with_a_config_file(command, args, shows, capsys):
     ("sr-train", cli.train_main, ["--substrate=sac", "--batch_size=4"],
      "did you mean --sac.batch_size or --sleep.batch_size?"),
     ("sr-train", cli.train_main, ["--output-dir=x"], "did you mean --output_dir?"),
-    ("sr-record", record.main, ["--num_episode=3"], "did you mean --num_episodes?"),
+    ("sr-record", needle.main, ["--num_episode=3"], "did you mean --num_episodes?"),
     ("sr-eval", imitation_cli.eval_main, ["--policy.pth=x"], "did you mean --policy.path?"),
     ("sr-sleep", imitation_cli.sleep_main, ["--memorys=[a]"], "did you mean --memories?"),
     ("sr-main", main_job.main, [f"--config_path={NEEDLE}", "--train.seeed=1"], "did you mean --train.seed?"),

@@ -97,7 +97,7 @@ def bench_render(cfg: NeedleBenchConfig) -> dict:
 
 
 def bench_record(cfg: NeedleBenchConfig) -> dict:
-    from sr_imitation.record import RecordConfig, record
+    from sr_imitation.recorders.needle import RecordConfig, record
 
     tmp = Path(tempfile.mkdtemp(prefix="sr_needle_bench_"))
     try:

@@ -32,7 +32,7 @@ from sr_imitation.infra.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
-from sr_imitation.record import RecordConfig
+from sr_imitation.recorders.needle import RecordConfig
 from sr_imitation.stream import method_class, method_config
 from sr_imitation.stream.config import (
     RunConfig,

@@ -1,4 +1,4 @@
-"""``sr-record``: the needle recorder (:mod:`sr_imitation.record`, the default) or, with ``--env=metaworld``,
+"""``sr-record``: the needle recorder (:mod:`sr_imitation.recorders.needle`, the default) or, with ``--env=metaworld``,
 Meta-World's scripted policies (:mod:`sr_imitation.recorders.metaworld`); ``sr-record --env=metaworld --help``
 lists the latter's options."""
 
@@ -8,7 +8,7 @@ import sys
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.record import main as record_needle
+from sr_imitation.recorders.needle import main as record_needle
 
 
 def main(args: list[str] | None = None) -> None:

@@ -10,9 +10,9 @@ episodes are kept: the number dropped is logged and stored in ``meta/sr_record.j
 
 Configurations: episode attempt ``a`` of a task uses ``metaworld.MT1(task)``'s configuration ``a mod 50`` (our
 choice: the demonstrations cover the 50 configurations the evaluation draws from as evenly as the count allows, in
-the same order for every task), with environment seed :func:`sr_imitation.record.episode_seed` (the task's index:
-its name's CRC-32 mod 100). The bytes of a dataset are a function of these settings (as for the needle recorder), so
-its content digest identifies it.
+the same order for every task), with environment seed :func:`sr_imitation.recorders.needle.episode_seed` (the
+task's index: its name's CRC-32 mod 100). The bytes of a dataset are a function of these settings (as for the needle
+recorder), so its content digest identifies it.
 
 Example (the MT5 imitation stream's datasets, ``configs/metaworld_mt5_imitation.json``)::
 
@@ -44,7 +44,7 @@ from sr_imitation.envs.metaworld.tasks import (
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import write_checked_json
 from sr_imitation.progress import Progress
-from sr_imitation.record import (
+from sr_imitation.recorders.needle import (
     RECORD_SETTINGS_FILE,
     VIDEO_CODECS,
     _canonical_data_files,
@@ -225,8 +225,8 @@ def record_task(cfg: MetaWorldRecordConfig, task: str, task_index: int) -> Path:
 
 def record(cfg: MetaWorldRecordConfig) -> list[Path]:
     """Record every task in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``, or, with
-    ``overwrite``, if a target is not a dataset sr-record wrote (:func:`sr_imitation.record.foreign_dataset_problem`:
-    nothing is removed)."""
+    ``overwrite``, if a target is not a dataset sr-record wrote
+    (:func:`sr_imitation.recorders.needle.foreign_dataset_problem`: nothing is removed)."""
     for task in cfg.skills:
         target = cfg.target(task)
         if not (target.exists() or target.is_symlink()):

@@ -5,9 +5,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sr_imitation import record as rec
 from sr_imitation.envs.needle import SKILL_NAMES
 from sr_imitation.io import read_checked_json
+from sr_imitation.recorders import needle as rec
 
 SIZE = 32
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
@@ -89,7 +89,7 @@ def test_same_settings_same_bytes_whatever_the_hash_seed(tmp_path):
 
     for name, hash_seed in (("a", "1"), ("b", "2")):
         env = {**os.environ, "PYTHONHASHSEED": hash_seed}
-        subprocess.run([sys.executable, "-m", "sr_imitation.record", f"--root={tmp_path / name}",
+        subprocess.run([sys.executable, "-m", "sr_imitation.recorders.needle", f"--root={tmp_path / name}",
                         "--skills=[approach]", "--num_episodes=1", f"--image_size={SIZE}"],
                        check=True, env=env, capture_output=True)
     a, b = files(tmp_path / "a"), files(tmp_path / "b")
