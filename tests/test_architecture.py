@@ -42,6 +42,12 @@ ALLOWED: dict[str, set[str]] = {
 
 KNOWN_UPWARD: set[tuple[str, str]] = set()  # none left: a new exception needs its reason here
 
+PLUGINS = ROOT.parent / "policies"
+
+PLUGIN_ALLOWED = {"io", "progress", "core", "infra", "envs", "offscreen", "video"}
+"""What of ``sr_imitation`` a LeRobot plugin under ``policies/`` may import: the layers below the substrates (the
+ACT substrate, ``imitation``, imports the plugin, so the plugin imports nothing of it)."""
+
 
 def _modules() -> dict[str, Path]:
     out = {}
@@ -111,6 +117,25 @@ def _cycles(graph: dict[str, set[str]]) -> list[list[str]]:
 def _part(module: str) -> str:
     parts = module.split(".")
     return parts[1] if len(parts) > 1 else ""
+
+
+def _imported_names(path: Path) -> set[str]:
+    """Every absolute module (or ``module.name``) the file imports, anywhere in it."""
+    out = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.Import):
+            out |= {alias.name for alias in node.names}
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            out |= {f"{node.module}.{alias.name}" for alias in node.names}
+    return out
+
+
+def test_plugins_import_only_below_the_substrates():
+    files = sorted(PLUGINS.glob("*/*/*.py"))
+    assert files  # the plugins are where this test looks
+    upward = sorted((str(path.relative_to(PLUGINS)), name) for path in files for name in _imported_names(path)
+                    if name.split(".")[0] == "sr_imitation" and _part(name) not in PLUGIN_ALLOWED)
+    assert upward == []
 
 
 def test_no_import_cycles():

@@ -14,11 +14,11 @@ import torch
 from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
 from torch.utils._python_dispatch import TorchDispatchMode
 
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.benchmarks.device import STATE_DIM, act_batch, act_policy
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.wake import _NoHooks, hooked_update
 from sr_imitation.rl.config import SACConfig

@@ -22,10 +22,10 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.memory import summed_objective
 from sr_imitation.core.sleep import sleep_consolidate
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
 
 STATE_DIM, ACTION_DIM, BATCH, K = 35, 7, 8, 5

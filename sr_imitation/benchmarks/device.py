@@ -33,11 +33,11 @@ import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.benchmarks.sac import critic_memories, replay_buffer
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.envs.metaworld.tasks import OBS_DIM
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.rl.config import SACConfig
 from sr_imitation.rl.sac import SACAgent

@@ -37,7 +37,7 @@ from lerobot.datasets.utils import dataset_to_policy_features
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
-from sr_imitation.imitation.actor_memory import images_to_uint8
+from lerobot_policy_act_sr.actor_memory import images_to_uint8
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
 
 logger = logging.getLogger(__name__)

@@ -11,7 +11,7 @@ evaluating the deployed action chunk, exactly as the stream's sleep does (both u
 
 What the stream knows from its run directory is taken here from the inputs:
 
-- **memories** M_1..M_k: ACT actor memories (:class:`~sr_imitation.imitation.actor_memory.ActorMemory`) in skill
+- **memories** M_1..M_k: ACT actor memories (:class:`~lerobot_policy_act_sr.actor_memory.ActorMemory`) in skill
   order, the newest skill last: the ``memory.safetensors`` that stock ``lerobot-train --policy.type=act_sr
   --policy.sleep=true`` writes beside each checkpoint, or an ``sr-train`` run's ``memories/skill_k_*.safetensors``.
 - **anchor** theta_{k-1}^sleep of Eq. 2: ``--anchor.path``, the previous consolidated policy; by default the
@@ -73,10 +73,10 @@ from lerobot.utils.utils import is_torch_device_available
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import load_memory, memory_contents
 from sr_imitation.core.sleep import SleepConfig, SleepResult, sleep_consolidate
 from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.evaluate import (
     EnvFactory,

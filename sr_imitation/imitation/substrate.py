@@ -34,9 +34,9 @@ from lerobot.utils.constants import ACTION, OBS_STATE
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import Memory, load_memory
 from sr_imitation.core.sleep import SleepConfig
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SUBSTRATE, TrainStreamConfig, stored_config_dict
 from sr_imitation.imitation.data import (
     load_metadata,

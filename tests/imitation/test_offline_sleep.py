@@ -21,9 +21,9 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import get_policy_class, make_policy, make_pre_post_processors
 from safetensors.torch import load_file
 
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.cli import sleep_main
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.offline_sleep import (

@@ -12,8 +12,8 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 from lerobot.policies.factory import get_policy_class
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.stream import TrainStreamConfig
 from tests.imitation.helpers import ACTION_DIM, IMAGE, STATE_DIM, tiny_policy
@@ -181,6 +181,7 @@ def test_actor_memory_file_round_trip(tmp_path):
     memory = _memory_for(policy, seed=2)
     loaded = load_memory(memory.save(tmp_path / "m.safetensors"), skill="approach")
     assert isinstance(loaded, ActorMemory) and loaded.fingerprint() == memory.fingerprint()
+    assert loaded.kind == "act_actor"  # the kind every saved ACT memory file names: files written before still load
     assert loaded.config["snapshot"] == "skill_1/wake"
     assert loaded.verify_targets(policy.memory_chunk) < 1e-6
 

@@ -14,10 +14,10 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.configuration_act_sr import DEFAULT_SLEEP_MEMORY_SIZE
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE, MEMORY_SNAPSHOT, ObservationReservoir
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.actor_memory import ActorMemory
 from tests.imitation.helpers import IMAGE, tiny_policy
 from tests.imitation.test_policy import _features
 

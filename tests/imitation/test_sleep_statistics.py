@@ -20,9 +20,9 @@ import numpy as np
 import pytest
 import torch
 
+from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.actor_memory import ActorMemory
 from sr_imitation.imitation.cli import sleep_main
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.normalization import (

@@ -12,7 +12,7 @@ not moved by ``.to()`` and never trained; they have their own files (``memories/
 ``--policy.sleep=true`` on stock ``lerobot-train`` (the design card's command): the policy keeps a uniform reservoir
 (:class:`ObservationReservoir`) of the observations it trains on and every ``save_pretrained`` writes the skill's
 frozen actor memory M_k^pi = (pi_{theta_k^wake}, B_k) (Section 3) beside ``model.safetensors`` as
-:data:`MEMORY_FILE`, in the stream's format (:class:`~sr_imitation.imitation.actor_memory.ActorMemory`, loaded by
+:data:`MEMORY_FILE`, in the stream's format (:class:`~lerobot_policy_act_sr.actor_memory.ActorMemory`, loaded by
 :func:`sr_imitation.core.memory.load_memory`), so a skill trained with stock ``lerobot-train`` can later be
 consolidated in a sleep. With ``sleep`` false or not given nothing of this exists and training is ACT-SR's as before.
 """
@@ -32,9 +32,9 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_IMAGES, OBS_STATE
 from torch import Tensor
 from torchvision.ops.misc import FrozenBatchNorm2d
 
+from lerobot_policy_act_sr.actor_memory import ActorMemory, images_to_uint8
 from lerobot_policy_act_sr.configuration_act_sr import ACTSRConfig
 from sr_imitation.core.memory import Memory, summed_objective
-from sr_imitation.imitation.actor_memory import ActorMemory, images_to_uint8
 
 logger = logging.getLogger(__name__)
 

@@ -12,6 +12,10 @@ The wake-end snapshot never changes, so its chunks on the buffer are computed on
 and stored as ``target``; neither wake distillation nor sleep runs the snapshot again (the saving is measured
 in docs/BENCHMARKS.md). The snapshot's weights are the stage checkpoint ``skill_k/wake`` (``config["snapshot"]``)
 and :meth:`ActorMemory.verify_targets` recomputes the targets from it when an audit is wanted.
+
+It lives in the plugin because the policy writes it (``--policy.sleep``, :mod:`.modeling_act_sr`) and the stream's
+ACT substrate (``sr_imitation.imitation``), which imports the plugin, loads and trains on it; the kind name
+``act_actor`` is the one every saved file carries.
 """
 
 from __future__ import annotations
