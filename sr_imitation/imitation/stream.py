@@ -156,6 +156,8 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
                              "them with --eval.env=gym|lerobot or switch evaluation off with --eval.env=none")
         return
     if mode == "metaworld":
+        for index in range(len(skills)):
+            resolve_eval_env(cfg.eval, skills, index)  # every task a Meta-World task first (one line each)
         check_recorded_tasks(cfg)
     images = [tuple(f.shape[:2]) if f.shape[-1] == 3 else tuple(f.shape[1:]) for key, f in input_features.items()
               if key.startswith("observation.images.")]
