@@ -18,7 +18,7 @@ from pathlib import Path
 
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.config import MainJobConfig
-from sr_imitation.imitation.stream import train_stream
+from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.recorders.needle import ensure_recorded

@@ -14,7 +14,7 @@ import draccus
 
 from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.imitation.cli import act_sr_choices_only, parse_config
-from sr_imitation.imitation.stream import TrainStreamConfig
+from sr_imitation.imitation.trainer import TrainStreamConfig
 
 ARGS = ["--policy.type=act_sr", "--sleep.lr=1e-4", "--seed=3"]
 

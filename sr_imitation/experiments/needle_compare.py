@@ -50,7 +50,7 @@ from sr_imitation.experiments.grid import GridConfig, is_train_config, run_grid,
 from sr_imitation.experiments.grid import main as grid_main
 from sr_imitation.imitation.cli import parse_train_config
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
-from sr_imitation.imitation.stream import TrainStreamConfig, resume_fingerprint, train_stream
+from sr_imitation.imitation.trainer import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory

@@ -35,8 +35,8 @@ import torch
 from sr_imitation.envs.needle import geometry as G
 from sr_imitation.imitation.data import load_metadata
 from sr_imitation.imitation.evaluate import evaluate_skills
-from sr_imitation.imitation.stream import TrainStreamConfig
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import TrainStreamConfig
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.main_job import preset_with_datasets

@@ -26,8 +26,8 @@ from typing import Any
 import draccus
 
 from sr_imitation.imitation.cli import parse_config
-from sr_imitation.imitation.stream import StreamTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import ACTTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 from sr_imitation.infra.cli_errors import setup_logging
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
 from sr_imitation.io import write_checked_json
@@ -104,7 +104,7 @@ def prepare_replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> TrainS
 def replay(cfg: SleepReplayConfig, sleep_args: list[str] = ()) -> dict[str, Any]:
     """Run the replay and write ``replay.json`` (original vs replayed sleep of stage ``cfg.stage``)."""
     train = prepare_replay(cfg, sleep_args)
-    StreamTrainer(train).run(stop_after=cfg.stage)
+    ACTTrainer(train).run(stop_after=cfg.stage)
     progress = _read_json(Path(cfg.output_dir) / "progress.json")
     original = _read_json(Path(cfg.run) / "progress.json")["completed"]
     key = f"{cfg.stage}"

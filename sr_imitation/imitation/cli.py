@@ -25,7 +25,7 @@ import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's con
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.config import LEGACY_DEFAULTS, MainJobConfig
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory
-from sr_imitation.imitation.stream import TrainStreamConfig, train_stream
+from sr_imitation.imitation.trainer import TrainStreamConfig, train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for

@@ -4,7 +4,7 @@
 (:data:`RESUME_ALLOW_LIST`), the settings added since runs were first written (:data:`SETTINGS_ADDED`), the run's
 fingerprint (:func:`resume_fingerprint`, datasets by content), its stored config (:func:`stored_config_dict`), and
 an ``sr-main`` preset's config (:class:`MainJobConfig`: recording plus the stream). The
-runner is :mod:`sr_imitation.imitation.stream`; the substrate (:mod:`sr_imitation.imitation.substrate`) reads this
+runner is :mod:`sr_imitation.imitation.trainer`; the substrate (:mod:`sr_imitation.imitation.substrate`) reads this
 module, never the runner.
 """
 

@@ -158,7 +158,7 @@ def check_stream_datasets(stream, use_images: bool) -> tuple[LeRobotDatasetMetad
     The policy's features come from the first skill's dataset (:func:`policy_features`); every dataset must
     exist, be non-empty, have all its data/video files, provide those features with the same shapes, and share
     the first dataset's fps (the action chunk is defined in time steps). ``stream`` is a
-    :class:`~sr_imitation.imitation.stream.StreamConfig` (``skills``, ``dataset_path(i)``, ``repo_id(i)``).
+    :class:`~sr_imitation.imitation.trainer.StreamConfig` (``skills``, ``dataset_path(i)``, ``repo_id(i)``).
     Returns the first dataset's metadata and the policy's input and output features.
     """
     metas = [load_metadata(stream.dataset_path(i), stream.repo_id(i)) for i in range(len(stream.skills))]

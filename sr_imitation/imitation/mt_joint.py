@@ -34,7 +34,8 @@ import torch
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_metadata, load_skill_data
 from sr_imitation.imitation.report import pair_list
-from sr_imitation.imitation.stream import (
+from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import (
     RESUME_ALLOW_LIST,
     SETTINGS_ADDED,
     TrainStreamConfig,
@@ -43,7 +44,6 @@ from sr_imitation.imitation.stream import (
     stored_config_dict,
     stream_inputs,
 )
-from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.wake import wake_train
 from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.infra.provenance import log_code_version

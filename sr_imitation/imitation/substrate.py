@@ -152,7 +152,7 @@ class ACTSubstrate:
         self._data: Any = None
         self.run_log: Any = None  # set by the engine: wake epochs are logged there
         self.train_config: dict[str, Any] | None = None
-        """The run's stored config, written beside each checkpoint as LeRobot does (set by ``StreamTrainer``)."""
+        """The run's stored config, written beside each checkpoint as LeRobot does (set by ``ACTTrainer``)."""
         if cfg.stream.stats == "seen" and cfg.method not in SEEN_METHODS:
             raise ValueError(f"stream.stats=seen (the default) re-expresses actor memories when the statistics "
                              f"change; method {cfg.method!r} keeps normalized data of earlier skills: give "

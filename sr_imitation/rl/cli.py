@@ -29,9 +29,9 @@ logger = logging.getLogger(__name__)
 
 
 def train(cfg: RLTrainConfig) -> dict:
-    from sr_imitation.rl.trainer import StreamTrainer
+    from sr_imitation.rl.trainer import SACTrainer
 
-    results = StreamTrainer(cfg).run()
+    results = SACTrainer(cfg).run()
     logger.info("final metrics: %s", json.dumps({k: v["final"] for k, v in results["metrics"].items()}))
     logger.info("results written to %s", cfg.output_dir / "results.json")
     return results

@@ -30,7 +30,7 @@ from sr_imitation.stream.run import StreamRun
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "RESULTS_VERSION", "StreamTrainer", "prs_pairs",
+__all__ = ["CHECKPOINT_FORMAT", "CHECKPOINT_VERSION", "RESULTS_VERSION", "SACTrainer", "prs_pairs",
            "write_results"]
 
 
@@ -45,7 +45,7 @@ def check_skill_names(skills: list[str]) -> None:
                          "'reach-v3')")
 
 
-class StreamTrainer(StreamRun):
+class SACTrainer(StreamRun):
     """Runs (or resumes) one seed of the stream described by ``cfg`` (:class:`~sr_imitation.stream.run.StreamRun`
     with the SAC substrate); the skills are checked to be Meta-World environments before anything is written.
 

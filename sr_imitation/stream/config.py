@@ -1,6 +1,6 @@
 """What every ``sr-train`` configuration shares, whatever its substrate.
 
-Both substrates' run configurations (:class:`sr_imitation.imitation.stream.TrainStreamConfig` for ACT,
+Both substrates' run configurations (:class:`sr_imitation.imitation.trainer.TrainStreamConfig` for ACT,
 :class:`sr_imitation.rl.config.RLTrainConfig` for SAC) use the same flag names for the same concepts::
 
     --substrate        act | sac (the key ``sr-train`` dispatches on; stored in the run's config)

@@ -134,7 +134,7 @@ def test_a_bad_task_name_is_one_line_with_a_suggestion():
 
 
 def test_a_two_skill_stream_evaluates_in_metaworld(tmp_path_factory):
-    from sr_imitation.imitation.stream import train_stream
+    from sr_imitation.imitation.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_state")
@@ -152,7 +152,7 @@ def test_a_two_skill_stream_evaluates_in_metaworld(tmp_path_factory):
 
 
 def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written(tmp_path_factory):
-    from sr_imitation.imitation.stream import train_stream
+    from sr_imitation.imitation.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_bad")
@@ -167,7 +167,7 @@ def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written
 
 
 def test_a_dataset_recorded_on_another_task_is_refused_naming_its_file(tmp_path_factory):
-    from sr_imitation.imitation.stream import train_stream
+    from sr_imitation.imitation.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_swap")

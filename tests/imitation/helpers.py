@@ -11,7 +11,7 @@ from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.stream import MemoryConfig, StreamConfig, TrainStreamConfig
+from sr_imitation.imitation.trainer import MemoryConfig, StreamConfig, TrainStreamConfig
 from sr_imitation.imitation.wake import WakeConfig
 
 IMAGE = 16

@@ -13,7 +13,7 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.imitation import substrate as substrate_module
-from sr_imitation.imitation.stream import StreamTrainer
+from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.stream import engine as engine_module
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
@@ -31,7 +31,7 @@ def recorded_stream(state_datasets, tmp_path_factory):
     # A sleep long and fast enough to measurably lower the memory losses; the plateau rule cannot fire.
     cfg = tiny_stream_config(state_datasets, out, SKILLS, use_images=False,
                              sleep={"lr": 1e-3, "max_iterations": 20, "early_stop_window": 20})
-    trainer = StreamTrainer(cfg, fake_env_factory)
+    trainer = ACTTrainer(cfg, fake_env_factory)
     wakes, sleeps = [], []
     real_wake = substrate_module.wake_train
 

@@ -8,7 +8,7 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.stream import train_stream
+from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.stream import METHODS
 from sr_imitation.stream.methods.base import WakeStep
 from sr_imitation.stream.substrate import MethodSettings

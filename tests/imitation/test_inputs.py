@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.stream import train_stream
+from sr_imitation.imitation.trainer import train_stream
 from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
 
 SKILLS = ["approach", "place", "insert"]

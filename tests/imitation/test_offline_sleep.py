@@ -35,7 +35,7 @@ from sr_imitation.imitation.offline_sleep import (
     load_policy,
     run_offline_sleep,
 )
-from sr_imitation.imitation.stream import StreamTrainer
+from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.io import CorruptFileError, read_checked_json, verify_manifest
 from sr_imitation.stream.substrate import phase_seed
@@ -60,7 +60,7 @@ def run(state_datasets, tmp_path_factory) -> tuple[Path, SurgicAISleepConfig]:
     """A finished three-skill sr-train run (state-only ACT-SR, SR with sleeps after skills 2 and 3)."""
     out = tmp_path_factory.mktemp("offline_sleep") / "run"
     cfg = tiny_stream_config(state_datasets, out, SKILLS, use_images=False, sleep=RUN_SLEEP)
-    StreamTrainer(cfg, fake_env_factory).run()
+    ACTTrainer(cfg, fake_env_factory).run()
     return out, cfg.sleep
 
 

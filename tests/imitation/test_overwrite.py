@@ -12,7 +12,7 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.imitation.stream import StreamTrainer
+from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.stream.rundir import REPLACED_MARK, OverwriteRefusedError
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 from tests.infra.test_fingerprint import tree_state
@@ -27,12 +27,12 @@ def datasets(state_datasets, tmp_path) -> Path:
     return root
 
 
-def _trainer(datasets: Path, out: Path, **changes) -> StreamTrainer:
+def _trainer(datasets: Path, out: Path, **changes) -> ACTTrainer:
     cfg = tiny_stream_config(datasets, out, STREAM, use_images=False)
     cfg.overwrite = True
     for key, value in changes.items():
         setattr(cfg, key, value)
-    return StreamTrainer(cfg, fake_env_factory)
+    return ACTTrainer(cfg, fake_env_factory)
 
 
 def _no_training(monkeypatch):

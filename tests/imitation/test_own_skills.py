@@ -20,14 +20,14 @@ import pytest
 from sr_imitation.imitation.cli import parse_train_args
 from sr_imitation.imitation.data import DatasetMismatchError
 from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.stream import (
+from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import (
     SETTINGS_ADDED,
-    StreamTrainer,
+    ACTTrainer,
     resume_fingerprint,
     stream_inputs,
     train_stream,
 )
-from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -316,7 +316,7 @@ def test_a_run_from_before_the_evaluation_settings_resumes_with_the_needle_env_o
     """Runs fingerprinted before ``eval.env`` existed were evaluated on the needle env: their fingerprint lacks the
     new keys, which count as their defaults (:data:`SETTINGS_ADDED`); another evaluation is refused naming it."""
     out = tmp_path / "run"
-    StreamTrainer(tiny_stream_config(state_datasets, out, ["approach", "place"], use_images=False)).run_dir.prepare()
+    ACTTrainer(tiny_stream_config(state_datasets, out, ["approach", "place"], use_images=False)).run_dir.prepare()
     stored = read_fingerprint(out / FINGERPRINT_FILE)
     assert set(SETTINGS_ADDED) <= set(stored)
     settings = {k: v for k, v in stored.items() if k not in SETTINGS_ADDED}  # as an older run stored them

@@ -15,7 +15,7 @@ from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.stream import TrainStreamConfig
+from sr_imitation.imitation.trainer import TrainStreamConfig
 from tests.imitation.helpers import ACTION_DIM, IMAGE, STATE_DIM, tiny_policy
 
 

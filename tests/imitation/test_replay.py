@@ -10,8 +10,8 @@ from safetensors.torch import load_file
 
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import sample_observation_buffer
-from sr_imitation.imitation.stream import train_stream
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.stream import METHODS, StreamEngine
 from sr_imitation.stream.methods.base import WakeStep
 from sr_imitation.stream.methods.replay import DemonstrationMemory, ReplayConfig

@@ -19,7 +19,7 @@ from safetensors.torch import load_file
 import sr_imitation.imitation.cli as cli
 import sr_imitation.imitation.dataset_identity as identity
 from sr_imitation.imitation.dataset_identity import InputsMismatchError, dataset_digest, dataset_inputs
-from sr_imitation.imitation.stream import StreamTrainer, train_stream
+from sr_imitation.imitation.trainer import ACTTrainer, train_stream
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
@@ -52,7 +52,7 @@ def reference(datasets, tmp_path_factory) -> tuple[Path, dict]:
 @pytest.fixture(scope="module")
 def after_stage_1(datasets, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("stage1") / "run"
-    StreamTrainer(tiny_stream_config(datasets, out, STREAM, use_images=False), fake_env_factory).run(stop_after=1)
+    ACTTrainer(tiny_stream_config(datasets, out, STREAM, use_images=False), fake_env_factory).run(stop_after=1)
     return out
 
 
@@ -196,7 +196,7 @@ def test_a_run_logged_to_wandb_resumes_into_the_same_wandb_run(datasets, referen
     run = tmp_path / "run"
     cfg = tiny_stream_config(datasets, run, STREAM, use_images=False)
     cfg.wandb = WandbConfig(enable=True, mode="offline")
-    StreamTrainer(cfg, fake_env_factory).run(stop_after=1)
+    ACTTrainer(cfg, fake_env_factory).run(stop_after=1)
     first = json.loads((run / WANDB_ID_FILE).read_text())["id"]
     assert any(p.is_file() for p in (run / "wandb").rglob("*"))  # wandb's own files, unsealed
     _resume(run, datasets, wandb=WandbConfig(enable=True, mode="offline"))

@@ -23,14 +23,14 @@ from safetensors.torch import load_file
 import sr_imitation.imitation.cli as cli
 from sr_imitation.core.aggregation import AGGREGATORS
 from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
-from sr_imitation.imitation.stream import (
+from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import (
     RESUME_ALLOW_LIST,
-    StreamTrainer,
+    ACTTrainer,
     TrainStreamConfig,
     resume_fingerprint,
     train_stream,
 )
-from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
@@ -131,7 +131,7 @@ ALLOWED_CHANGES: dict[str, Any] = {
 
 def check_resume(cfg, fingerprint) -> None:
     """The resume check of a run directory against ``fingerprint`` (what a resume of ``cfg`` runs first)."""
-    run = StreamTrainer(cfg).run_dir
+    run = ACTTrainer(cfg).run_dir
     run.fingerprint = fingerprint
     run.check_settings_against_run()
 
@@ -163,7 +163,7 @@ def test_decode_is_what_parse_gives_for_a_config_file(stored, tmp_path):
 def stored(state_datasets, tmp_path_factory) -> tuple[Path, dict[str, Any]]:
     """A run directory as a fresh run leaves it before its first step: fingerprint + train_config.json."""
     out = tmp_path_factory.mktemp("stored") / "run"
-    StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False)).run_dir.prepare()
+    ACTTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False)).run_dir.prepare()
     return out, read_config_json(out / "train_config.json")[0]  # as a person would write it: without the seal
 
 
@@ -177,7 +177,7 @@ def reference(state_datasets, tmp_path_factory) -> tuple[Path, dict[str, Any]]:
 def after_stage_1(state_datasets, tmp_path_factory) -> Path:
     """A run stopped after its first stage (as a kill between stages leaves it); tests work on copies."""
     out = tmp_path_factory.mktemp("stage1") / "run"
-    StreamTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False), fake_env_factory).run(
+    ACTTrainer(tiny_stream_config(state_datasets, out, STREAM, use_images=False), fake_env_factory).run(
         stop_after=1)
     return out
 
@@ -349,11 +349,11 @@ def test_a_run_without_fingerprint_is_refused_naming_the_file(stored, tmp_path):
     (run / FINGERPRINT_FILE).unlink()
     before = tree_state(run)
     with pytest.raises(CorruptFileError, match=f"{FINGERPRINT_FILE}: missing: cannot resume"):
-        StreamTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
+        ACTTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
     assert tree_state(run) == before and not (run / FINGERPRINT_FILE).exists()
     (run / "train_config.json").unlink()
     with pytest.raises(FileNotFoundError, match="holds no run to resume"):
-        StreamTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
+        ACTTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
 
 
 @pytest.mark.parametrize("damage", ["flip", "truncate", "config"])
@@ -375,7 +375,7 @@ def test_a_damaged_checkpoint_is_refused_naming_the_file_before_training_on_it(a
     cfg = tiny_stream_config(state_datasets, run, STREAM, use_images=False)
     cfg.resume = True
     with pytest.raises(CorruptFileError, match=f"{target.name}: contents differ from checksums.json"):
-        StreamTrainer(cfg, fake_env_factory).run()
+        ACTTrainer(cfg, fake_env_factory).run()
 
 
 def test_extending_a_finished_one_skill_run_equals_the_two_skill_run(state_datasets, reference, tmp_path):
@@ -386,7 +386,7 @@ def test_extending_a_finished_one_skill_run_equals_the_two_skill_run(state_datas
     cfg = tiny_stream_config(state_datasets, tmp_path / "extended", STREAM, use_images=False)
     cfg.stream.extend_from = source
     ran = []
-    extended = StreamTrainer(cfg, fake_env_factory, after_phase=lambda k, p: ran.append((k, p))).run()
+    extended = ACTTrainer(cfg, fake_env_factory, after_phase=lambda k, p: ran.append((k, p))).run()
     assert {k for k, _ in ran} == {1}
     ref_out, ref_results = reference
     assert extended["metrics"] == ref_results["metrics"]
@@ -395,7 +395,7 @@ def test_extending_a_finished_one_skill_run_equals_the_two_skill_run(state_datas
     other = tiny_stream_config(state_datasets, tmp_path / "refused", STREAM, use_images=False)
     other.stream.extend_from, other.sleep.lr = source, 0.5
     with pytest.raises(SettingsMismatchError, match="sleep.lr"):
-        StreamTrainer(other, fake_env_factory).run()
+        ACTTrainer(other, fake_env_factory).run()
     assert not (tmp_path / "refused").exists()
 
 

@@ -13,7 +13,7 @@ from safetensors.torch import load_file
 
 from sr_imitation.core.memory import load_memory
 from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.stream import StreamConfig, train_stream
+from sr_imitation.imitation.trainer import StreamConfig, train_stream
 from sr_imitation.imitation.wake import NonFiniteLossError
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import CorruptFileError, write_checked_json

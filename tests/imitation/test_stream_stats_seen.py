@@ -16,8 +16,8 @@ from sr_imitation.imitation.config import StreamConfig
 from sr_imitation.imitation.data import load_metadata, load_stats, stream_stats
 from sr_imitation.imitation.evaluate import EvalConfig
 from sr_imitation.imitation.offline_sleep import load_policy
-from sr_imitation.imitation.stream import StreamTrainer
 from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.trainer import ACTTrainer
 from tests.imitation.helpers import make_skill_dataset, tiny_stream_config
 
 SKILLS = ["approach", "place", "insert"]
@@ -51,7 +51,7 @@ def test_seen_is_the_default_and_first_and_union_stay_choices():
 
 def test_each_stage_normalizes_with_the_skills_seen_so_far_and_a_resume_gives_the_same_numbers(datasets, tmp_path):
     whole = tmp_path / "whole"
-    results = StreamTrainer(_config(datasets, whole)).run()
+    results = ACTTrainer(_config(datasets, whole)).run()
     metas = [load_metadata(datasets / s, f"local/sr_needle_{s}") for s in SKILLS]
     first = load_stats(whole / "stream_stats.safetensors")
     for k in (1, 2):
@@ -73,10 +73,10 @@ def test_each_stage_normalizes_with_the_skills_seen_so_far_and_a_resume_gives_th
             raise StopError
 
     with pytest.raises(StopError):
-        StreamTrainer(_config(datasets, cut), after_phase=stop).run()
+        ACTTrainer(_config(datasets, cut), after_phase=stop).run()
     cfg = _config(datasets, cut)
     cfg.resume = True
-    resumed = StreamTrainer(cfg).run()
+    resumed = ACTTrainer(cfg).run()
     for phase in ("skill_3_insert/wake", "skill_3_insert/sleep"):
         a, b = (load_file(str(r / phase / "pretrained_model" / "model.safetensors")) for r in (whole, cut))
         assert all(torch.equal(a[n], b[n]) for n in a), phase
@@ -88,13 +88,13 @@ def test_a_skill_far_outside_the_statistics_in_use_is_reported_before_its_first_
     make_skill_dataset(root, "approach", 0, image=False, offset=0.0)
     make_skill_dataset(root, "place", 1, image=False, offset=40.0)
     with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
-        StreamTrainer(_config(root, tmp_path / "first", ["approach", "place"], stats="first")).run()
+        ACTTrainer(_config(root, tmp_path / "first", ["approach", "place"], stats="first")).run()
     lines = [r.getMessage() for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
     assert len(lines) == 1 and lines[0].startswith("skill place: its observation.state[")
     assert "(--stream.stats=first)" in lines[0] and "--stream.stats=seen" in lines[0]
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
-        StreamTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
+        ACTTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
     assert not [r for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
 
 
@@ -112,7 +112,7 @@ def test_archived_runs_and_presets_keep_their_recorded_setting(tmp_path):
 
     from sr_imitation.imitation.cli import parse_train_config
     from sr_imitation.imitation.config import stored_config_dict
-    from sr_imitation.imitation.stream import SETTINGS_ADDED
+    from sr_imitation.imitation.trainer import SETTINGS_ADDED
 
     root = Path(__file__).resolve().parents[2]
     # a run written before the setting existed normalized with the first skill's statistics: its config is read so

@@ -12,7 +12,7 @@ import torch
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import load_checked_safetensors
 from sr_imitation.rl.config import EvalConfig
-from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.rl.trainer import SACTrainer
 from sr_imitation.stream import METHODS
 from sr_imitation.stream.methods.ewc import EWC, EWCConfig
 from tests.rl.test_trainer import tiny_config
@@ -29,7 +29,7 @@ def test_a_baseline_runs_end_to_end_on_sac(tmp_path, method, monkeypatch):
     if method in ("reset_distill", "progress_compress"):  # tiny: 20 distillation steps, not 2000
         cls = METHODS[method]
         monkeypatch.setattr(cls, "config", dataclasses.replace(cls.config, iterations=20, batch_size=16))
-    trainer = StreamTrainer(tiny_config(tmp_path / method, method=method,
+    trainer = SACTrainer(tiny_config(tmp_path / method, method=method,
                                         eval=EvalConfig(episodes=1, videos_per_skill=0)))
     results = trainer.run()
     completed = trainer.run_dir.progress["completed"]
@@ -71,7 +71,7 @@ def test_a_baseline_runs_end_to_end_on_sac(tmp_path, method, monkeypatch):
 def test_sac_wake_only_stores_no_memory(tmp_path):
     cfg = tiny_config(tmp_path / "w", eval=EvalConfig(episodes=1, videos_per_skill=0))
     cfg.sleep.enabled = False
-    trainer = StreamTrainer(cfg)
+    trainer = SACTrainer(cfg)
     results = trainer.run()
     assert results["label"] == "wake_only" and results["memory_bytes_total"] == 0
     assert not any(key.endswith("memory") for key in trainer.run_dir.progress["completed"])
@@ -85,7 +85,7 @@ def test_a_methods_own_defaults_are_fingerprinted(tmp_path, monkeypatch):
     options = tiny_config(tmp_path / "run", method="ewc", method_options={"lam": 100}).resume_fingerprint()
     assert options.settings["method_config.lam"] == 100
     assert tiny_config(tmp_path / "sr").resume_fingerprint().settings["method_config"] == {}  # no settings of its own
-    StreamTrainer(tiny_config(tmp_path / "run", method="ewc")).run_dir.prepare()  # writes the fingerprint
+    SACTrainer(tiny_config(tmp_path / "run", method="ewc")).run_dir.prepare()  # writes the fingerprint
     monkeypatch.setattr(EWC, "config", EWCConfig(lam=100.0))
     with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: .*method_config.lam: 1.0 -> 100.0"):
-        StreamTrainer(tiny_config(tmp_path / "run", method="ewc", resume=True)).run_dir.prepare()
+        SACTrainer(tiny_config(tmp_path / "run", method="ewc", resume=True)).run_dir.prepare()

@@ -21,7 +21,7 @@ from sr_imitation.rl.config import (
     StreamConfig,
     WakeConfig,
 )
-from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.rl.trainer import SACTrainer
 from sr_imitation.stream import engine as engine_module
 from sr_imitation.stream.config import StreamSleepConfig
 from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder
@@ -44,7 +44,7 @@ def _config(out: Path) -> RLTrainConfig:
 @pytest.fixture(scope="module")
 def recorded_stream(tmp_path_factory):
     out = tmp_path_factory.mktemp("rl_wiring") / "run"
-    trainer = StreamTrainer(_config(out))
+    trainer = SACTrainer(_config(out))
     wakes, sleeps = [], []
     real_wake = substrate_module.train_skill
 

@@ -24,7 +24,7 @@ from sr_imitation.rl.config import (
     WakeConfig,
 )
 from sr_imitation.rl.sac import SACAgent
-from sr_imitation.rl.trainer import StreamTrainer
+from sr_imitation.rl.trainer import SACTrainer
 from sr_imitation.stream.config import StreamSleepConfig
 from sr_imitation.stream.results import RESULTS_VERSION
 from sr_imitation.stream.summary import group_runs, render_markdown, summarize
@@ -55,7 +55,7 @@ def stop_after(out: Path, point: tuple[int, str], **cfg) -> None:
             raise SimulatedKillError
 
     with pytest.raises(SimulatedKillError):
-        StreamTrainer(tiny_config(out, **cfg), after_phase=kill).run()
+        SACTrainer(tiny_config(out, **cfg), after_phase=kill).run()
 
 
 class SimulatedKillError(RuntimeError):
@@ -63,7 +63,7 @@ class SimulatedKillError(RuntimeError):
 
 
 def test_stream_end_to_end_and_resume_after_kill(tmp_path):
-    full = StreamTrainer(tiny_config(tmp_path / "full", plots=True)).run()
+    full = SACTrainer(tiny_config(tmp_path / "full", plots=True)).run()
     assert full["skills"] == ["reach", "door-open"]
     assert len(full["success_matrix"]) == 2 and full["success_matrix"][0][1] is None
     assert set(full["metrics"]) == {"afsr", "prs", "bwt", "bwt_wake", "spi"}
@@ -94,9 +94,9 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
             raise SimulatedKillError
 
     with pytest.raises(SimulatedKillError):
-        StreamTrainer(tiny_config(tmp_path / "killed"), after_stage=kill_after_first).run()
+        SACTrainer(tiny_config(tmp_path / "killed"), after_stage=kill_after_first).run()
     assert not (tmp_path / "killed" / "results.json").exists()
-    resumed = StreamTrainer(tiny_config(tmp_path / "killed", resume=True)).run()
+    resumed = SACTrainer(tiny_config(tmp_path / "killed", resume=True)).run()
     for key in ("success_matrix", "metrics"):
         assert resumed[key] == full[key], key
     strip = lambda r: {k: v for k, v in r.items() if k != "seconds"}  # noqa: E731
@@ -107,11 +107,11 @@ def test_stream_end_to_end_and_resume_after_kill(tmp_path):
 def test_output_dir_safety_and_loud_failures(tmp_path):
     out = tmp_path / "run"
     cfg = tiny_config(out, skills=["reach-v3"], eval=EvalConfig(episodes=1))
-    StreamTrainer(cfg).run()
+    SACTrainer(cfg).run()
     with pytest.raises(FileExistsError, match="--resume"):
-        StreamTrainer(tiny_config(out, skills=["reach-v3"])).run()
+        SACTrainer(tiny_config(out, skills=["reach-v3"])).run()
     with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: .*seed: 3 -> 4"):
-        StreamTrainer(tiny_config(out, skills=["reach-v3"], seed=4, resume=True)).run()
+        SACTrainer(tiny_config(out, skills=["reach-v3"], seed=4, resume=True)).run()
     # a killed two-skill run resumes from stage 1's checkpoint: a truncated one is refused naming it
     killed = tmp_path / "killed"
 
@@ -119,12 +119,12 @@ def test_output_dir_safety_and_loud_failures(tmp_path):
         raise SimulatedKillError
 
     with pytest.raises(SimulatedKillError):
-        StreamTrainer(tiny_config(killed, eval=EvalConfig(episodes=1)), after_stage=kill).run()
+        SACTrainer(tiny_config(killed, eval=EvalConfig(episodes=1)), after_stage=kill).run()
     ckpt = killed / "stages" / "01_reach" / "wake" / "agent.safetensors"
     ckpt.write_bytes(ckpt.read_bytes()[:-10])
     with pytest.raises(CorruptFileError, match="01_reach/wake/agent.safetensors"):
-        StreamTrainer(tiny_config(killed, eval=EvalConfig(episodes=1), resume=True)).run()
-    StreamTrainer(tiny_config(out, skills=["reach-v3"], eval=EvalConfig(episodes=1), overwrite=True)).run()
+        SACTrainer(tiny_config(killed, eval=EvalConfig(episodes=1), resume=True)).run()
+    SACTrainer(tiny_config(out, skills=["reach-v3"], eval=EvalConfig(episodes=1), overwrite=True)).run()
     assert json.loads((out / "results.json").read_text())["skills"] == ["reach"]
     with pytest.raises(ValueError, match="exclude each other"):
         tiny_config(out, resume=True, overwrite=True)
@@ -144,7 +144,7 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
     wake (common random numbers). With the old per-stage seed (seed_sequence(seed, k, 100 + i)) the reach episodes at
     stage 2 drew different configurations than at stage 1, and this test failed."""
     cfg = tiny_config(tmp_path / "paired", eval=EvalConfig(episodes=6, videos_per_skill=0), max_episode_steps=10)
-    trainer = StreamTrainer(cfg)
+    trainer = SACTrainer(cfg)
     agent = SACAgent(cfg.sac, cfg.excitability)
     trainer.substrate.agent = agent
     seen: list[tuple[str, int]] = []
@@ -177,7 +177,7 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
     assert wake_rows[-1] == rows_2[-1]
     assert rows_2[0] == rows_1[0]
     # Another run seed draws other configurations.
-    other = StreamTrainer(tiny_config(tmp_path / "other", seed=4, eval=EvalConfig(episodes=6, videos_per_skill=0),
+    other = SACTrainer(tiny_config(tmp_path / "other", seed=4, eval=EvalConfig(episodes=6, videos_per_skill=0),
                                       max_episode_steps=10))
     other.substrate.agent = agent
     _, stage_1_other = configurations(lambda: other.substrate.evaluate_rows(0, [0]))
@@ -187,7 +187,7 @@ def test_evaluation_is_paired_across_stages_and_after_wake(tmp_path, monkeypatch
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     out = tmp_path_factory.mktemp("uninterrupted") / "full"
-    return out, StreamTrainer(tiny_config(out, eval=EvalConfig(episodes=2, videos_per_skill=0))).run()
+    return out, SACTrainer(tiny_config(out, eval=EvalConfig(episodes=2, videos_per_skill=0))).run()
 
 
 @pytest.mark.parametrize("point", [(1, "wake"), (1, "wake.eval"), (1, "sleep")])
@@ -199,7 +199,7 @@ def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, un
 
     stop_after(tmp_path / "killed", point, **cfg)
     redone = []
-    resumed = StreamTrainer(tiny_config(tmp_path / "killed", resume=True, **cfg),
+    resumed = SACTrainer(tiny_config(tmp_path / "killed", resume=True, **cfg),
                             after_phase=lambda k, p: redone.append((k, p))).run()
     phases = [(1, p) for p in ("wake", "memory", "wake.eval", "sleep", "sleep.eval")]
     assert redone == phases[phases.index(point) + 1:]
@@ -225,7 +225,7 @@ def test_a_run_that_stored_its_config_as_config_json_resumes_from_it(tmp_path, u
     (run / "train_config.json").rename(run / "config.json")  # the layout of a run from before issue 29
     parsed = parse_args([f"--config_path={run / 'config.json'}", "--resume=true"])
     assert parsed.output_dir == run
-    resumed = StreamTrainer(parsed).run()
+    resumed = SACTrainer(parsed).run()
     assert resumed["metrics"] == uninterrupted[1]["metrics"]
     assert not (run / "train_config.json").exists()  # nothing stored at the start is rewritten
 
@@ -236,9 +236,9 @@ def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
     network initialization seed depends on the stream length (seed_sequence(seed, K, 1)), as the paper's MT8 continues
     from MT5's weights rather than re-running them."""
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
-    source = StreamTrainer(tiny_config(tmp_path / "mt1", skills=["reach-v3"], **cfg)).run()
+    source = SACTrainer(tiny_config(tmp_path / "mt1", skills=["reach-v3"], **cfg)).run()
     ran = []
-    extended = StreamTrainer(tiny_config(tmp_path / "mt2", extend_from=tmp_path / "mt1", **cfg),
+    extended = SACTrainer(tiny_config(tmp_path / "mt2", extend_from=tmp_path / "mt1", **cfg),
                              after_phase=lambda k, p: ran.append((k, p))).run()
     assert {k for k, _ in ran} == {1} and "sleep" in [p for _, p in ran]
     assert extended["success_matrix"][0][:1] == source["success_matrix"][0]
@@ -247,7 +247,7 @@ def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
     b, _ = load_checked_safetensors(tmp_path / "mt2" / "stages" / "01_reach" / "wake" / "agent.safetensors")
     assert all(torch.equal(a[n], b[n]) for n in a)
     with pytest.raises(SettingsMismatchError, match="sac.hidden_dim"):
-        StreamTrainer(tiny_config(tmp_path / "bad", extend_from=tmp_path / "mt1",
+        SACTrainer(tiny_config(tmp_path / "bad", extend_from=tmp_path / "mt1",
                                   sac=SACConfig(hidden_dim=16, batch_size=16, utd_ratio=0.5, warmup_steps=40,
                                                 buffer_size=5000), **cfg)).run()
     assert not (tmp_path / "bad").exists()
@@ -258,7 +258,7 @@ def test_an_unknown_skill_is_refused_before_the_first_gradient(tmp_path):
     preset). Now the trainer refuses it when built, naming ``stream.skills``, with nothing written."""
     out = tmp_path / "run"
     with pytest.raises(ValueError, match=r"^stream.skills: \['fooo-v3'\] are not Meta-World v3 environments"):
-        StreamTrainer(tiny_config(out, skills=["reach-v3", "fooo-v3"]))
+        SACTrainer(tiny_config(out, skills=["reach-v3", "fooo-v3"]))
     assert not out.exists()
 
 
@@ -281,5 +281,5 @@ def test_every_sealed_file_is_verified_before_a_resume_writes(tmp_path, uninterr
         (run / name).write_bytes(bytes(data))
         before = tree_state(run)
         with pytest.raises(CorruptFileError, match=re.escape(name)):
-            StreamTrainer(tiny_config(run, resume=True, **cfg)).run()
+            SACTrainer(tiny_config(run, resume=True, **cfg)).run()
         assert tree_state(run) == before, name

@@ -284,7 +284,7 @@ def test_method_options_replace_the_methods_own_settings_and_name_the_valid_ones
 
 def test_method_options_are_parsed_and_fingerprinted_on_both_substrates():
     from sr_imitation.imitation.cli import parse_train_args
-    from sr_imitation.imitation.stream import resume_fingerprint
+    from sr_imitation.imitation.trainer import resume_fingerprint
     from sr_imitation.rl.cli import parse
 
     act = parse_train_args(["--config_path=configs/needle_cpu.json", "--method=ewc", "--method_options={lam: 100}"])

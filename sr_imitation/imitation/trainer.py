@@ -3,7 +3,7 @@
 The algorithm is the stream engine's (:mod:`sr_imitation.stream.engine`, Algorithm 1 written once); the ACT
 substrate (:mod:`sr_imitation.imitation.substrate`) says what each phase does and which files it writes; the
 method (``--method``: :mod:`sr_imitation.stream.methods`) what is distilled, stored and whether it sleeps. This
-module holds :class:`StreamTrainer`, which checks every dataset of the stream, prepares the run directory and runs
+module holds :class:`ACTTrainer`, which checks every dataset of the stream, prepares the run directory and runs
 the engine; the configuration (:class:`TrainStreamConfig`, what a resume must keep) is
 :mod:`sr_imitation.imitation.config`'s, re-exported here.
 
@@ -50,14 +50,14 @@ from sr_imitation.stream.methods import check_method
 from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.rundir import point_last
 
-__all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "MemoryConfig", "StreamConfig", "StreamTrainer",
+__all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "MemoryConfig", "StreamConfig", "ACTTrainer",
            "TrainStreamConfig", "check_evaluation_envs", "inputs_check", "resume_fingerprint", "seed_everything",
            "stage_name", "stored_config_dict", "stream_inputs", "train_stream"]
 
 logger = logging.getLogger(__name__)
 
 
-class StreamTrainer(StreamRun):
+class ACTTrainer(StreamRun):
     """Runs (or resumes) one stream: the engine (:class:`~sr_imitation.stream.StreamEngine`) with the ACT substrate
     and ``cfg.method`` (:class:`~sr_imitation.stream.run.StreamRun`). Before the first phase every dataset and
     evaluation environment is checked and ``--policy.push_to_hub`` tried; after each stage's final phase
@@ -143,7 +143,7 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
     environment is built once, its action space and a reset observation must fit the policy's features
     (``input_features``, ``output_features``: those of the datasets) and, with videos, its recording twin must
     render ``rgb_array`` frames. ``ValueError`` naming the key (``eval.gym_ids[i]``, ``eval.env_type``,
-    ``eval.env_tasks[i]``). ``none``: nothing to check. A factory given to :class:`StreamTrainer` (``custom_env``,
+    ``eval.env_tasks[i]``). ``none``: nothing to check. A factory given to :class:`ACTTrainer` (``custom_env``,
     tests) replaces the environment ``--eval.env`` names."""
     mode, skills = cfg.eval.env, list(cfg.stream.skills)
     if mode == "none" or custom_env:
@@ -193,7 +193,7 @@ def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> 
     progress (the main process returns the results)."""
     processes = distributed.start(cpu=cfg.policy.device == "cpu")
     if not processes.distributed:
-        return StreamTrainer(cfg, make_env).run()
+        return ACTTrainer(cfg, make_env).run()
     if cfg.wake.batch_size < processes.world_size:
         raise ValueError(f"wake.batch_size: {cfg.wake.batch_size} rows cannot be split over {processes.world_size} "
                          "processes (each takes a slice of every batch); use at least one row per process")
@@ -204,7 +204,7 @@ def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> 
         logging.getLogger().setLevel(logging.WARNING)  # the main process logs the run
     distributed.barrier()  # every copy is taken before the main process touches the run directory
     try:
-        results = StreamTrainer(own, make_env).run()
+        results = ACTTrainer(own, make_env).run()
         distributed.barrier()
     finally:
         distributed.remove_scratch(own.output_dir, processes)
