@@ -31,3 +31,7 @@ def main(args: list[str] | None = None) -> None:
 def entry() -> None:
     """Console script ``sr-record``: :func:`main` with one-line user errors."""
     run_cli("sr-record", main)
+
+
+if __name__ == "__main__":
+    entry()
