@@ -122,7 +122,7 @@ def read_checked_json(path: str | os.PathLike[str]) -> dict[str, Any]:
 
     ``CorruptFileError`` naming the file if it is not valid JSON, not an object, has no sha256 or does not match
     it. A missing file raises ``FileNotFoundError``. (Readers of files from versions that wrote no seal decide by
-    the file's recorded schema version, e.g. :func:`sr_imitation.stream.results.load_results`.)
+    the file's recorded schema version, e.g. :func:`sr_imitation.reporting.results.load_results`.)
     """
     data = read_json(path)
     if not isinstance(data, dict):

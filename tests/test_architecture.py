@@ -19,23 +19,25 @@ ALLOWED: dict[str, set[str]] = {
     "core": {"io", "progress"},
     # run infrastructure: settings fingerprints, run log, provenance, command-line parsing and errors
     "infra": {"core", "io", "progress"},
-    # Algorithm 1, the method plugins and the shared results: substrate-free
+    # Algorithm 1 and the method plugins: substrate-free
     "stream": {"core", "io", "progress", "infra"},
+    # what reads run directories: the shared results schema, summaries, comparisons, paired tests, status
+    "reporting": {"core", "io", "progress", "infra", "stream"},
     # the needle world and what records it
     "offscreen": set(),
     "video": {"core", "io", "progress", "infra"},
     "envs": {"core", "io", "progress", "infra", "offscreen", "video"},
     "recorders": {"core", "io", "progress", "infra", "envs", "offscreen", "video"},
     # the two substrates (each with its own methods and configs); neither imports the other
-    "imitation": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen", "video"},
-    "rl": {"core", "io", "progress", "infra", "stream", "envs", "offscreen", "video"},  # Meta-World: envs/metaworld
+    "imitation": {"core", "io", "progress", "infra", "stream", "reporting", "envs", "recorders", "offscreen", "video"},
+    "rl": {"core", "io", "progress", "infra", "stream", "reporting", "envs", "offscreen", "video"},  # envs/metaworld
     # drivers: commands, experiments, benchmarks (anything below them)
     "cli": {"core", "io", "progress", "infra", "stream"},
-    "main_job": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen",
+    "main_job": {"core", "io", "progress", "infra", "stream", "reporting", "envs", "recorders", "offscreen",
                  "video", "imitation"},
-    "experiments": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen",
+    "experiments": {"core", "io", "progress", "infra", "stream", "reporting", "envs", "recorders", "offscreen",
                     "video", "imitation", "rl", "main_job"},
-    "benchmarks": {"core", "io", "progress", "infra", "stream", "envs", "recorders", "offscreen",
+    "benchmarks": {"core", "io", "progress", "infra", "stream", "reporting", "envs", "recorders", "offscreen",
                    "video", "imitation", "rl", "main_job", "experiments"},  # the grid benchmark times the runner
 }
 """Which top-level parts of ``sr_imitation`` each part may import."""

@@ -9,7 +9,7 @@ import pytest
 
 from sr_imitation.experiments.memory_budget import main
 from sr_imitation.io import write_checked_json
-from tests.stream.test_results import _results
+from tests.reporting.test_results import _results
 
 
 def _archive(root, budget, shifts):

@@ -102,7 +102,7 @@ def test_the_memory_budget_table_recomputes(text):
 
 def test_the_vision_rows_so_far_recompute():
     """Every filled cell of the vision table's "Runs so far" rows (typed in as each run landed) against its run."""
-    from sr_imitation.stream.summary import phase_seconds
+    from sr_imitation.reporting.summary import phase_seconds
 
     archive = DOCS / "results" / "needle_cpu_vision_compare"
     rows = _table_rows("| training seed | SR | wake-only | SR - wake-only | SR BWT / BWT_wake | "
@@ -128,7 +128,7 @@ def test_the_vision_rows_so_far_recompute():
 
 def test_the_vision_baseline_rows_so_far_recompute():
     """Every filled cell of the vision table's "Baselines so far" rows against its run (and SR's at the same seed)."""
-    from sr_imitation.stream.summary import phase_seconds
+    from sr_imitation.reporting.summary import phase_seconds
 
     archive = DOCS / "results" / "needle_cpu_vision_compare"
     rows = _table_rows("| variant | training seed | final AFSR | AFSR - SR (same seed) | BWT / BWT_wake | minutes |")

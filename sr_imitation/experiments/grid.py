@@ -59,7 +59,7 @@ from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import format_duration
-from sr_imitation.stream.results import final_headline
+from sr_imitation.reporting.results import final_headline
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 
 logger = logging.getLogger(__name__)
@@ -261,7 +261,7 @@ def _task(module: str, variant: str, run: Any, log_file: str, threads: int) -> d
 
 # -- the grid --------------------------------------------------------------------------------------------------
 def _final_metric(run_dir: Path) -> str:
-    """The run's :func:`~sr_imitation.stream.results.final_headline`; ``AFSR -`` if its results are unreadable."""
+    """The run's :func:`~sr_imitation.reporting.results.final_headline`; ``AFSR -`` if its results are unreadable."""
     try:
         return final_headline(json.loads((Path(run_dir) / "results.json").read_text()))
     except (OSError, ValueError, AttributeError, TypeError):
@@ -448,7 +448,7 @@ def main(args: list[str] | None = None, config_class: type[GridConfig] = GridCon
          substrate: GridSubstrate | None = None) -> None:
     """Parse ``args`` into ``config_class`` (the comparison modules pass theirs, with their defaults), run the grid,
     print the final means and where the tables are."""
-    from sr_imitation.stream.summary import print_final_means
+    from sr_imitation.reporting.summary import print_final_means
 
     setup_offscreen_rendering()
     setup_logging()

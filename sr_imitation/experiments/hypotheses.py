@@ -4,9 +4,9 @@
         '--tests=[sr>wake_only,sr!=replay]' --metric=afsr --output=docs/results/needle_cpu_m16_compare/hypotheses
 
 A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0, ``A!=B`` the two-sided one
-(:func:`sr_imitation.stream.stats.paired_test`, with the exact sign-flip p beside it), over the training seeds both
+(:func:`sr_imitation.reporting.stats.paired_test`, with the exact sign-flip p beside it), over the training seeds both
 variants have in the archive (``<variant>_seed<S>/results.json``, read and checked by
-:func:`sr_imitation.stream.results.load_results`); each seed's value is the run's final metric (its mean over
+:func:`sr_imitation.reporting.results.load_results`); each seed's value is the run's final metric (its mean over
 evaluation units), or for runs without closed-loop evaluation (``--eval.env=none``: a real robot's datasets and no
 simulator) an offline one (:data:`LOSS_METRICS`: lower is better, so the test of "sleep helps" is ``sr<wake_only``).
 Written: ``hypotheses.md`` and ``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference,
@@ -27,8 +27,8 @@ import numpy as np
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.stream.results import LOSS_METRICS, METRICS, final_loss, load_results
-from sr_imitation.stream.stats import holm, paired_test
+from sr_imitation.reporting.results import LOSS_METRICS, METRICS, final_loss, load_results
+from sr_imitation.reporting.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
 

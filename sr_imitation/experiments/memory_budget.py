@@ -24,7 +24,7 @@ import numpy as np
 from sr_imitation.experiments.hypotheses import archived_runs
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.stream.summary import mean_sem_dict
+from sr_imitation.reporting.summary import mean_sem_dict
 
 logger = logging.getLogger(__name__)
 

@@ -36,10 +36,10 @@ from typing import Any
 from sr_imitation.experiments.archive import RunKey
 from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
+from sr_imitation.reporting.summary import load_groups, write_summary
+from sr_imitation.reporting.summary import summarize as summary_of
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
-from sr_imitation.stream.summary import load_groups, write_summary
-from sr_imitation.stream.summary import summarize as summary_of
 
 logger = logging.getLogger(__name__)
 

@@ -27,7 +27,7 @@ grid then answers "does sleep help on my skills?" with ``--variants=[sr,wake_onl
 with the same settings and copies every run finished now into it, so a comparison spread over sessions keeps its raw
 outputs in one place.
 
-Written to ``output_root`` (:func:`sr_imitation.stream.summary.write_summary`): ``summary.md`` / ``.json`` /
+Written to ``output_root`` (:func:`sr_imitation.reporting.summary.write_summary`): ``summary.md`` / ``.json`` /
 ``.png`` (the final AFSR, PRS, BWT against both references and SPI, mean +- SE over training seeds, each seed's
 value its mean over evaluation seeds; every metric's paired difference to ``sr`` over the seeds both have; the
 final success per skill and the success right after each skill's own wake), ``dynamics.png`` (the metrics after
@@ -52,10 +52,10 @@ from sr_imitation.imitation.cli import parse_train_config
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.trainer import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
+from sr_imitation.reporting.summary import load_groups, write_summary
+from sr_imitation.reporting.summary import summarize as summary_of
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
-from sr_imitation.stream.summary import load_groups, write_summary
-from sr_imitation.stream.summary import summarize as summary_of
 
 logger = logging.getLogger(__name__)
 
@@ -201,7 +201,7 @@ def run_compare(cfg: CompareConfig) -> dict:
 
 
 def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
-    """The shared multi-run summary (:mod:`sr_imitation.stream.summary`) of ``{variant: {seed: run directory}}``,
+    """The shared multi-run summary (:mod:`sr_imitation.reporting.summary`) of ``{variant: {seed: run directory}}``,
     paired against ``sr`` (against the first variant without it); writes the tables and plots."""
     groups = load_groups(runs)
     summary = summary_of(groups, PAIRED_BASELINE if PAIRED_BASELINE in groups else next(iter(groups)))

@@ -47,7 +47,7 @@ from sr_imitation.imitation.trainer import (
 from sr_imitation.imitation.wake import wake_train
 from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
 from sr_imitation.infra.provenance import log_code_version
-from sr_imitation.stream.results import build_results, write_results
+from sr_imitation.reporting.results import build_results, write_results
 from sr_imitation.stream.rundir import RunDirectory
 
 logger = logging.getLogger(__name__)

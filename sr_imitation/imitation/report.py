@@ -1,4 +1,4 @@
-"""The ACT substrate's measurements for the shared results (:mod:`sr_imitation.stream.results`): success matrices
+"""The ACT substrate's measurements for the shared results (:mod:`sr_imitation.reporting.results`): success matrices
 and SPI curves per evaluation seed (the evaluation unit), from the files the stream wrote.
 
 Everything is rebuilt from the files the stream wrote (``eval.json`` and ``trajectories.npz`` per phase), so a
@@ -9,7 +9,7 @@ sleep when there is one), ``bwt_wake`` the success on skill i right after its ow
 i). Both are computed per evaluation seed: the seed's episodes reset identically in every phase, so the
 differences are paired. SPI uses only the tool's own state (``imitation.evaluate.SPI_FEATURES``), sliced here.
 
-Files (written by :func:`sr_imitation.stream.results.write_results`): ``results.json``, ``results.md``,
+Files (written by :func:`sr_imitation.reporting.results.write_results`): ``results.json``, ``results.md``,
 ``metrics.png``, ``success_matrix.png``.
 
 Without an evaluation environment (``--eval.env=none``) there is no success: the results say ``evaluation: none``,
@@ -31,7 +31,7 @@ from sr_imitation.envs.metaworld.tasks import MT5_PAIRS, canonical_skill
 from sr_imitation.envs.needle.skills import PRS_PAIRS as SURGICAI_PAIRS
 from sr_imitation.imitation.evaluate import spi_features
 from sr_imitation.io import load_checked_safetensors, read_checked_json
-from sr_imitation.stream.results import (
+from sr_imitation.reporting.results import (
     build_results,
     memory_budget,
     metric_curves,
@@ -151,7 +151,7 @@ def write_report(
     evaluation: str = "needle",
 ) -> dict[str, Any]:
     """Build results.json, results.md, metrics.png and success_matrix.png in ``out`` (the shared schema of
-    :mod:`sr_imitation.stream.results`; evaluation units are the evaluation seeds). ``evaluation``: the run's
+    :mod:`sr_imitation.reporting.results`; evaluation units are the evaluation seeds). ``evaluation``: the run's
     ``--eval.env`` (``none``: no success, :func:`loss_matrices` instead, no plots)."""
     pairs = pair_list(pairs_name, skills)
     done = progress["completed"]

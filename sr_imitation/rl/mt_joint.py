@@ -30,12 +30,12 @@ from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerp
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
+from sr_imitation.reporting.results import build_results, write_results
 from sr_imitation.rl.config import RESUME_ALLOW_LIST, RLTrainConfig, SkillBudget
 from sr_imitation.rl.evaluate import evaluate_policy, evaluation_configurations
 from sr_imitation.rl.results import prs_pairs
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.wake import train_skill
-from sr_imitation.stream.results import build_results, write_results
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, RunDirectory
 from sr_imitation.stream.substrate import seed_sequence
 

@@ -1,4 +1,4 @@
-"""The shared results of a finished SAC run (:mod:`sr_imitation.stream.results`), from its recorded phases.
+"""The shared results of a finished SAC run (:mod:`sr_imitation.reporting.results`), from its recorded phases.
 
 ``results.json``, ``results.md`` and, with ``cfg.plots``, ``metrics.png`` / ``success_matrix.png``: the success
 matrix, the after-wake evaluation, SPI against each skill's own trajectories, memory bytes by kind and one record per
@@ -17,10 +17,10 @@ from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import all_pairs, spi_at_stage
 from sr_imitation.envs.metaworld.tasks import MT5_PAIRS, canonical_skill
 from sr_imitation.io import load_checked_safetensors, read_checked_json
+from sr_imitation.reporting import results as shared_results
+from sr_imitation.reporting.results import build_results
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.evaluate import SPI_FEATURES
-from sr_imitation.stream import results as shared_results
-from sr_imitation.stream.results import build_results
 from sr_imitation.stream.substrate import PHASES
 
 SUBSTRATE = "sac"
@@ -82,7 +82,7 @@ def _stage_records(sub: RunFiles, progress: dict[str, Any]) -> list[dict[str, An
 
 
 def write_results(sub: RunFiles, progress: dict[str, Any], memories: list[Memory]) -> dict[str, Any]:
-    """Build the shared results (:mod:`sr_imitation.stream.results`: ``results.json``, ``results.md`` and, with
+    """Build the shared results (:mod:`sr_imitation.reporting.results`: ``results.json``, ``results.md`` and, with
     ``cfg.plots``, ``metrics.png`` / ``success_matrix.png``) of a finished run from its phases. One evaluation unit:
     every stage evaluates a skill on the same fixed configurations."""
     cfg = sub.cfg

@@ -1,5 +1,5 @@
 """``sr-train --substrate=sac``: the stream engine with :class:`~sr_imitation.rl.substrate.SACSubstrate` and
-``cfg.method``, and the measurements of a finished run for the shared results (:mod:`sr_imitation.stream.results`).
+``cfg.method``, and the measurements of a finished run for the shared results (:mod:`sr_imitation.reporting.results`).
 
 Output layout (every file written atomically; ``progress.json`` records each phase after its files)::
 
@@ -22,10 +22,10 @@ from collections.abc import Callable
 from pathlib import Path
 
 from sr_imitation.infra.distributed import launched_world_size
+from sr_imitation.reporting.results import RESULTS_VERSION
 from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.rl.results import prs_pairs, write_results
 from sr_imitation.rl.substrate import CHECKPOINT_FORMAT, CHECKPOINT_VERSION, SACSubstrate
-from sr_imitation.stream.results import RESULTS_VERSION
 from sr_imitation.stream.run import StreamRun
 
 logger = logging.getLogger(__name__)

@@ -6,7 +6,7 @@ import pytest
 
 from sr_imitation.experiments.calibration import CalibrationConfig, main, read_calibration
 from sr_imitation.io import write_checked_json
-from tests.stream.test_results import _results
+from tests.reporting.test_results import _results
 
 
 def _archive(root, variants: dict[str, float], seeds=(100, 101, 102)) -> None:

@@ -12,7 +12,7 @@ from sr_imitation.envs.needle.env import STATE_DIM, STATE_NAMES
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.imitation.evaluate import NEEDLE_STATE_DIM, SPI_FEATURES, spi_features
 from sr_imitation.imitation.report import _spi_curves
-from sr_imitation.stream.results import metric_curves
+from sr_imitation.reporting.results import metric_curves
 
 
 def _episode(env: NeedleEnv, seed: int, policy: str, max_steps: int) -> np.ndarray:

@@ -8,9 +8,9 @@ import json
 import pytest
 
 from sr_imitation.experiments.mt5_compare import VARIANTS, MT5CompareConfig, run_args, run_compare
+from sr_imitation.reporting.summary import memory_table
 from sr_imitation.rl.cli import parse
 from sr_imitation.stream import METHODS
-from sr_imitation.stream.summary import memory_table
 from tests.rl.test_trainer import tiny_config
 
 
@@ -132,7 +132,7 @@ def test_the_memory_table_describes_critic_memories_when_every_run_is_archived()
 
     script = """
 import sr_imitation.experiments.mt5_compare as m
-from sr_imitation.stream.summary import memory_table
+from sr_imitation.reporting.summary import memory_table
 m.load_groups = lambda runs: {"agem": {}}
 m.summary_of = lambda groups, baseline: {"variants": {"agem": {
     "memory_bytes_total": {"mean": 1e6}, "memory_kinds": {"sac_critic": 1000000}}}}

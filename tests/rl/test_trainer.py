@@ -15,6 +15,8 @@ import torch
 from sr_imitation.envs.metaworld.tasks import SkillEnv
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
+from sr_imitation.reporting.results import RESULTS_VERSION
+from sr_imitation.reporting.summary import group_runs, render_markdown, summarize
 from sr_imitation.rl.config import (
     CriticMemoryConfig,
     EvalConfig,
@@ -26,8 +28,6 @@ from sr_imitation.rl.config import (
 from sr_imitation.rl.sac import SACAgent
 from sr_imitation.rl.trainer import SACTrainer
 from sr_imitation.stream.config import StreamSleepConfig
-from sr_imitation.stream.results import RESULTS_VERSION
-from sr_imitation.stream.summary import group_runs, render_markdown, summarize
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -1,4 +1,4 @@
-"""Where runs stand, read from their files: ``python -m sr_imitation.stream.status RUN_OR_FOLDER [...]``.
+"""Where runs stand, read from their files: ``python -m sr_imitation.reporting.status RUN_OR_FOLDER [...]``.
 
 A run is a directory with ``progress.json`` (any substrate, any method, the MT-Joint oracle included), or one that
 has started and recorded no phase yet (only its settings fingerprint: "started" in the last-phase column); a folder of
@@ -10,7 +10,7 @@ its completed stages' times (two at least) extrapolated linearly in the stage in
 memories and sleep over more of them; our choice) over the stages left, less what the current stage has recorded. A
 stage is complete when its last phase is recorded: its sleep's evaluation where the run sleeps (``sleep.enabled``,
 stage >= 2), else its wake's (a method with other phases gets a rougher estimate). A ``results.json`` is read as the
-summaries read it (:func:`~sr_imitation.stream.results.load_results`): one that does not match its seal is shown as
+summaries read it (:func:`~sr_imitation.reporting.results.load_results`): one that does not match its seal is shown as
 not trusted, without its numbers; one of a schema before seals is marked unsealed. Reads only; writes nothing.
 """
 
@@ -28,7 +28,7 @@ import numpy as np
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE
 from sr_imitation.io import JSON_CHECKSUM, CorruptFileError
 from sr_imitation.progress import format_duration
-from sr_imitation.stream.results import final_headline, load_results, variant_label
+from sr_imitation.reporting.results import final_headline, load_results, variant_label
 from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
 from sr_imitation.stream.substrate import PHASE_IDS
 
@@ -133,4 +133,4 @@ def main(args: list[str] | None = None) -> None:
 if __name__ == "__main__":
     from sr_imitation.infra.cli_errors import run_cli
 
-    run_cli("sr_imitation.stream.status", main)
+    run_cli("sr_imitation.reporting.status", main)

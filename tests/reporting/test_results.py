@@ -12,7 +12,7 @@ import pytest
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.provenance import process_code_version
 from sr_imitation.io import CorruptFileError, read_checked_json, write_checked_json
-from sr_imitation.stream.results import (
+from sr_imitation.reporting.results import (
     RESULTS_VERSION,
     SEALED_SINCE,
     build_results,
@@ -21,7 +21,7 @@ from sr_imitation.stream.results import (
     upgrade_results,
     write_results,
 )
-from sr_imitation.stream.summary import (
+from sr_imitation.reporting.summary import (
     group_runs,
     load_groups,
     main,
@@ -30,7 +30,7 @@ from sr_imitation.stream.summary import (
     summarize,
     write_summary,
 )
-from sr_imitation.stream.summary import render_markdown as render_markdown_summary
+from sr_imitation.reporting.summary import render_markdown as render_markdown_summary
 
 DOCS = Path(__file__).resolve().parents[2] / "docs" / "results"
 N = np.nan
@@ -206,7 +206,7 @@ def test_a_results_file_without_its_seal_is_refused_unless_its_schema_predates_s
     with pytest.raises(CorruptFileError, match=r"run/results.json: has no sha256"):
         load_results(run)
     with pytest.raises(SystemExit, match="2"):  # the command: one line naming the file, exit status 2
-        run_cli("sr_imitation.stream.summary", main, [str(run), f"--output={tmp_path / 'summary'}"])
+        run_cli("sr_imitation.reporting.summary", main, [str(run), f"--output={tmp_path / 'summary'}"])
     old = {k: v for k, v in data.items() if k != "sha_256"} | {"results_version": 4}  # claims a schema before seals
     (run / "results.json").write_text(json.dumps(old))  # ... with the edited AFSR: not what that schema wrote
     with pytest.raises(CorruptFileError, match=r"results.json: unsealed \(results_version 4\) and its final AFSR"):
@@ -260,7 +260,7 @@ def test_summary_command_over_the_committed_needle_runs(tmp_path, capsys):
 
 
 def test_results_md_states_the_binomial_noise_of_a_success_cell():
-    from sr_imitation.stream.results import render_markdown
+    from sr_imitation.reporting.results import render_markdown
 
     md = render_markdown(_results())  # config: 5 episodes per unit, two units: 10 episodes per cell
     assert "A success cell pools 10 episodes (5 per evaluation unit): its binomial SE is up to 0.158" in md

@@ -1,4 +1,4 @@
-"""sr_imitation.stream.compare: two runs agree when every number they measured is equal (or within --tol), timings
+"""sr_imitation.reporting.compare: two runs agree when every number they measured is equal (or within --tol), timings
 aside; the command says where they differ and exits 1."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ from pathlib import Path
 import pytest
 
 from sr_imitation.io import read_checked_json, write_checked_json
-from sr_imitation.stream.compare import compare_runs, leaves, main
+from sr_imitation.reporting.compare import compare_runs, leaves, main
 from tests.stream.conftest import make_engine
 
 
@@ -87,7 +87,7 @@ def test_a_results_file_that_does_not_match_its_seal_is_refused_not_compared(run
     at = text.index('"final": ') + len('"final": ')
     path.write_text(text[:at] + ("2" if text[at] != "2" else "3") + text[at + 1:])  # one flipped digit
     with pytest.raises(SystemExit) as exc:
-        run_cli("sr_imitation.stream.compare", main, [str(a), str(b)])
+        run_cli("sr_imitation.reporting.compare", main, [str(a), str(b)])
     err = capsys.readouterr().err
     assert exc.value.code == 2 and err.count("\n") == 1 and f"{path}: contents do not match its sha256" in err
 
@@ -99,7 +99,7 @@ def test_a_folder_without_runs_is_one_line(runs, run_a, tmp_path, capsys):
     empty = tmp_path / "empty"
     empty.mkdir()
     with pytest.raises(SystemExit) as exit_:
-        run_cli("sr_imitation.stream.compare", main, [str(runs["a"] if run_a else empty), str(empty)])
+        run_cli("sr_imitation.reporting.compare", main, [str(runs["a"] if run_a else empty), str(empty)])
     assert exit_.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1
@@ -132,7 +132,7 @@ def test_runs_that_have_measured_nothing_yet_do_not_agree(tmp_path, capsys):
 
 
 def test_the_code_that_wrote_each_run_is_named(runs, tmp_path):
-    from sr_imitation.stream.compare import run_commit
+    from sr_imitation.reporting.compare import run_commit
 
     assert run_commit(runs["a"]) == "unknown commit"  # the toy writes no results.json
     (tmp_path / "results.json").write_text(json.dumps({"code": {"commit": "0123456789abcdef", "dirty": True}}))

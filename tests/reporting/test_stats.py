@@ -1,4 +1,4 @@
-"""The pre-registered paired tests (sr_imitation.stream.stats) against SciPy, over families of inputs."""
+"""The pre-registered paired tests (sr_imitation.reporting.stats) against SciPy, over families of inputs."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import pytest
 from scipy import special
 from scipy import stats as scipy_stats
 
-from sr_imitation.stream.stats import betainc, paired_test, t_sf
+from sr_imitation.reporting.stats import betainc, paired_test, t_sf
 
 
 @pytest.mark.parametrize("a, b", [(0.5, 0.5), (2.0, 0.5), (0.5, 3.0), (10.0, 0.5), (1.5, 1.5)])
@@ -57,7 +57,7 @@ def test_edge_cases():
 
 
 def test_holm_adjustment_known_values_and_properties():
-    from sr_imitation.stream.stats import holm
+    from sr_imitation.reporting.stats import holm
 
     assert holm([0.01, 0.04, 0.03, 0.005]) == pytest.approx([0.03, 0.06, 0.06, 0.02])  # 4x, 3x, 2x then monotone
     assert holm([0.2]) == [0.2] and holm([]) == []
@@ -82,7 +82,7 @@ def test_the_hypotheses_command_pairs_archived_runs_by_seed(tmp_path, capsys):
 
     from sr_imitation.experiments.hypotheses import HypothesesConfig, main
     from sr_imitation.io import write_checked_json
-    from tests.stream.test_results import _results
+    from tests.reporting.test_results import _results
 
     shifts = {"sr": [0.0, -0.05, -0.02, -0.03], "wake_only": [-0.1, -0.06, -0.14]}  # wake_only has no seed 3
     for variant, values in shifts.items():
@@ -115,7 +115,7 @@ def test_runs_without_evaluation_are_tested_on_their_final_validation_l1(tmp_pat
 
     from sr_imitation.experiments.hypotheses import HypothesesConfig, main
     from sr_imitation.io import write_checked_json
-    from tests.stream.test_results import _results
+    from tests.reporting.test_results import _results
 
     last_rows = {"sr": [[0.30, 0.20, 0.10], [0.28, 0.22, 0.12]], "wake_only": [[0.45, 0.30, 0.10], [0.40, 0.35, 0.11]]}
     for variant, rows in last_rows.items():
@@ -155,7 +155,7 @@ def test_a_flag_value_the_shell_cut_short_is_one_line_naming_the_value(tmp_path,
 def test_the_sign_flip_p_is_the_exact_fraction_of_sign_assignments():
     import itertools
 
-    from sr_imitation.stream.stats import sign_flip_p
+    from sr_imitation.reporting.stats import sign_flip_p
 
     rng = np.random.default_rng(3)
     for n in (1, 3, 5, 8):
@@ -176,7 +176,7 @@ def test_the_sign_flip_p_is_the_exact_fraction_of_sign_assignments():
 
 def test_a_family_spans_archives_and_labels_are_exploratory_unless_pre_registered(tmp_path):
     from sr_imitation.experiments.hypotheses import HypothesesConfig, render, run_tests
-    from sr_imitation.stream.stats import holm
+    from sr_imitation.reporting.stats import holm
 
     first, second = tmp_path / "one", tmp_path / "two"
     _archive(first, {"sr": [0.7, 0.6, 0.65], "wake_only": [0.5, 0.55, 0.4]})
@@ -197,7 +197,7 @@ def test_a_family_spans_archives_and_labels_are_exploratory_unless_pre_registere
 def _archive(folder, finals: dict[str, list[float]]) -> None:
     """Runs ``<variant>_seed<S>`` whose final AFSR is the given value (the toy results' 0.7 shifted)."""
     from sr_imitation.io import write_checked_json
-    from tests.stream.test_results import _results
+    from tests.reporting.test_results import _results
 
     for variant, values in finals.items():
         for seed, value in enumerate(values):

@@ -1,6 +1,6 @@
 """One multi-run summary for both substrates: mean +- SE over training seeds and paired differences.
 
-    python -m sr_imitation.stream.summary RUN_DIR [NAME=RUN_DIR ...] [--output=DIR] [--baseline=wake_only]
+    python -m sr_imitation.reporting.summary RUN_DIR [NAME=RUN_DIR ...] [--output=DIR] [--baseline=wake_only]
 
 Runs are grouped by variant (``NAME``, else ``results["label"]``: the method, ``wake_only`` for ``sr`` without
 sleep) and, within a variant, by training seed. For every variant: the final AFSR, PRS, BWT (reference after
@@ -8,10 +8,10 @@ stage i), BWT_wake (reference right after skill i's own wake) and SPI, the final
 right after each skill's own wake, each as mean +- SE over training seeds (each seed's value is its mean over
 evaluation units), and every metric's paired difference to the baseline variant over the training seeds both have.
 Runs without closed-loop evaluation (``--eval.env=none``) have none of these; for them the final validation l1 and
-memory loss (:data:`~sr_imitation.stream.results.LOSS_METRICS`, lower is better) take their place, paired the same
+memory loss (:data:`~sr_imitation.reporting.results.LOSS_METRICS`, lower is better) take their place, paired the same
 way. Written as ``summary.json``, ``summary.md`` and ``summary.png`` (bars with the seeds as dots). Used by
 ``sr_imitation.experiments.needle_compare`` and ``sr_imitation.experiments.mt5_compare``; reads results of every
-schema version (:func:`sr_imitation.stream.results.upgrade_results`).
+schema version (:func:`sr_imitation.reporting.results.upgrade_results`).
 """
 
 from __future__ import annotations
@@ -27,7 +27,7 @@ import numpy as np
 
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.stream.results import LOSS_METRICS, METRICS, final_loss, load_results
+from sr_imitation.reporting.results import LOSS_METRICS, METRICS, final_loss, load_results
 from sr_imitation.stream.rundir import read_progress
 
 SHORT = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
@@ -179,7 +179,7 @@ def _final_tables(summary: Mapping[str, Any], names: Sequence[str]) -> list[str]
 
 def _offline_table(summary: Mapping[str, Any]) -> list[str]:
     """Runs without closed-loop evaluation (``--eval.env=none``): their final validation l1 and memory loss
-    (:data:`~sr_imitation.stream.results.LOSS_METRICS`) per variant and paired to the baseline; nothing otherwise."""
+    (:data:`~sr_imitation.reporting.results.LOSS_METRICS`) per variant and paired to the baseline; nothing otherwise."""
     variants, paired, base = summary["variants"], summary["paired"], summary.get("baseline")
     names = [v for v, row in variants.items() if row.get("offline")]
     if not names:
@@ -447,4 +447,4 @@ def main(args: list[str] | None = None) -> None:
 if __name__ == "__main__":
     from sr_imitation.infra.cli_errors import run_cli
 
-    run_cli("sr_imitation.stream.summary", main)
+    run_cli("sr_imitation.reporting.summary", main)

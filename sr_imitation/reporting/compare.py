@@ -1,4 +1,4 @@
-"""Do two runs agree? ``python -m sr_imitation.stream.compare RUN_A RUN_B [--tol 0]``.
+"""Do two runs agree? ``python -m sr_imitation.reporting.compare RUN_A RUN_B [--tol 0]``.
 
 Two folders of runs (two grids' ``output_root``, an archive and its re-run) are compared run by run, paired by their
 path below the folder: a row per run and exit 0 when every pair agrees and both hold the same runs.
@@ -32,9 +32,9 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.io import read_json
-from sr_imitation.stream.results import read_results_file
+from sr_imitation.reporting.results import read_results_file
+from sr_imitation.reporting.status import find_runs, is_run  # the same run search as status (one or two levels down)
 from sr_imitation.stream.rundir import PROGRESS_FILE, read_progress
-from sr_imitation.stream.status import find_runs, is_run  # the same run search as status (one or two levels down)
 
 RESULTS_KEYS = ("success_matrix", "success_matrix_per_unit", "success_after_own_wake",
                 "success_after_own_wake_per_unit", "metrics", "memory_bytes", "skills", "stages")
@@ -186,4 +186,4 @@ def main(args: list[str] | None = None) -> int:
 if __name__ == "__main__":
     from sr_imitation.infra.cli_errors import run_cli
 
-    sys.exit(run_cli("sr_imitation.stream.compare", main))
+    sys.exit(run_cli("sr_imitation.reporting.compare", main))

@@ -1,4 +1,4 @@
-"""sr_imitation.stream.status: where runs stand, read from their files (stages done, last phase, compute, a rough
+"""sr_imitation.reporting.status: where runs stand, read from their files (stages done, last phase, compute, a rough
 time left that grows with the stage, finished runs' final metric)."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from sr_imitation.io import write_checked_json
-from sr_imitation.stream.status import find_runs, main, run_status
+from sr_imitation.reporting.status import find_runs, main, run_status
 
 SKILLS = ["a", "b", "c", "d", "e"]
 
