@@ -52,6 +52,7 @@ from sr_imitation.recorders.needle import (
     _replace_dir,
     episode_seed,
     foreign_dataset_problem,
+    quiet_dataset_progress,
 )
 
 logger = logging.getLogger(__name__)
@@ -237,7 +238,8 @@ def record(cfg: MetaWorldRecordConfig) -> list[Path]:
         if problem is not None:
             raise FileExistsError(f"{target}: --overwrite=true refused: {problem}; remove or move it yourself, or "
                                   "choose another root (nothing was removed)")
-    return [record_task(cfg, task, zlib.crc32(task.encode()) % 100) for task in cfg.skills]
+    with quiet_dataset_progress():
+        return [record_task(cfg, task, zlib.crc32(task.encode()) % 100) for task in cfg.skills]
 
 
 def main(args: list[str]) -> list[Path]:

@@ -212,6 +212,21 @@ def run_demo(env: NeedleEnv, seed: int, scene_video: bool, expert: ExpertSetting
             return frames, scene, bool(info["is_success"])
 
 
+@contextlib.contextmanager
+def quiet_dataset_progress():
+    """Hugging Face ``datasets``' per-episode ``Map:`` progress bars off while a recorder writes (one line per
+    episode would flood the log; the recorder's own progress line says how far it is); restored afterwards."""
+    from datasets.utils import logging as hf_logging
+
+    was_enabled = hf_logging.is_progress_bar_enabled()
+    hf_logging.disable_progress_bar()
+    try:
+        yield
+    finally:
+        if was_enabled:
+            hf_logging.enable_progress_bar()
+
+
 def _replace_dir(src: Path, dst: Path) -> None:
     """Move the finished ``src`` to ``dst``; an existing ``dst`` is swapped out first, then deleted."""
     old = None
@@ -400,7 +415,8 @@ def record(cfg: RecordConfig) -> list[Path]:
             )
     else:
         check_overwrite(cfg)
-    return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
+    with quiet_dataset_progress():
+        return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
 
 
 def main(args: list[str] | None = None) -> None:

@@ -115,10 +115,11 @@ def test_recorded_datasets_load_with_lerobots_own_class(recorded):
         assert bool(last["next.success"]) and bool(last["next.done"])  # each episode ends at its success
 
 
-def test_recording_is_byte_reproducible(recorded, tmp_path):
+def test_recording_is_byte_reproducible_and_quiet(recorded, tmp_path, capfd):
     import hashlib
 
     record(MetaWorldRecordConfig(skills=TASKS[:1], num_episodes=2, root=tmp_path, camera="corner2", image_size=16))
+    assert "Map:" not in capfd.readouterr().err  # no per-episode progress bar of Hugging Face datasets
 
     def digest(root: Path) -> dict[str, str]:
         return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
