@@ -61,13 +61,13 @@ CHOICES: dict[str, list[Any]] = {
     "policy.normalization_mapping.VISUAL": MAPPING,
     "policy.normalization_mapping.STATE": MAPPING,
     "policy.normalization_mapping.ACTION": MAPPING,
-    "stream.pairs": ["surgicai", "all", "adjacent"],
-    "stream.stats": ["first", "union"],
+    "stream.pairs": ["surgicai", "mt5", "all", "adjacent"],
+    "stream.stats": ["first", "seen", "union"],
     "method_options": [{"lam": 100.0}],
     "wake.restore": ["best", "last"],
     "stream.video_backend": ["pyav", "torchcodec"],
     "eval.thresholds": sorted(THRESHOLD_PRESETS),
-    "eval.env": ["needle", "gym", "lerobot", "none"],  # none alone is valid; gym and lerobot need their keys
+    "eval.env": ["needle", "metaworld", "gym", "lerobot", "none"],  # none alone is valid; gym and lerobot need their keys
     # free strings and paths: another value
     "stream.repo_id_prefix": ["local/other_prefix"],
     "stream.dataset_root": ["/elsewhere/needle"],
