@@ -67,7 +67,7 @@ CHOICES: dict[str, list[Any]] = {
     "wake.restore": ["best", "last"],
     "stream.video_backend": ["pyav", "torchcodec"],
     "eval.thresholds": sorted(THRESHOLD_PRESETS),
-    "eval.env": ["needle", "metaworld", "gym", "lerobot", "none"],  # none alone is valid; gym and lerobot need their keys
+    "eval.env": ["needle", "metaworld", "gym", "lerobot", "none"],  # none alone is valid; gym, lerobot need keys
     # free strings and paths: another value
     "stream.repo_id_prefix": ["local/other_prefix"],
     "stream.dataset_root": ["/elsewhere/needle"],
