@@ -217,6 +217,13 @@ class RunDirectory:
             return path.exists() or path.is_symlink()
         return any(not fnmatch.fnmatchcase(p.name, START_LEFTOVER) for p in path.iterdir())
 
+    @staticmethod
+    def set_aside_runs(path: Path) -> list[Path]:
+        """Old runs ``--overwrite`` renamed aside beside ``path`` (``.<name>.replaced-*``) and left there: a start
+        killed between the rename and its first phase."""
+        path = Path(path)
+        return sorted(path.parent.glob(f".{path.name}{REPLACED_MARK}*")) if path.parent.is_dir() else []
+
     def starts_fresh(self) -> bool:
         """Whether :meth:`prepare` will start a new run (nothing there yet, or ``overwrite``)."""
         return self.overwrite or not self.occupied(self.path)
@@ -226,6 +233,10 @@ class RunDirectory:
         checked: with ``overwrite`` the old run is renamed aside here (:meth:`restore_replaced` undoes it)."""
         exists = self.occupied(self.path)
         check_not_an_input(self.path, self.inputs, self.overwrite and exists)
+        for aside in self.set_aside_runs(self.path):
+            logger.warning("%s holds a run an earlier --overwrite start set aside and did not get to delete or put "
+                           "back (that start was killed); it is kept: rename it back to %s or remove it yourself",
+                           aside, self.path.name)
         if exists and self.overwrite:
             problem = run_entries_problem(self.path, self.entries)
             if problem is not None:

@@ -113,3 +113,16 @@ def test_a_killed_start_left_only_a_temporary_fingerprint_so_a_plain_rerun_proce
         engine(out, resume=True).run()
     engine(out).run()
     assert (out / FINGERPRINT_FILE).is_file() and not list(out.glob(".*.tmp"))
+
+
+def test_a_run_set_aside_by_a_killed_overwrite_start_is_kept_and_named_at_the_next_start(tmp_path, caplog):
+    out = tmp_path / "run"
+    engine(out).run()
+    before = tree(out)
+    aside = tmp_path / f".run{REPLACED_MARK}20261127-010000-4242"
+    out.rename(aside)  # what a start killed between its rename and its first phase leaves
+    with caplog.at_level("WARNING", logger="sr_imitation.stream.rundir"):
+        engine(out).run()
+    assert tree(aside) == before  # kept, never deleted by the next start
+    warned = [r.getMessage() for r in caplog.records if "set aside" in r.getMessage()]
+    assert len(warned) == 1 and str(aside) in warned[0] and "rename it back to run" in warned[0]
