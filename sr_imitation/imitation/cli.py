@@ -29,7 +29,7 @@ from sr_imitation.imitation.trainer import TrainStreamConfig, train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
-from sr_imitation.io import write_checked_json
+from sr_imitation.io import MANIFEST, verify_manifest, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 
@@ -208,6 +208,8 @@ def eval_main(args: list[str] | None = None) -> None:
     path = Path(cfg.policy.path)
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
+    if (path.parent / MANIFEST).is_file():  # an sr-train stage or sr-sleep checkpoint: sealed, checked before use
+        verify_manifest(path.parent)
     policy_cfg = PreTrainedConfig.from_pretrained(path)
     policy_cfg.device = cfg.device
     policy = get_policy_class(policy_cfg.type).from_pretrained(path, config=policy_cfg)

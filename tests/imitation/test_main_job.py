@@ -253,6 +253,18 @@ def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
     assert set(record["results"]) == {"place"} and len(list((tmp_path / "videos").glob("*.mp4"))) == 1
     with pytest.raises(FileNotFoundError, match="no config.json"):
         eval_main([f"--policy.path={tmp_path}", f"--output_dir={tmp_path}"])
+    import shutil
+
+    from sr_imitation.io import CorruptFileError
+
+    copy = tmp_path / "copy"
+    shutil.copytree(checkpoint.parent, copy)  # a sealed checkpoint with one weight byte flipped
+    weights = copy / "pretrained_model" / "model.safetensors"
+    data = bytearray(weights.read_bytes())
+    data[-1] ^= 0xFF
+    weights.write_bytes(bytes(data))
+    with pytest.raises(CorruptFileError, match="model.safetensors"):
+        eval_main([f"--policy.path={copy / 'pretrained_model'}", f"--output_dir={tmp_path / 'x'}"])
 
 
 def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, monkeypatch):
