@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE
-from sr_imitation.io import JSON_CHECKSUM, CorruptFileError
+from sr_imitation.io import JSON_CHECKSUM, CorruptFileError, read_checked_json
 from sr_imitation.progress import format_duration
 from sr_imitation.reporting.results import final_headline, load_results, variant_label
 from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
@@ -60,7 +60,7 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
     now = time.time() if now is None else now
     progress = run / PROGRESS_FILE
     completed = (read_progress(progress).get("completed") or {}) if progress.is_file() else {}
-    config = _read(run / RUN_CONFIG_FILE) or {}
+    config, config_problem = _read_config(run / RUN_CONFIG_FILE)
     skills = list((config.get("stream") or {}).get("skills") or [])
     oracle = bool(config.get("mt_joint"))
     total = 1 if oracle else len(skills)
@@ -85,7 +85,7 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
                            "done": n_done, "last_phase": last, "seconds": sum(per_stage.values()),
                            "since_last": now - (progress if progress.is_file() else run / FINGERPRINT_FILE
                                                 ).stat().st_mtime, "finished": False,
-                           "final": None, "left": None}
+                           "final": None, "left": None, "config_problem": config_problem}
     if (run / "results.json").is_file():
         try:
             results = load_results(run)
@@ -103,12 +103,24 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
     return out
 
 
-def _read(path: Path) -> dict[str, Any] | None:
+def _read_config(path: Path) -> tuple[dict[str, Any], str | None]:
+    """A run's stored config for the labels, and why it is not trusted (``None`` if it is): a sealed file whose seal
+    does not match, or one that does not read, gives no labels (variant and seed "?"); a file written before seals
+    is read as it is."""
     try:
         data = json.loads(path.read_text())
-    except (OSError, ValueError):
-        return None
-    return {k: v for k, v in data.items() if k != JSON_CHECKSUM} if isinstance(data, dict) else None
+    except FileNotFoundError:
+        return {}, None
+    except (OSError, ValueError) as exc:
+        return {}, f"{path.name} unreadable ({type(exc).__name__})"
+    if not isinstance(data, dict):
+        return {}, f"{path.name} is not a JSON object"
+    if JSON_CHECKSUM in data:
+        try:
+            read_checked_json(path)
+        except CorruptFileError as exc:
+            return {}, f"{path.name} not trusted ({exc.problem})"
+    return {k: v for k, v in data.items() if k != JSON_CHECKSUM}, None
 
 
 def render(rows: Sequence[dict[str, Any]]) -> str:
@@ -117,6 +129,8 @@ def render(rows: Sequence[dict[str, Any]]) -> str:
     for r in rows:
         state = f"finished: {r['final']}" if r["finished"] else (
             "running or stopped" + (f", ~{format_duration(r['left'])} left" if r["left"] is not None else ""))
+        if r.get("config_problem"):
+            state += f"; {r['config_problem']}"
         last = f"{r['last_phase'] or 'started'} ({format_duration(r['since_last'])} ago)"
         lines.append(f"| {r['run']} | {r['variant']} | {r['seed']} | {r['done']}/{r['stages']} | {last} | "
                      f"{format_duration(r['seconds'])} | {state} |")

@@ -88,3 +88,16 @@ def test_a_results_file_that_does_not_match_its_seal_is_not_shown_as_a_result(tm
     assert run_status(run)["final"].startswith("results.json not trusted (has no sha256")
     main([str(run)])
     assert "AFSR" not in capsys.readouterr().out
+
+
+def test_a_config_that_does_not_match_its_seal_gives_no_labels(tmp_path, capsys):
+    run = _run(tmp_path, "sr_seed0", _stage(1, 10, True))
+    write_checked_json(run / "train_config.json", {"method": "sr", "seed": 3, "sleep": {"enabled": True},
+                                                   "stream": {"skills": SKILLS}})
+    assert run_status(run)["seed"] == 3 and run_status(run)["config_problem"] is None
+    path = run / "train_config.json"
+    path.write_text(path.read_text().replace('"seed": 3', '"seed": 4'))  # edited after it was sealed
+    status = run_status(run)
+    assert status["seed"] is None and status["config_problem"].startswith("train_config.json not trusted")
+    main([str(run)])
+    assert "train_config.json not trusted" in capsys.readouterr().out
