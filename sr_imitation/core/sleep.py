@@ -223,6 +223,80 @@ def _flat_batched_grads(losses: Tensor, params: Sequence[Tensor], out: Tensor) -
                                     allow_unused=True), params, out)
 
 
+def _memory_gradients(memories: Sequence[Memory], policy: Any, batches: Sequence[Any], params: Sequence[Tensor],
+                      jac: Tensor, joint_forward: bool) -> Tensor:
+    """Step 1 of an iteration: each memory's loss L_i on its batch and its gradient g_i as row i of ``jac``; returns
+    the k losses (detached). ``joint_forward``: one forward per memory kind on the concatenated batches, then one
+    backward batched over the k losses (autograd vmapped over the k one-hot cotangents): a few larger kernels
+    instead of k passes' many. A non-finite loss gives a non-finite row, caught by the caller."""
+    if joint_forward:
+        stacked = torch.stack(per_memory_losses(memories, policy, batches))
+        _flat_batched_grads(stacked, params, jac)
+        return stacked.detach()
+    loss_list = []
+    for memory, batch, row in zip(memories, batches, jac, strict=True):
+        loss = memory.loss(policy, batch)
+        _flat_grads(loss, params, row)
+        loss_list.append(loss.detach())
+    return torch.stack(loss_list)
+
+
+def _to_host(jac: Tensor, loss_values: Tensor, params: Sequence[Tensor], anchor_params: Sequence[Tensor] | None,
+             lam: float) -> tuple[np.ndarray, list[float], float, list[Tensor] | None]:
+    """Step 2: the iteration's one device-to-host copy (no stall between the k backward passes on a GPU): the k x k
+    Gram matrix G = J J^T for the host's solver, the k losses, and with the anchor (lam > 0) the squared distance
+    ||theta - theta_anchor||^2 for the record. Returns (G, losses, squared distance, theta - theta_anchor)."""
+    k = jac.shape[0]
+    diffs = None
+    with torch.no_grad():
+        parts = [(jac @ jac.T).reshape(-1), loss_values.reshape(-1)]
+        if lam > 0.0:
+            diffs = torch._foreach_sub(params, anchor_params)
+            parts.append(torch.stack(torch._foreach_norm(diffs)).pow(2).sum().reshape(1))
+        host = torch.cat([part.double() for part in parts]).cpu().numpy()
+    gram = host[: k * k].reshape(k, k)
+    losses = [float(x) for x in host[k * k : k * k + k]]
+    return gram, losses, float(host[-1]) if lam > 0.0 else 0.0, diffs
+
+
+def _nonfinite_memories(gram: np.ndarray, losses: Sequence[float], skills: Sequence[str]) -> list[str]:
+    """Step 3: the memories whose loss or gradient is not finite (a NaN or Inf anywhere in g_i makes
+    ||g_i||^2 = G_ii non-finite: one check on k numbers, not k x P)."""
+    finite_rows = np.isfinite(losses) & np.isfinite(np.diag(gram))
+    return [skills[i] for i in range(len(skills)) if not finite_rows[i]]
+
+
+def _update_direction(weights: np.ndarray, jac: Tensor, params: Sequence[Tensor],
+                      regularizer: Callable[[Sequence[Tensor]], Tensor] | None, lam: float,
+                      diffs: Sequence[Tensor] | None) -> tuple[list[Tensor], float]:
+    """Step 5: the update direction d = sum_i alpha_i g_i (the bargaining weights on the memories' gradients, Eq. 1),
+    plus the regularizer's gradient (not bargained) and the anchor's lam (theta - theta_anchor) (Eq. 2), split into
+    the parameters' shapes. Returns (per-parameter gradients, the regularizer's value)."""
+    direction = torch.as_tensor(weights, dtype=jac.dtype, device=jac.device) @ jac
+    grads = [g.view_as(p) for g, p in zip(torch.split(direction, [p.numel() for p in params]), params, strict=True)]
+    reg_value = 0.0
+    if regularizer is not None:
+        reg = regularizer(params)
+        reg_value = float(reg.detach())
+        reg_grads = torch.autograd.grad(reg, params, allow_unused=True)
+        grads = [g if r is None else g + r for g, r in zip(grads, reg_grads, strict=True)]
+    if lam > 0.0:
+        with torch.no_grad():
+            torch._foreach_add_(grads, diffs, alpha=lam)
+    return grads, reg_value
+
+
+def _plateaued(history: Sequence[float], config: SleepConfig) -> bool:
+    """Step 7: the early stop (Table 6): every ``early_stop_window`` iterations, the mean objective of the last window
+    against the one before changed by less than ``early_stop_tol`` (relative, or absolute)."""
+    window = config.early_stop_window
+    if len(history) < 2 * window or len(history) % window:
+        return False
+    cur, prev = float(np.mean(history[-window:])), float(np.mean(history[-2 * window : -window]))
+    change = abs(cur - prev) / max(abs(prev), 1e-12) if config.early_stop_relative else abs(cur - prev)
+    return change < config.early_stop_tol
+
+
 def sleep_consolidate(
     params: Sequence[torch.nn.Parameter],
     policy: Any,
@@ -238,6 +312,12 @@ def sleep_consolidate(
     regularizer: Callable[[Sequence[Tensor]], Tensor] | None = None,
 ) -> SleepResult:
     """Run one sleep phase in place on ``params`` (Algorithm 1, lines 7-15).
+
+    Each iteration, in named steps: (1) every memory's loss and gradient on a fresh batch
+    (:func:`_memory_gradients`); (2) the Gram matrix and losses to the host (:func:`_to_host`); (3) a step with a
+    non-finite loss or gradient is skipped (:func:`_nonfinite_memories`); (4) the bargaining weights from the Gram
+    matrix (the aggregator, Eq. 1); (5) the update direction with the anchor (:func:`_update_direction`, Eq. 2);
+    (6) the Adam step, then the record; (7) the plateau check (:func:`_plateaued`).
 
     Args:
         params: the shared policy's trainable parameters theta (updated in place).
@@ -266,8 +346,6 @@ def sleep_consolidate(
     k = len(memories)
     skills = [m.skill for m in memories]
     device = params[0].device
-    sizes = [p.numel() for p in params]
-    n_params = sum(sizes)
     aggregator = aggregator or config.make_aggregator()
 
     if anchor_params is not None:
@@ -282,9 +360,8 @@ def sleep_consolidate(
     generator = torch.Generator().manual_seed(config.seed)
     # fused where torch has the kernel (CPU, CUDA); another device (MPS, the meta device of tests) takes foreach
     optimizer = torch.optim.Adam(params, lr=config.lr, fused=device.type in ("cpu", "cuda"))
-    jac = torch.zeros(k, n_params, device=device, dtype=params[0].dtype)
+    jac = torch.zeros(k, sum(p.numel() for p in params), device=device, dtype=params[0].dtype)
     result = SleepResult(skills, lam, distances, stop_iteration=0, stop_reason="max_iterations")
-    window = config.early_stop_window
     consecutive_bad = 0
     bar = Progress(config.max_iterations, f"sleep k={k}", logger, enabled=progress)
     logger.info("sleep over %s: lambda=%g (distances %s), %s", skills, lam,
@@ -292,33 +369,10 @@ def sleep_consolidate(
     for it in range(config.max_iterations):
         bar.update(1)
         batches = [memory.sample(config.batch_size, generator) for memory in memories]
-        if config.joint_forward:
-            # One forward per memory kind on the concatenated batches, then one backward batched over the k losses
-            # (autograd vmapped over the k one-hot cotangents): a few larger kernels instead of k passes' many.
-            stacked = torch.stack(per_memory_losses(memories, policy, batches))
-            _flat_batched_grads(stacked, params, jac)
-            loss_values = stacked.detach()
-        else:
-            loss_list = []
-            for memory, batch, row in zip(memories, batches, jac, strict=True):
-                loss = memory.loss(policy, batch)
-                _flat_grads(loss, params, row)  # a non-finite loss gives a non-finite row: caught below
-                loss_list.append(loss.detach())
-            loss_values = torch.stack(loss_list)
-        # The iteration's one device-to-host copy (no stall between the k backward passes on a GPU): the k x k
-        # Gram matrix for the host's solver, the k losses and the anchor's squared distance for the record.
-        with torch.no_grad():
-            parts = [(jac @ jac.T).reshape(-1), loss_values.reshape(-1)]
-            if lam > 0.0:
-                diffs = torch._foreach_sub(params, anchor_params)
-                parts.append(torch.stack(torch._foreach_norm(diffs)).pow(2).sum().reshape(1))
-            host = torch.cat([part.double() for part in parts]).cpu().numpy()
-        gram = host[: k * k].reshape(k, k)
-        losses = [float(x) for x in host[k * k : k * k + k]]
-        # A NaN or Inf anywhere in g_i makes ||g_i||^2 = G_ii non-finite: one check on k numbers, not k x P.
-        finite_rows = np.isfinite(losses) & np.isfinite(np.diag(gram))
-        if not finite_rows.all():
-            bad = [skills[i] for i in range(k) if not finite_rows[i]]
+        loss_values = _memory_gradients(memories, policy, batches, params, jac, config.joint_forward)  # (1)
+        gram, losses, anchor_term, diffs = _to_host(jac, loss_values, params, anchor_params, lam)  # (2)
+        bad = _nonfinite_memories(gram, losses, skills)  # (3)
+        if bad:
             result.skipped_steps.append({"iteration": it, "memories": bad})
             consecutive_bad += 1
             logger.warning("sleep iteration %d: non-finite loss or gradient from %s; step skipped", it, bad)
@@ -331,22 +385,9 @@ def sleep_consolidate(
             continue
         consecutive_bad = 0
         gram = 0.5 * (gram + gram.T)  # float32 GEMM is not exactly symmetric
-        agg = aggregator(gram)
-        direction = torch.as_tensor(agg.weights, dtype=jac.dtype, device=device) @ jac
-        grads = list(torch.split(direction, sizes))
-        grads = [g.view_as(p) for g, p in zip(grads, params, strict=True)]
-        reg_value = 0.0
-        if regularizer is not None:
-            reg = regularizer(params)
-            reg_value = float(reg.detach())
-            reg_grads = torch.autograd.grad(reg, params, allow_unused=True)
-            grads = [g if r is None else g + r for g, r in zip(grads, reg_grads, strict=True)]
-        anchor_term = 0.0
-        if lam > 0.0:
-            anchor_term = float(host[-1])
-            with torch.no_grad():
-                torch._foreach_add_(grads, diffs, alpha=lam)
-        for p, g in zip(params, grads, strict=True):
+        agg = aggregator(gram)  # (4)
+        grads, reg_value = _update_direction(agg.weights, jac, params, regularizer, lam, diffs)  # (5)
+        for p, g in zip(params, grads, strict=True):  # (6)
             p.grad = g
         optimizer.step()
         optimizer.zero_grad(set_to_none=True)
@@ -368,13 +409,9 @@ def sleep_consolidate(
         result.stop_iteration = it + 1
         if progress and it % 10 == 0:
             bar.set_postfix(obj=f"{objective:.4g}", worst=f"{max(losses):.4g}")
-        hist = result.sleep_objective
-        if len(hist) >= 2 * window and len(hist) % window == 0:
-            cur, prev = float(np.mean(hist[-window:])), float(np.mean(hist[-2 * window : -window]))
-            change = abs(cur - prev) / max(abs(prev), 1e-12) if config.early_stop_relative else abs(cur - prev)
-            if change < config.early_stop_tol:
-                result.stop_reason = "plateau"
-                break
+        if _plateaued(result.sleep_objective, config):  # (7)
+            result.stop_reason = "plateau"
+            break
     bar.close()
     logger.info("sleep stopped at iteration %d (%s); final memory losses %s", result.stop_iteration,
                 result.stop_reason, result.memory_losses[-1] if result.memory_losses else None)
