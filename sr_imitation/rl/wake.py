@@ -107,6 +107,7 @@ def train_skill(
     result = WakeResult(env.skill, 0, 0, 0, "max_episodes")
     episode_starts: list[int] = []
     update_credit = 0.0
+    info = None
     hooks = None
     if method is not None and method.has_wake_hooks:  # the actor's recorded activity is left alone by the hooks
         hooks = WakeHooks(method, skill_index, agent.actor_parameters(), agent.policy_fn, seed,
@@ -116,32 +117,8 @@ def train_skill(
         bar.update(1)
         episode_starts.append(replay.total)
         rate = exc_cfg.rate("wake", skill_index, episode)
-        obs = env.reset()
-        total, success = 0.0, False
-        while True:
-            if result.env_steps < sac_cfg.warmup_steps:
-                action = rng.uniform(-1.0, 1.0, size=4).astype(np.float32)
-            else:
-                action = agent.act(obs)
-            step = env.step(action)
-            agent.normalizer.update(obs)
-            if rng.random() < memory_cfg.holdout_fraction:
-                holdout.add(obs, action, step.reward, step.obs, step.terminated)
-            else:
-                replay.add(obs, action, step.reward, step.obs, step.terminated)
-            result.env_steps += 1
-            total += step.reward
-            success |= step.success
-            obs = step.obs
-            if result.env_steps >= sac_cfg.warmup_steps and len(replay) >= sac_cfg.batch_size:
-                update_credit += sac_cfg.utd_ratio
-                while update_credit >= 1.0:
-                    info = agent.update(replay.batch(replay.indices(sac_cfg.batch_size, rng), agent.device), rate,
-                                        hooks)
-                    result.updates += 1
-                    update_credit -= 1.0
-            if step.terminated or step.truncated:
-                break
+        total, success, update_credit, info = _episode(agent, env, rng, replay, holdout, result, sac_cfg, memory_cfg,
+                                                       rate, hooks, update_credit, info)
         result.episodes += 1
         result.episode_rewards.append(total)
         result.episode_successes.append(bool(success))
@@ -164,8 +141,49 @@ def train_skill(
     starts = [min(s, replay.total - 1) for s in episode_starts]
     states = sample_late_states(replay, starts, memory_cfg, rng)
     memory = CriticMemory.from_agent(env.skill.removesuffix("-v3"), agent, states)
-    # what a method needs from the replay at skill end, uniform over it, from its own generator (the rest of the
-    # run is unchanged): states (EWC's Fisher) or whole transitions (CLEAR)
+    _method_samples(result, replay, method, seed)
+    result.seconds = time.perf_counter() - t0
+    return result, memory
+
+
+def _episode(agent: SACAgent, env: SkillEnv, rng: np.random.Generator, replay: ReplayBuffer, holdout: ReplayBuffer,
+             result: WakeResult, sac_cfg: SACConfig, memory_cfg: CriticMemoryConfig, rate: float,
+             hooks: WakeHooks | None, update_credit: float, info: Any) -> tuple[float, bool, float, Any]:
+    """One wake episode: uniform random actions until ``warmup_steps`` environment steps, the actor's after; each
+    transition to the replay (or, with probability ``holdout_fraction``, to the critic's held-out set); after the
+    warm-up, ``utd_ratio`` SAC updates per environment step (fractional credit carried over), each with the
+    homeostatic ``rate``. Returns (episode reward, any-step success, the carried update credit, the last update's
+    info)."""
+    obs = env.reset()
+    total, success = 0.0, False
+    while True:
+        if result.env_steps < sac_cfg.warmup_steps:
+            action = rng.uniform(-1.0, 1.0, size=4).astype(np.float32)
+        else:
+            action = agent.act(obs)
+        step = env.step(action)
+        agent.normalizer.update(obs)
+        if rng.random() < memory_cfg.holdout_fraction:
+            holdout.add(obs, action, step.reward, step.obs, step.terminated)
+        else:
+            replay.add(obs, action, step.reward, step.obs, step.terminated)
+        result.env_steps += 1
+        total += step.reward
+        success |= step.success
+        obs = step.obs
+        if result.env_steps >= sac_cfg.warmup_steps and len(replay) >= sac_cfg.batch_size:
+            update_credit += sac_cfg.utd_ratio
+            while update_credit >= 1.0:
+                info = agent.update(replay.batch(replay.indices(sac_cfg.batch_size, rng), agent.device), rate, hooks)
+                result.updates += 1
+                update_credit -= 1.0
+        if step.terminated or step.truncated:
+            return total, success, update_credit, info
+
+
+def _method_samples(result: WakeResult, replay: ReplayBuffer, method: ContinualMethod | None, seed: int) -> None:
+    """What a method needs from the replay at skill end, uniform over it, from its own generators (the rest of the
+    run is unchanged): states (EWC's Fisher) or whole transitions (CLEAR)."""
     n_states = method.wake_state_sample if method is not None else 0
     if n_states > 0:
         own = np.random.default_rng([seed % (2**63), 7])
@@ -174,6 +192,4 @@ def train_skill(
     if n_transitions > 0:
         own = np.random.default_rng([seed % (2**63), 8])
         result.transition_sample = replay.batch(own.integers(0, len(replay), size=n_transitions))
-    result.seconds = time.perf_counter() - t0
-    return result, memory
 
