@@ -6,9 +6,9 @@ from __future__ import annotations
 
 import sys
 
-from sr_imitation.infra.cli_errors import run_cli, setup_logging
-from sr_imitation.offscreen import setup_offscreen_rendering
+from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.recorders.needle import main as record_needle
+from sr_imitation.recorders.needle import report_recorded
 
 
 def main(args: list[str] | None = None) -> None:
@@ -18,14 +18,7 @@ def main(args: list[str] | None = None) -> None:
         return
     from sr_imitation.recorders.metaworld import main as record_metaworld
 
-    setup_offscreen_rendering()
-    setup_logging()
-    try:
-        paths = record_metaworld(argv)
-    except FileExistsError as e:
-        raise SystemExit(f"sr-record: {e}") from None
-    for path in paths:
-        print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
+    report_recorded(lambda: record_metaworld(argv))
 
 
 def entry() -> None:

@@ -41,6 +41,7 @@ from sr_imitation.envs.metaworld.tasks import (
     check_task,
     scripted_policy,
 )
+from sr_imitation.envs.metaworld.video import CAMERAS
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import write_checked_json
 from sr_imitation.progress import Progress
@@ -57,7 +58,6 @@ from sr_imitation.recorders.needle import (
 
 logger = logging.getLogger(__name__)
 
-CAMERAS = ("corner", "corner2", "corner3", "corner4", "topview", "behindGripper", "gripperPOV")
 
 
 @dataclass

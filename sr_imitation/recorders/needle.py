@@ -19,6 +19,7 @@ import os
 import shutil
 import sys
 import tempfile
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -419,17 +420,24 @@ def record(cfg: RecordConfig) -> list[Path]:
         return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
 
 
-def main(args: list[str] | None = None) -> None:
-    """Console entry point ``sr-record`` (draccus flags, LeRobot style)."""
+def report_recorded(record_datasets: Callable[[], list[Path]]) -> None:
+    """Run a recorder for ``sr-record`` (offscreen rendering and logging set up first): an existing target is one
+    line, every dataset written is printed."""
     setup_offscreen_rendering()
-    cfg = parse_command(RecordConfig, sys.argv[1:] if args is None else args, prog="sr-record")
     setup_logging()
     try:
-        paths = record(cfg)
+        paths = record_datasets()
     except FileExistsError as e:
         raise SystemExit(f"sr-record: {e}") from None
     for path in paths:
         print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
+
+
+def main(args: list[str] | None = None) -> None:
+    """Console entry point ``sr-record`` (draccus flags, LeRobot style)."""
+    setup_offscreen_rendering()
+    cfg = parse_command(RecordConfig, sys.argv[1:] if args is None else args, prog="sr-record")
+    report_recorded(lambda: record(cfg))
 
 
 def entry() -> None:

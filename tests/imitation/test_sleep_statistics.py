@@ -23,7 +23,6 @@ import torch
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.cli import sleep_main
 from sr_imitation.imitation.config import SurgicAISleepConfig
 from sr_imitation.imitation.normalization import (
     floor_std,
@@ -39,9 +38,8 @@ from sr_imitation.imitation.offline_sleep import (
     load_policy,
     run_offline_sleep,
 )
-from sr_imitation.infra.cli_errors import run_cli
 from tests.imitation.helpers import ACTION_DIM, STATE_DIM, make_skill_dataset, tiny_policy
-from tests.imitation.test_offline_sleep import _loads_as_lerobot_eval_does, _stock_checkpoint
+from tests.imitation.test_offline_sleep import _loads_as_lerobot_eval_does, _one_line_error, _stock_checkpoint
 
 JAW_ACTION, JAW_STATE = ACTION_DIM - 1, STATE_DIM - 1
 QUICK = {"lr": 1e-3, "max_iterations": 5, "batch_size": 4, "early_stop_window": 5}
@@ -147,13 +145,7 @@ def test_the_deployed_policys_actions_are_unchanged_by_the_new_statistics(stock,
 
 
 # -- a sleep that fails: one line naming the memory, non-zero exit, nothing written -------------------------------
-def _refused(capsys, args: list[str]) -> str:
-    with pytest.raises(SystemExit) as exit_info:
-        run_cli("sr-sleep", sleep_main, args)
-    assert exit_info.value.code == 2
-    err = capsys.readouterr().err.strip()
-    assert err.startswith("sr-sleep: error: ") and "\n" not in err, err
-    return err
+_refused = _one_line_error  # sr-sleep's refusal: exit 2, one line
 
 
 def test_absurd_nonfinite_or_unmoved_losses_are_one_line_naming_the_memory(stock, tmp_path, capsys):
