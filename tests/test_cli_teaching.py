@@ -134,6 +134,41 @@ def test_help_works_with_a_config_file(command, args, shows, capsys):
         assert "--train." not in out  # sr-train's flags address the preset's train section without the prefix
 
 
+def _help_default(out: str, flag: str) -> str:
+    """The ``(default: ...)`` a ``--help`` text shows for ``flag`` (its help may wrap over several lines)."""
+    block = re.search(rf"^  {re.escape(flag)} .*?\(default: ([^)]*)\)", out, re.S | re.M)
+    assert block, flag
+    return block.group(1)
+
+
+@pytest.mark.parametrize("command, config, flag, key", [
+    ("sr-train", "needle_cpu_m16.json", "--memory.buffer_size", ("train", "memory", "buffer_size")),
+    ("sr-train", "needle_cpu_m16.json", "--stream.stats", ("train", "stream", "stats")),
+    ("sr-main", "needle_cpu_m16.json", "--train.memory.buffer_size", ("train", "memory", "buffer_size")),
+    ("sr-train", "sac_mt5_cpu.json", "--sac.batch_size", ("sac", "batch_size")),
+])
+def test_help_with_a_config_file_shows_its_values(command, config, flag, key, capsys):
+    """``--help`` beside ``--config_path`` shows the file's values as the defaults, not the code's (before: the
+    m16 preset's help said ``--memory.buffer_size ... (default: 1024)``, the preset holds 16)."""
+    data = json.loads((CONFIGS / config).read_text())
+    for part in key:
+        data = data[part]
+    main = {"sr-train": cli.train_main, "sr-main": main_job.main}[command]
+    with pytest.raises(SystemExit) as info:
+        run_cli(command, main, [f"--config_path={CONFIGS / config}", "--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    assert _help_default(out, flag) == str(data)
+    assert "Defaults shown are the values of" in out and config in out
+
+
+def test_help_without_a_config_file_shows_the_code_s_defaults(capsys):
+    with pytest.raises(SystemExit):
+        run_cli("sr-train", cli.train_main, ["--help"])
+    out = capsys.readouterr().out
+    assert _help_default(out, "--memory.buffer_size") == "1024" and "Defaults shown are the values" not in out
+
+
 # --- a typo: one line with the nearest flag -------------------------------------------------------------------------
 
 @pytest.mark.parametrize("prog, main, args, nearest", [

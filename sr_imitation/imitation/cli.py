@@ -55,11 +55,13 @@ T = TypeVar("T")
 
 def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str], *,
                  prog: str = "sr-train", prefix: str = "", names: dict[str, str] | None = None,
-                 notes: dict[str, str] | None = None) -> T:
+                 notes: dict[str, str] | None = None, help_values: tuple[str, dict] | None = None) -> T:
     """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`), with the teaching
-    command line of :func:`~sr_imitation.infra.cli_parsing.parse_command` (``prefix``, ``names``, ``notes`` there)."""
+    command line of :func:`~sr_imitation.infra.cli_parsing.parse_command` (``prefix``, ``names``, ``notes``,
+    ``help_values`` there)."""
     with act_sr_choices_only():
-        return parse_command(cls, args, prog=prog, config_path=config_path, prefix=prefix, names=names, notes=notes)
+        return parse_command(cls, args, prog=prog, config_path=config_path, prefix=prefix, names=names, notes=notes,
+                             help_values=help_values)
 
 
 def _setup_logging() -> None:
@@ -77,7 +79,8 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     data = {} if config_path is None else _read_json(config_path)
     preset = _is_main_job_preset(data)
     if preset and wants_help(args):
-        parse_config(TrainStreamConfig, None, ["--help"])  # the flags that address the preset's train section; exits
+        parse_config(TrainStreamConfig, None, ["--help"],  # the flags that address the preset's train section; exits
+                     help_values=(f"{config_path}'s train section", data["train"]))
     args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
     args = implied_policy_type(data.get("train") if preset else data, legacy_flags(data, args))
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}

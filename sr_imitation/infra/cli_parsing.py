@@ -157,11 +157,13 @@ def check_flags_known(args: Sequence[str], known: Sequence[str]) -> None:
 
 def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: str | Path | None = None,
                   prefix: str = "", names: Mapping[str, str] | None = None,
-                  notes: Mapping[str, str] | None = None) -> T:
+                  notes: Mapping[str, str] | None = None, help_values: tuple[str, Mapping] | None = None) -> T:
     """``draccus.parse`` of ``cls`` for the command ``prog`` (module docstring): ``--help`` prints every flag's
-    meaning and exits 0; flags of ``names`` are mapped or answered (:func:`apply_flag_names`); an unknown flag is a
-    :class:`UsageError` naming the nearest ones; any other argparse error is a :class:`UsageError` too, with the
-    sentence ``notes`` holds for its flag appended (``--policy.type``: what the command trains).
+    meaning and exits 0, with the values of the ``--config_path`` file as the defaults it shows (or of
+    ``help_values``: (where they come from, the settings), e.g. a preset's ``train`` section); flags of ``names`` are
+    mapped or answered (:func:`apply_flag_names`); an unknown flag is a :class:`UsageError` naming the nearest ones;
+    any other argparse error is a :class:`UsageError` too, with the sentence ``notes`` holds for its flag appended
+    (``--policy.type``: what the command trains).
 
     ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix`` names (``--seed=1`` is
     ``--train.seed=1``); errors name the flags as given."""
@@ -169,6 +171,10 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
     with readable_config(config_path) as readable:
         parser = command_parser(cls, prog=prog, config_path=readable)
         if wants_help(args):
+            if help_values is None and readable is not None and Path(readable).is_file():
+                help_values = (str(config_path), _json_object(readable))
+            if help_values is not None:
+                show_values_as_defaults(parser, *help_values)
             parser.parse_args(["--help"])  # prints the help and exits 0
         known = option_names(parser, prefix)
         args = apply_flag_names(args, known, names or {}, prog)
@@ -182,6 +188,36 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
                 if message.startswith(f"argument {flag}:"):
                     message = f"{message}; {note}"
             raise UsageError(message) from None
+
+
+def _json_object(path: str | Path) -> Mapping:
+    """A config file's JSON object, ``{}`` if it is not one (the parse that follows reports it)."""
+    try:
+        data = json.loads(Path(path).read_text())
+    except (OSError, ValueError):
+        return {}
+    return data if isinstance(data, dict) else {}
+
+
+def show_values_as_defaults(parser: ArgumentParser, source: str, values: Mapping) -> int:
+    """Make ``parser``'s help show, as each flag's default, the value ``values`` (a config file's nested settings)
+    gives it, and say so under the usage line; returns how many flags took a value. Only for ``--help``: the parse
+    itself reads the file through draccus."""
+    count = 0
+    for action in parser.parser._actions:
+        node: Any = values
+        for part in action.dest.split("."):
+            node = node.get(part, _ABSENT) if isinstance(node, Mapping) else _ABSENT
+        if node is _ABSENT or isinstance(node, Mapping) or not action.option_strings or action.dest == "config_path":
+            continue
+        action.default = node
+        count += 1
+    note = f"Defaults shown are the values of {source} ({count} settings); the others are the code's defaults."
+    parser.parser.description = f"{parser.parser.description or ''}\n\n{note}".strip()
+    return count
+
+
+_ABSENT = object()
 
 
 @contextlib.contextmanager

@@ -89,7 +89,7 @@ class MetaWorldRecordConfig:
     fps: int = 80
     """Dataset frame rate (Meta-World's control rate: 80 steps per simulated second)."""
     overwrite: bool = False
-    """Replace existing datasets at the targets."""
+    """Replace existing datasets at the targets, only datasets sr-record wrote (anything else is refused)."""
     max_failures: int = 50
     """Give up on a task after this many failed scripted episodes."""
 

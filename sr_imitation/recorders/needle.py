@@ -71,7 +71,7 @@ class RecordConfig:
     fps: int = 30
     """Dataset frame rate."""
     overwrite: bool = False
-    """Replace existing datasets at the targets."""
+    """Replace existing datasets at the targets, only datasets sr-record wrote (anything else is refused)."""
     episode_videos: bool = False
     """Also write one scene-camera mp4 per episode to <root>/<skill>_episode_videos."""
     max_failures: int = 50

@@ -74,7 +74,8 @@ class RunConfig:
     resume: bool = False
     """Continue the run in output_dir (settings must equal its settings_fingerprint.json)."""
     overwrite: bool = False
-    """Delete output_dir first."""
+    """Replace output_dir, only if it is a run of this package, and only once every input is checked (the old run is
+    set aside until the new one has started, restored if the start fails); never a folder that holds an input."""
     progress: bool = True
     """Console progress bars."""
     wandb: WandbConfig = field(default_factory=WandbConfig)
