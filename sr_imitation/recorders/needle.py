@@ -422,7 +422,8 @@ def record(cfg: RecordConfig) -> list[Path]:
 
 def report_recorded(record_datasets: Callable[[], list[Path]]) -> None:
     """Run a recorder for ``sr-record`` (offscreen rendering and logging set up first): an existing target is one
-    line, every dataset written is printed."""
+    line, every dataset written is printed, and for video datasets the command that shows one
+    (:mod:`sr_imitation.recorders.viz`)."""
     setup_offscreen_rendering()
     setup_logging()
     try:
@@ -431,6 +432,11 @@ def report_recorded(record_datasets: Callable[[], list[Path]]) -> None:
         raise SystemExit(f"sr-record: {e}") from None
     for path in paths:
         print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
+    videos = [path for path in paths if (path / "videos").is_dir()]
+    if videos:  # lerobot-dataset-viz needs torchcodec's FFmpeg libraries, which this set-up lacks
+        from sr_imitation.recorders.viz import view_hint  # noqa: PLC0415
+
+        print(view_hint(videos[0].name, str(videos[0])))  # noqa: T201
 
 
 def main(args: list[str] | None = None) -> None:
