@@ -1,0 +1,38 @@
+#!/usr/bin/env bash
+# A worker that takes long runs one at a time from a shared queue file, each from a pinned commit's worktree (as
+# tools/experiments/pinned.sh: clean provenance, one torch thread), until the queue is empty. Start one worker per
+# core on the same queue; append lines to the queue while they run (the next free worker takes them).
+#
+#   bash tools/experiments/queue_worker.sh <commit> <queue file> <log folder>     # runs in the foreground
+#   nohup setsid bash tools/experiments/queue_worker.sh c8c03d9 outputs/q.txt outputs/qlogs > /dev/null 2>&1 &
+#
+# A queue line is "<name> <python arguments...>" (e.g. "k3_wo_101 -m sr_imitation.experiments.needle_compare ...");
+# blank lines and lines starting with # are skipped. A taken line is moved to <queue file>.taken, and "<name> rc=<status>"
+# appended to <queue file>.done when it ends; its output goes to <log folder>/<name>.log. Paths in the arguments
+# resolve in the worktree: give output roots and archives as absolute paths. A killed worker's run resumes when its
+# line is queued again (the runners skip finished runs and resume killed ones).
+set -uo pipefail
+root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
+commit="$(git -C "$root" rev-parse --short "$1")"; queue="$(realpath "$2")"; logs="$(mkdir -p "$3" && realpath "$3")"
+wt="$root/../wt-$commit"
+[ -e "$wt/.git" ] || git -C "$root" worktree add --detach "$wt" "$commit" >/dev/null
+for d in "$root"/datasets/*/; do
+  name="$(basename "$d")"; [ -e "$wt/datasets/$name" ] || ln -s "$root/datasets/$name" "$wt/datasets/$name"
+done
+export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
+export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr${PYTHONPATH:+:$PYTHONPATH}"
+touch "$queue"
+while true; do
+  line="$(flock "$queue.lock" bash -c '
+    q="$1"; line="$(grep -v -e "^[[:space:]]*$" -e "^#" "$q" | head -n 1)"
+    if [ -n "$line" ]; then
+      grep -v -x -F -e "$line" "$q" > "$q.tmp"; mv "$q.tmp" "$q"; echo "$line" >> "$q.taken"
+    fi
+    echo "$line"' _ "$queue")"
+  [ -z "$line" ] && break
+  name="${line%% *}"; args="${line#* }"
+  echo "$(date -u +%FT%TZ) start $name" >> "$queue.done"
+  # shellcheck disable=SC2086  (the queue line's arguments are split as a shell would split them, no globbing)
+  (cd "$wt" && set -f && exec "$root/.venv/bin/python" $args) > "$logs/$name.log" 2>&1
+  echo "$(date -u +%FT%TZ) $name rc=$?" >> "$queue.done"
+done
