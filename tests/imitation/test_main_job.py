@@ -320,6 +320,9 @@ def test_sleep_replay_reproduces_the_original_sleep_and_applies_overrides(main_j
 
     tmp, _ = main_job_run
     run = tmp / "run"
+    # The run normalizes with the statistics of the skills seen so far (the default): stage 2's are recomputed from
+    # datasets 1-2 in the replay, the policy and memories re-expressed into them as in the original.
+    assert json.loads((run / "train_config.json").read_text())["stream"]["stats"] == "seen"
     same = replay(SleepReplayConfig(run=run, stage=2, output_dir=tmp_path / "same", progress=False))
     # Same settings, same phase seeds: the replayed sleep is the original one, loss for loss.
     assert same["replay"] == same["original"]
