@@ -212,3 +212,35 @@ def test_the_vision_oracle_at_twice_the_steps_rows_recompute(text):
     sr = [_metrics(compare / f"sr_seed{s}")["afsr"]["final"] for s in range(3)]
     assert f"MT-Joint at 18,000 steps is {_mean_se(long_)}" in text
     assert f"paired to SR {_signed(list(np.array(long_) - np.array(sr)))}" in text
+
+
+# --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
+
+def _list(values: list[float]) -> str:
+    return " / ".join(f"{v:.2f}" for v in values)
+
+
+@pytest.mark.parametrize("step, phrases", [
+    ("metaworld_mt5_imitation_calibration", lambda c: [
+        f"MT-Joint AFSR {c['C1']['mt_joint_afsr']:.3f}", f"final {_list(c['C1']['mt_joint_final_per_skill'])}",
+        f"sequential BC right after own wake {_list(c['C2']['own_wake_per_skill'])}",
+        f"(final AFSR {c['C3']['final_afsr']:.3f})", f"wake-only AFSR {c['C4']['wake_only_afsr']:.3f}"]),
+    ("metaworld_mt5_imitation_calibration_k1", lambda c: [
+        f"MT-Joint AFSR {c['C1']['mt_joint_afsr']:.3f}", f"final {_list(c['C1']['mt_joint_final_per_skill'])}",
+        f"(final AFSR {c['C3']['final_afsr']:.3f})", f"wake-only AFSR {c['C4']['wake_only_afsr']:.3f}"]),
+    ("metaworld_mt5_imitation_calibration_k2", lambda c: [
+        f"(MT-Joint {c['C1']['mt_joint_afsr']:.3f}, final reach {c['C1']['mt_joint_final_per_skill'][0]:.2f})",
+        f"right after its own wake {_list(c['C2']['own_wake_per_skill'])}",
+        f"(final AFSR {c['C3']['final_afsr']:.3f})"]),
+])
+def test_each_calibration_step_s_reading_recomputes_from_its_raw_runs(step, phrases, text):
+    """Each archived step's ``calibration/calibration.json`` equals the reading recomputed now from the step's raw
+    runs, and RESULTS quotes its numbers as they recompute (rounded as written there)."""
+    from sr_imitation.experiments.calibration import CalibrationConfig, read_calibration
+
+    archive = DOCS / "results" / step
+    stored = json.loads((archive / "calibration" / "calibration.json").read_text())
+    now = read_calibration(CalibrationConfig(archive=archive))
+    assert now["criteria"] == stored["criteria"] and now["seeds"] == stored["seeds"]
+    for phrase in phrases(now["criteria"]):
+        assert phrase in text, phrase
