@@ -1,5 +1,6 @@
-"""Installation: each clone runs its own code over the shared dependency venv, and the package installs into an
-existing LeRobot environment with plain pip (see .ci/venv.sh, .ci/overlay.py and the README's "Install")."""
+"""Installation: each clone runs its own code over the shared dependency venv, the package installs into an
+existing LeRobot environment with plain pip (see .ci/venv.sh, .ci/overlay.py and the README's "Install"), and its
+direct dependencies are ranges that hold the lock and start at the tested lower bounds (.ci/lower_bounds.txt)."""
 
 from __future__ import annotations
 
@@ -10,9 +11,13 @@ import os
 import shutil
 import subprocess
 import sys
+import tomllib
 from pathlib import Path
 
 import pytest
+from packaging.requirements import Requirement
+from packaging.utils import canonicalize_name
+from packaging.version import Version
 
 ROOT = Path(__file__).resolve().parents[1]
 OVERLAY_PY = ROOT / ".ci" / "overlay.py"
@@ -182,3 +187,54 @@ def test_pip_install_into_an_existing_lerobot_environment(shared_site, tmp_path)
     assert "act_sr" in help_.stdout  # among --policy.type's choices
     # The shared dependency venv is untouched by the user's install.
     assert not (PROJECT_DISTS & {d.metadata["Name"] for d in importlib.metadata.distributions(path=[str(shared_site)])})
+
+
+EXACT_PINS = {"lerobot", "metaworld", "mujoco"}
+"""The only exact direct dependencies (pyproject.toml says why); every other one is a range."""
+
+
+def _pins(path: Path) -> dict[str, Version]:
+    """The ``name==version`` lines of a lock file (comments and blank lines skipped), by canonical name."""
+    pins = {}
+    for line in path.read_text().splitlines():
+        line = line.split("#", 1)[0].strip()
+        if line:
+            req = Requirement(line)
+            (spec,) = req.specifier
+            assert spec.operator == "==", f"{path.name}: {line!r} is not name==version"
+            pins[canonicalize_name(req.name)] = Version(spec.version)
+    return pins
+
+
+def test_direct_dependencies_are_ranges_that_hold_the_lock_and_start_at_the_tested_lower_bounds():
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        deps = [Requirement(d) for d in tomllib.load(f)["project"]["dependencies"]]
+    lock, lower = _pins(ROOT / ".ci" / "constraints.txt"), _pins(ROOT / ".ci" / "lower_bounds.txt")
+    names = {canonicalize_name(r.name) for r in deps}
+    assert names >= EXACT_PINS and set(lower) == names - EXACT_PINS, (sorted(names), sorted(lower))
+    for req in deps:
+        name = canonicalize_name(req.name)
+        assert name in lock and req.specifier.contains(lock[name]), f"{req}: the lock's {lock.get(name)} lies outside"
+        ops = {s.operator: Version(s.version) for s in req.specifier}
+        if name in EXACT_PINS:
+            assert list(ops) == ["=="], f"{req}: exact pin expected"
+            continue
+        # a range: from the tested lower bound (tools/check_lower_bounds.sh) to an upper bound, nothing pinned
+        assert set(ops) == {">=", "<"} and len(req.specifier) == 2, f"{req}: expected >=LOW,<UPPER"
+        assert ops[">="] == lower[name], f"{req}: .ci/lower_bounds.txt records {lower[name]} as tested"
+        assert ops[">="] < ops["<"], str(req)
+
+
+def test_the_ranges_lie_inside_the_pinned_lerobot_s_own():
+    lerobot = {canonicalize_name(r.name): r.specifier for r in map(Requirement, importlib.metadata.requires("lerobot"))
+               if r.marker is None}
+    with open(ROOT / "pyproject.toml", "rb") as f:
+        deps = [Requirement(d) for d in tomllib.load(f)["project"]["dependencies"]]
+    for req in deps:
+        theirs = lerobot.get(canonicalize_name(req.name))
+        if theirs is None or canonicalize_name(req.name) in EXACT_PINS:
+            continue
+        ours = {s.operator: Version(s.version) for s in req.specifier}
+        assert theirs.contains(ours[">="]), f"{req}: its lower bound is outside LeRobot's {theirs}"
+        uppers = [Version(s.version) for s in theirs if s.operator == "<"]
+        assert all(ours["<"] <= u for u in uppers), f"{req}: its upper bound is above LeRobot's {theirs}"
