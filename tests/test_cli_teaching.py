@@ -1,6 +1,6 @@
 """A command line that teaches (issue 27, items 5 and 8): every flag of every command has a meaning in ``--help``,
 ``--help`` works next to ``--config_path``, a typo is one line naming the nearest flag, LeRobot's names are mapped
-or answered in one line, usage errors are one line with a pointer to ``--help``; the two-minute ``needle_try``
+or answered in one line, usage errors are one line with a pointer to ``--help``; the short ``needle_try``
 preset."""
 
 from __future__ import annotations
@@ -284,11 +284,11 @@ def test_the_lerobot_tables_name_real_flags(command, table):
             assert target in flags, name
 
 
-# --- the two-minute preset ------------------------------------------------------------------------------------------
+# --- the first-look preset ------------------------------------------------------------------------------------------
 
 def test_the_try_preset_parses_for_sr_main_and_sr_train_and_is_small():
-    """configs/needle_try.json: the README's first look (about two minutes on 2 CPU cores; a full run is too long
-    for the test suite - 2 min 14 s measured on a loaded machine)."""
+    """configs/needle_try.json: the README's first look (a few minutes on 2 CPU cores; a full run is too long for
+    the test suite - README and configs/README.md give the measured time)."""
     from sr_imitation.main_job import MainJobConfig
 
     cfg = imitation_cli.parse_config(MainJobConfig, TRY, [], prog="sr-main")
@@ -296,7 +296,7 @@ def test_the_try_preset_parses_for_sr_main_and_sr_train_and_is_small():
     assert train.stream.skills == cfg.train.stream.skills == ["approach", "place", "insert"]
     assert train.stream.dataset_root == cfg.record.root == Path("datasets/needle_try")
     assert cfg.record.num_episodes <= 20 and len(cfg.train.eval.seeds) == 1 and cfg.train.eval.episodes <= 5
-    assert cfg.train.wake.max_epochs * cfg.train.wake.max_steps_per_epoch <= 600
+    assert cfg.train.wake.max_epochs * cfg.train.wake.max_steps_per_epoch <= 1200
     assert cfg.train.sleep.enabled and cfg.train.sleep.max_iterations <= 200
     assert Path(cfg.train.output_dir) == Path("outputs/needle_try")
     other_roots = {json.loads(p.read_text()).get("record", {}).get("root") for p in CONFIGS.glob("*.json") if p != TRY}
