@@ -244,3 +244,26 @@ def test_each_calibration_step_s_reading_recomputes_from_its_raw_runs(step, phra
     assert now["criteria"] == stored["criteria"] and now["seeds"] == stored["seeds"]
     for phrase in phrases(now["criteria"]):
         assert phrase in text, phrase
+
+
+# --- the first look (README): the numbers it states recompute from its archived runs ---------------------------------
+
+def test_the_first_look_s_stated_outcomes_recompute_from_its_runs():
+    """README's "A first look" states, for the preset as it is (30 epochs per wake), the final success per skill of
+    training seeds 0-4 and of the preset's own seed 1000, and that every skill reached >= 0.80 right after its own
+    wake on seeds 0-4; each archived run was made with the preset's settings."""
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    preset = json.loads((DOCS.parent / "configs" / "needle_try.json").read_text())["train"]
+    finals = {}
+    for seed in (0, 1, 2, 3, 4, 1000):
+        run = DOCS / "results" / "needle_try_first_look" / f"wake30_seed{seed}"
+        config = json.loads((run / "train_config.json").read_text())
+        assert config["seed"] == seed and config["wake"] == {**config["wake"], **preset["wake"]}
+        assert config["stream"]["skills"] == preset["stream"]["skills"]
+        results = json.loads((run / "results.json").read_text())
+        if seed != 1000:
+            assert min(results["success_after_own_wake"]) >= 0.8, (seed, results["success_after_own_wake"])
+        finals[seed] = " / ".join(f"{v:.2f}" for v in results["success_matrix"][-1])
+    assert "at the end " + ", ".join(finals[s] for s in (0, 1, 2, 3)) + ", " + finals[4] + "; the preset's own" \
+        in readme, finals
+    assert f"ends {finals[1000]}, insert reaching only {finals[1000].split(' / ')[-1]}" in readme
