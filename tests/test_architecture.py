@@ -1,4 +1,4 @@
-"""The package's walls (issue 29): no import cycles, not even through imports inside functions or under
+"""The package's walls: no import cycles, not even through imports inside functions or under
 ``TYPE_CHECKING``, and no upward imports between the layers (io, progress < core < infra < stream < substrates <
 drivers)."""
 

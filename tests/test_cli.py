@@ -1,4 +1,4 @@
-"""``sr-train``: one command for both substrates, with the same flag names for shared concepts (issue 10)."""
+"""``sr-train``: one command for both substrates, with the same flag names for shared concepts."""
 
 from __future__ import annotations
 
@@ -120,7 +120,7 @@ def test_help_shows_the_substrate_s_flags_only(args, shows, hides, capsys):
     assert not any(h in out for h in hides), [h for h in hides if h in out]
 
 
-# --policy.sleep (the design card's name) is --sleep.enabled on sr-train: one setting (issue 27, item 1). -------------
+# --policy.sleep (the design card's name) is --sleep.enabled on sr-train: one setting. --------------------------------
 
 @pytest.mark.parametrize("args, enabled, buffer_size", [
     (["--policy.sleep=true"], True, 1024),

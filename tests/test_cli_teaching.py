@@ -1,4 +1,4 @@
-"""A command line that teaches (issue 27, items 5 and 8): every flag of every command has a meaning in ``--help``,
+"""A command line that teaches: every flag of every command has a meaning in ``--help``,
 ``--help`` works next to ``--config_path``, a typo is one line naming the nearest flag, LeRobot's names are mapped
 or answered in one line, usage errors are one line with a pointer to ``--help``; the short ``needle_try``
 preset."""

@@ -1,4 +1,4 @@
-"""recompute_bwt on the committed raw results: it reproduces the stored bwt and the issue's post-wake numbers."""
+"""recompute_bwt on the committed raw results: it reproduces the stored bwt and the known post-wake numbers."""
 
 from __future__ import annotations
 
@@ -19,7 +19,7 @@ def test_needle_compare_both_references_and_paired_difference(tmp_path, capsys):
         assert r.bwt == pytest.approx(r.stored_bwt, abs=1e-9), r.run  # the reported bwt is reproduced
     summary = summarize_runs(runs)
     sr, wake_only = summary["variants"]["sr"], summary["variants"]["wake_only"]
-    # Issue 9: post-wake reference SR +0.100 +- 0.063 vs wake-only -0.028 +- 0.031 (reported bwt -0.056 vs -0.028).
+    # Post-wake reference: SR +0.100 +- 0.063 vs wake-only -0.028 +- 0.031 (reported bwt -0.056 vs -0.028).
     assert (sr["bwt_wake"]["mean"], sr["bwt_wake"]["sem"]) == pytest.approx((0.100, 0.063), abs=5e-4)
     assert (wake_only["bwt_wake"]["mean"], wake_only["bwt_wake"]["sem"]) == pytest.approx((-0.028, 0.031), abs=5e-4)
     assert (sr["bwt"]["mean"], wake_only["bwt"]["mean"]) == pytest.approx((-0.056, -0.028), abs=5e-4)

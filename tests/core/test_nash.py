@@ -66,7 +66,7 @@ def _scipy_min_norm(c: np.ndarray) -> float:
 
 
 def _conflict(rng: np.random.Generator, k: int, d: int) -> np.ndarray:
-    """Issue 9's family: k unit gradients in d dims, memory 0 opposing the mean of the others."""
+    """The conflicting family: k unit gradients in d dims, memory 0 opposing the mean of the others."""
     j = rng.normal(size=(k, d))
     j[0] = -j[1:].mean(axis=0) + 0.5 * rng.normal(size=d)
     return _unit(j) * rng.lognormal(size=(k, 1))  # arbitrary scales: the solver must not care
@@ -146,7 +146,7 @@ def test_the_maximizer_agrees_with_every_memory_when_the_margin_exceeds_k_minus_
 
 @pytest.mark.parametrize("iterations", [5, 50])
 def test_frank_wolfe_ablation_can_oppose_a_memory_where_the_exact_solver_does_not(iterations):
-    """Issue 9's measurement, as a regression test of why the default changed: on the conflicting family the
+    """Why the default is the exact solver, as a regression test: on the conflicting family the
     paper's fixed-budget Frank-Wolfe leaves some memory with negative agreement; the exact solver never does."""
     rng = np.random.default_rng(0)
     fw_negative = fw_worse = exact_negative = n = 0

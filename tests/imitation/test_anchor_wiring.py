@@ -1,4 +1,4 @@
-"""Issue 9: the ACT-SR stream gives the sleep of stage k the right checkpoints (Eq. 2 and the anchor).
+"""The ACT-SR stream gives the sleep of stage k the right checkpoints (Eq. 2 and the anchor).
 
 At stage k >= 2 the gate of Eq. 2 needs theta_i^wake for i < k only (passing theta_k^wake too would make
 c_k = ||theta - theta_k^wake|| = 0 at the start of sleep and keep the gate always on), and the anchor pulls
@@ -78,8 +78,8 @@ def test_sleep_lowers_the_full_buffer_losses_of_the_earlier_memories(recorded_st
 
 
 def test_sleep_optimizes_the_deployed_policy_only(recorded_stream):
-    """ACT's VAE encoder runs only in training: sleep neither moves it nor measures gate distances on it (issue 10;
-    before, it got only the anchor pull and inflated c_i)."""
+    """ACT's VAE encoder runs only in training: sleep neither moves it nor measures gate distances on it (otherwise
+    it would get only the anchor pull and inflate c_i)."""
     out, names, wakes, sleeps = recorded_stream
     assert names and not any(n.startswith("model.vae_encoder") for n in names)
     for k in (2, 3):

@@ -71,8 +71,9 @@ def test_other_fps_is_refused(state_datasets, tmp_path, monkeypatch):
 
 
 def test_a_skill_without_an_evaluation_environment_is_refused_before_training(state_datasets, tmp_path, monkeypatch):
-    """Issue 26: a dataset for ``suture`` but no needle environment trained two stages, wrote 27 files, then died
-    with a 49-line traceback. Now: one line naming ``stream.skills``, nothing written."""
+    """A dataset for ``suture`` with no needle environment is refused before training, in one line naming
+    ``stream.skills``, with nothing written (it used to train two stages, write 27 files, then die with a 49-line
+    traceback)."""
     root = _copy(state_datasets, tmp_path / "d")
     shutil.copytree(root / "insert", root / "suture")
     out = tmp_path / "out"

@@ -162,14 +162,14 @@ def test_sr_train_resumes_a_finished_run_without_redoing_work(main_job_run):
     train_main([f"--config_path={run / 'train_config.json'}", "--resume=true"])
     assert (run / "progress.json").read_text() == before
     assert (run / "skill_2_place" / "sleep" / "pretrained_model" / "model.safetensors").stat().st_mtime_ns == stamp
-    # issue 27 item 6, LeRobot's habit: the config beside the newest checkpoint resumes the same run
+    # LeRobot's habit: the config beside the newest checkpoint resumes the same run
     train_main([f"--config_path={run / 'last' / 'pretrained_model' / 'train_config.json'}", "--resume=true"])
     assert (run / "progress.json").read_text() == before
     assert not (run / "last" / "pretrained_model" / "progress.json").exists()  # nothing written into the checkpoint
 
 
 def test_checkpoints_carry_the_train_config_and_last_points_at_the_newest_consolidated_policy(main_job_run):
-    """Issue 27 item 6: LeRobot keeps ``train_config.json`` in each ``pretrained_model/`` and a ``last`` pointer;
+    """LeRobot keeps ``train_config.json`` in each ``pretrained_model/`` and a ``last`` pointer;
     so do we (the pointer is relative, so a moved run keeps it; each copy is covered by its checkpoint's manifest)."""
     from sr_imitation.io import verify_manifest
 
@@ -213,8 +213,8 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     assert not list(out.rglob("memory.safetensors"))
     assert any("images" in key for key in config["input_features"])  # the dataset's camera, used by default
     shutil.rmtree(out)
-    # issue 27: --policy.use_images=false was stored as false while the model still took the camera (11.2M
-    # parameters instead of 25k); now the state-only mode holds on stock lerobot-train too
+    # --policy.use_images=false gives a state-only model on stock lerobot-train too (it used to be stored as false
+    # while the model still took the camera: 11.2M parameters instead of 25k)
     proc = subprocess.run([*cmd, "--policy.use_images=false"], capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
     pretrained = next(out.rglob("pretrained_model/config.json")).parent
@@ -226,7 +226,7 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
 
 
 def test_stock_lerobot_eval_evaluates_a_consolidated_checkpoint(main_job_run, tmp_path):
-    """Issue 27: the workflow's last step as a real subprocess: stock ``lerobot-eval`` loads a consolidated (sleep)
+    """The workflow's last step as a real subprocess: stock ``lerobot-eval`` loads a consolidated (sleep)
     checkpoint of the stream and evaluates it in the needle env this package registers."""
     tmp, _ = main_job_run
     exe = Path(sys.executable).parent / "lerobot-eval"

@@ -1,4 +1,4 @@
-"""``sr-sleep`` (issue 27, item 4): consolidate a deployed ACT-SR policy offline from saved memory files.
+"""``sr-sleep``: consolidate a deployed ACT-SR policy offline from saved memory files.
 
 (a) on an ``sr-train`` run's memories (and on stock-format checkpoints trained on two datasets of their own) it
 lowers the summed memory loss and writes the tables and a checkpoint that ``lerobot-eval``'s loader loads; (b) with

@@ -1,4 +1,4 @@
-"""Issue 27, item 2: a stream over your own data and environment.
+"""A stream over your own data and environment.
 
 Skills that are not needle skills (``pick``, ``place_cup``), datasets named by repo_id in a local LeRobot cache,
 evaluation in a gymnasium env per skill, in a LeRobot env config per skill, or switched off (``--eval.env=none``:

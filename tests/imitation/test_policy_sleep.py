@@ -1,4 +1,4 @@
-"""``--policy.sleep=true`` on stock ``lerobot-train`` (issue 27, item 1): the ACT-SR policy keeps a uniform reservoir
+"""``--policy.sleep=true`` on stock ``lerobot-train``: the ACT-SR policy keeps a uniform reservoir
 of the observations it trains on and writes the skill's frozen actor memory beside each checkpoint, in the stream's
 format; with ``sleep`` false or not given nothing changes."""
 

@@ -1,4 +1,4 @@
-"""Experience replay on ACT (issue 28): the replayed half of every wake batch comes only from the stored buffers of
+"""Experience replay on ACT: the replayed half of every wake batch comes only from the stored buffers of
 earlier skills, each of ``--memory.buffer_size`` demonstration frames (what a wake batch holds for them, SR's
 memory's frames); the first skill has no replay; a tiny stream runs, reports its memory and resumes identically."""
 

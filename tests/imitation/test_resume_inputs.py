@@ -1,4 +1,4 @@
-"""Inputs are part of a run (issue 26): a resume over other data is refused naming the skill and path, an old run
+"""Inputs are part of a run: a resume over other data is refused naming the skill and path, an old run
 without dataset digests resumes only with the flag that says so, and a single changed byte in any file of a run
 directory is refused before anything is written or leaves the results identical to an untouched run.
 

@@ -1,10 +1,10 @@
 """``sr-train --resume``: every results-affecting setting is fingerprinted and checked before anything is written;
 the allow-list is accepted; a copied run directory resumes where it is.
 
-Before this check (issue 10), resuming with another sleep batch size (now ``--sleep.batch_size``),
-``--policy.n_action_steps`` or sleep anchor gate (now ``--sleep.anchor_tau``) exited 0 and mixed settings within
-one run, and ``--policy.dim_feedforward`` rewrote train_config.json before failing, after which every plain resume
-failed.
+Without this check, resuming with another sleep batch size (now ``--sleep.batch_size``), ``--policy.n_action_steps``
+or sleep anchor gate (now ``--sleep.anchor_tau``) would exit 0 and mix settings within one run, and
+``--policy.dim_feedforward`` would rewrite train_config.json before failing, after which every plain resume would
+fail.
 """
 
 from __future__ import annotations
@@ -287,7 +287,7 @@ def test_a_run_made_on_another_device_is_refused(stored, tmp_path):
 
 def test_refused_resumes_leave_the_run_byte_identical_and_a_plain_resume_still_works(
         after_stage_1, reference, tmp_path, fake_env_cli):
-    """End to end through ``sr-train``: the settings of issue 10's report, each refused before anything is written
+    """End to end through ``sr-train``: the module docstring's settings, each refused before anything is written
     (files, bytes and modification times unchanged); then the plain resume finishes the run exactly like an
     uninterrupted one."""
     run = tmp_path / "run"

@@ -81,7 +81,7 @@ def test_sleep_reports_every_applied_iteration(tmp_path):
 
 
 def test_a_resumed_run_continues_the_same_wandb_run(tmp_path, monkeypatch):
-    """Issue 27 item 6 (LeRobot's run_id): the wandb id is stored with the run; a resume continues that run, its
+    """Like LeRobot's run_id, the wandb id is stored with the run; a resume continues that run, its
     steps after the records already logged."""
     import json
 

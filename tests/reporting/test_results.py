@@ -1,4 +1,4 @@
-"""The shared results schema and the multi-run summary (substrate-free; issue 10)."""
+"""The shared results schema and the multi-run summary (substrate-free)."""
 
 from __future__ import annotations
 
@@ -195,8 +195,9 @@ def test_summary_reports_each_runs_phase_time(tmp_path):
 
 
 def test_a_results_file_without_its_seal_is_refused_unless_its_schema_predates_seals(tmp_path):
-    """Issue 26: renaming the ``sha256`` key and editing AFSR was read as the run's result. Whether a file may lack
-    its seal is decided by its recorded schema version, never by the missing key; such runs are marked unsealed."""
+    """A file whose ``sha256`` key is renamed and whose AFSR is edited is not read as the run's result. Whether a
+    file may lack its seal is decided by its recorded schema version, never by the missing key; such runs are marked
+    unsealed."""
     run = _write_run(tmp_path, "run", _results())
     data = json.loads((run / "results.json").read_text())
     assert data["results_version"] == RESULTS_VERSION >= SEALED_SINCE and not load_results(run)["unsealed"]

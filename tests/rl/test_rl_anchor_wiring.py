@@ -1,4 +1,4 @@
-"""Issue 9: the SAC stream gives the sleep of stage k the right checkpoints (Eq. 2 and the anchor).
+"""The SAC stream gives the sleep of stage k the right checkpoints (Eq. 2 and the anchor).
 
 At stage k >= 2 (1-based) the gate of Eq. 2 needs theta_i^wake for i < k only (passing theta_k^wake too would
 make c_k = 0 at the start of sleep and keep the gate always on), and the anchor pulls toward theta_{k-1}^sleep

@@ -1,4 +1,4 @@
-"""SAC agent, critic memory and sleep invariants (issue 5 "Tests")."""
+"""SAC agent, critic memory and sleep invariants."""
 
 from __future__ import annotations
 

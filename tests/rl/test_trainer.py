@@ -213,8 +213,8 @@ def test_a_kill_inside_a_stage_resumes_to_the_uninterrupted_results(tmp_path, un
 
 
 def test_a_run_that_stored_its_config_as_config_json_resumes_from_it(tmp_path, uninterrupted):
-    """Issue 29: every run stores train_config.json; a SAC run written before stored config.json, and
-    ``sr-train --config_path=<run>/config.json --resume=true`` still resumes it to the uninterrupted results."""
+    """Every run stores train_config.json; a SAC run in the older layout (config.json, no train_config.json) still
+    resumes with ``sr-train --config_path=<run>/config.json --resume=true`` to the uninterrupted results."""
     from sr_imitation.cli import parse_args
 
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
@@ -222,7 +222,7 @@ def test_a_run_that_stored_its_config_as_config_json_resumes_from_it(tmp_path, u
 
     stop_after(run, (1, "wake"), **cfg)
     assert (run / "train_config.json").is_file() and not (run / "config.json").exists()
-    (run / "train_config.json").rename(run / "config.json")  # the layout of a run from before issue 29
+    (run / "train_config.json").rename(run / "config.json")  # the older layout: config.json, no train_config.json
     parsed = parse_args([f"--config_path={run / 'config.json'}", "--resume=true"])
     assert parsed.output_dir == run
     resumed = SACTrainer(parsed).run()
@@ -254,8 +254,8 @@ def test_extend_from_continues_a_finished_stream_with_its_stages(tmp_path):
 
 
 def test_an_unknown_skill_is_refused_before_the_first_gradient(tmp_path):
-    """Issue 26: ``--stream.skills=[reach-v3,door-open-v3,fooo-v3]`` failed after two stages (hours at the real
-    preset). Now the trainer refuses it when built, naming ``stream.skills``, with nothing written."""
+    """``--stream.skills=[reach-v3,door-open-v3,fooo-v3]`` is refused when the trainer is built, naming
+    ``stream.skills``, with nothing written (it used to fail after two stages: hours at the real preset)."""
     out = tmp_path / "run"
     with pytest.raises(ValueError, match=r"^stream.skills: \['fooo-v3'\] are not Meta-World v3 environments"):
         SACTrainer(tiny_config(out, skills=["reach-v3", "fooo-v3"]))
@@ -263,8 +263,8 @@ def test_an_unknown_skill_is_refused_before_the_first_gradient(tmp_path):
 
 
 def test_every_sealed_file_is_verified_before_a_resume_writes(tmp_path, uninterrupted):
-    """Issue 26: a flipped byte in a completed phase's file (the last stage's trajectories and sleep diagnostics
-    were read only at the report) is refused naming the file before the resume writes anything."""
+    """A flipped byte in a completed phase's file (the last stage's trajectories and sleep diagnostics used to be
+    read only at the report) is refused naming the file before the resume writes anything."""
     from tests.infra.test_fingerprint import tree_state
 
     cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
