@@ -1,6 +1,6 @@
-"""docs/RESULTS.md's headline numbers recompute from the committed raw files (issue 28's calibrated stream): the
-first paragraph, Table 2's rows, the pre-registered tests and the per-seed line. A number typed by hand that drifts
-from its raw file fails here (session 29 found a per-seed line that had)."""
+"""docs/RESULTS.md's and README's numbers recompute from the committed raw files: the calibrated needle stream's
+first paragraph, Table 2's rows, the tests and the per-seed line; the MT5 imitation stream's calibration readings;
+the first look's outcomes. A number typed by hand that drifts from its raw file fails here."""
 
 from __future__ import annotations
 
