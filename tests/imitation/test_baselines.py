@@ -3,6 +3,8 @@ output, not the current one's; a tiny ACT stream per method runs through the eng
 
 from __future__ import annotations
 
+import json
+
 import pytest
 import torch
 from safetensors.torch import load_file
@@ -134,3 +136,23 @@ def test_m2distill_distils_actions_and_features_from_the_previous_policy():
     live.net.bias.requires_grad_(False)
     loss.backward()  # the feature terms reach the weights (the bias only moves the action term)
     assert live.net.weight.grad.abs().sum() > 0
+
+
+def test_sequential_bc_trains_the_same_whatever_the_memory_size(state_datasets, tmp_path):
+    """Sequential BC never trains on a skill memory (any memory is drawn with its own phase seed, after the wake):
+    ``--memory.buffer_size`` changes no weight and no success. (What lets a calibration step that only changes the
+    memory size reuse the sequential BC and MT-Joint runs; MT-Joint builds no memory at all.)"""
+    runs = {}
+    for size in (8, 4):
+        cfg = tiny_stream_config(state_datasets, tmp_path / f"m{size}", SKILLS[:2], use_images=False)
+        cfg.method, cfg.memory.buffer_size = "sequential_bc", size
+        cfg.sleep.enabled = False
+        runs[size] = train_stream(cfg, fake_env_factory)
+    for stage in ("skill_1_approach", "skill_2_place"):
+        a, b = (load_file(tmp_path / f"m{s}" / stage / "wake" / "pretrained_model" / "model.safetensors")
+                for s in (8, 4))
+        assert a.keys() == b.keys() and all(torch.equal(a[n], b[n]) for n in a)
+    assert runs[8]["success_matrix"] == runs[4]["success_matrix"]
+    stored = [json.loads((tmp_path / f"m{s}" / "train_config.json").read_text())["memory"]["buffer_size"]
+              for s in (8, 4)]
+    assert stored == [8, 4]  # the setting did reach each run
