@@ -6,21 +6,28 @@
 #   bash tools/experiments/queue_worker.sh <commit> <queue file> <log folder>     # runs in the foreground
 #   nohup setsid bash tools/experiments/queue_worker.sh c8c03d9 outputs/q.txt outputs/qlogs > /dev/null 2>&1 &
 #
-# A queue line is "<name> <python arguments...>" (e.g. "k3_wo_101 -m sr_imitation.experiments.needle_compare ...");
-# blank lines and lines starting with # are skipped. A taken line is moved to <queue file>.taken, and "<name> rc=<status>"
+# A queue line is "<name> [@<commit>] <python arguments...>" (e.g. "k3_wo_101 -m sr_imitation.experiments.needle_compare
+# ..."): it runs from the worktree of <commit> if the line names one, else of the worker's <commit>. Blank lines and
+# lines starting with # are skipped. A taken line is moved to <queue file>.taken, and "<name> rc=<exit status>"
 # appended to <queue file>.done when it ends; its output goes to <log folder>/<name>.log. Paths in the arguments
 # resolve in the worktree: give output roots and archives as absolute paths. A killed worker's run resumes when its
-# line is queued again (the runners skip finished runs and resume killed ones).
+# line is queued again (tools/experiments/queue_requeue.sh; the runners skip finished runs and resume killed ones).
 set -uo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
-commit="$(git -C "$root" rev-parse --short "$1")"; queue="$(realpath "$2")"; logs="$(mkdir -p "$3" && realpath "$3")"
-wt="$root/../wt-$commit"
-[ -e "$wt/.git" ] || git -C "$root" worktree add --detach "$wt" "$commit" >/dev/null
-for d in "$root"/datasets/*/; do
-  name="$(basename "$d")"; [ -e "$wt/datasets/$name" ] || ln -s "$root/datasets/$name" "$wt/datasets/$name"
-done
+default_commit="$1"; queue="$(realpath "$2")"; logs="$(mkdir -p "$3" && realpath "$3")"
+
+worktree() {  # <commit> -> prints the worktree path, created once, with the clone's datasets linked in
+  local commit wt d name
+  commit="$(git -C "$root" rev-parse --short "$1")" || return 1
+  wt="$root/../wt-$commit"
+  [ -e "$wt/.git" ] || git -C "$root" worktree add --detach "$wt" "$commit" >/dev/null || return 1
+  for d in "$root"/datasets/*/; do
+    name="$(basename "$d")"; [ -e "$wt/datasets/$name" ] || ln -s "$root/datasets/$name" "$wt/datasets/$name"
+  done
+  echo "$wt"
+}
+
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
-export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr${PYTHONPATH:+:$PYTHONPATH}"
 touch "$queue"
 while true; do
   line="$(flock "$queue.lock" bash -c '
@@ -30,9 +37,16 @@ while true; do
     fi
     echo "$line"' _ "$queue")"
   [ -z "$line" ] && break
-  name="${line%% *}"; args="${line#* }"
+  name="${line%% *}"; args="${line#* }"; commit="$default_commit"
+  if [[ "$args" == @* ]]; then commit="${args%% *}"; commit="${commit#@}"; args="${args#* }"; fi
   echo "$(date -u +%FT%TZ) start $name" >> "$queue.done"
-  # shellcheck disable=SC2086  (the queue line's arguments are split as a shell would split them, no globbing)
-  (cd "$wt" && set -f && exec "$root/.venv/bin/python" $args) > "$logs/$name.log" 2>&1
-  echo "$(date -u +%FT%TZ) $name rc=$?" >> "$queue.done"
+  if wt="$(worktree "$commit")"; then
+    # shellcheck disable=SC2086  (the line's arguments are split as a shell splits them, without globbing)
+    (cd "$wt" && set -f && export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr" \
+      && exec "$root/.venv/bin/python" $args) > "$logs/$name.log" 2>&1
+    rc=$?
+  else
+    echo "no worktree for commit $commit" > "$logs/$name.log"; rc=2
+  fi
+  echo "$(date -u +%FT%TZ) $name rc=$rc" >> "$queue.done"
 done
