@@ -206,9 +206,13 @@ def _pins(path: Path) -> dict[str, Version]:
     return pins
 
 
-def test_direct_dependencies_are_ranges_that_hold_the_lock_and_start_at_the_tested_lower_bounds():
+def _direct_dependencies() -> list[Requirement]:
     with open(ROOT / "pyproject.toml", "rb") as f:
-        deps = [Requirement(d) for d in tomllib.load(f)["project"]["dependencies"]]
+        return [Requirement(d) for d in tomllib.load(f)["project"]["dependencies"]]
+
+
+def test_direct_dependencies_are_ranges_that_hold_the_lock_and_start_at_the_tested_lower_bounds():
+    deps = _direct_dependencies()
     lock, lower = _pins(ROOT / ".ci" / "constraints.txt"), _pins(ROOT / ".ci" / "lower_bounds.txt")
     names = {canonicalize_name(r.name) for r in deps}
     assert names >= EXACT_PINS and set(lower) == names - EXACT_PINS, (sorted(names), sorted(lower))
@@ -228,8 +232,7 @@ def test_direct_dependencies_are_ranges_that_hold_the_lock_and_start_at_the_test
 def test_the_ranges_lie_inside_the_pinned_lerobot_s_own():
     lerobot = {canonicalize_name(r.name): r.specifier for r in map(Requirement, importlib.metadata.requires("lerobot"))
                if r.marker is None}
-    with open(ROOT / "pyproject.toml", "rb") as f:
-        deps = [Requirement(d) for d in tomllib.load(f)["project"]["dependencies"]]
+    deps = _direct_dependencies()
     for req in deps:
         theirs = lerobot.get(canonicalize_name(req.name))
         if theirs is None or canonicalize_name(req.name) in EXACT_PINS:

@@ -168,11 +168,11 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
     ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix`` names (``--seed=1`` is
     ``--train.seed=1``); errors name the flags as given."""
     args = list(args)
-    with readable_config(config_path) as readable:
+    with readable_config(config_path) as (readable, settings):
         parser = command_parser(cls, prog=prog, config_path=readable)
         if wants_help(args):
-            if help_values is None and readable is not None and Path(readable).is_file():
-                help_values = (str(config_path), _json_object(readable))
+            if help_values is None and settings is not None:
+                help_values = (str(config_path), settings)
             if help_values is not None:
                 show_values_as_defaults(parser, *help_values)
             parser.parse_args(["--help"])  # prints the help and exits 0
@@ -188,15 +188,6 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
                 if message.startswith(f"argument {flag}:"):
                     message = f"{message}; {note}"
             raise UsageError(message) from None
-
-
-def _json_object(path: str | Path) -> Mapping:
-    """A config file's JSON object, ``{}`` if it is not one (the parse that follows reports it)."""
-    try:
-        data = json.loads(Path(path).read_text())
-    except (OSError, ValueError):
-        return {}
-    return data if isinstance(data, dict) else {}
 
 
 def show_values_as_defaults(parser: ArgumentParser, source: str, values: Mapping) -> int:
@@ -221,22 +212,22 @@ _ABSENT = object()
 
 
 @contextlib.contextmanager
-def readable_config(config_path: str | Path | None) -> Iterator[str | Path | None]:
-    """The ``--config_path`` file as draccus can read it: a run's sealed ``train_config.json`` is checked against its
-    seal (:func:`~sr_imitation.io.read_config_json`: one line naming the file if it was edited or damaged) and handed
-    over as a copy without the seal, in a temporary folder removed afterwards; any other file as it is (a missing or
-    unreadable one is reported by the caller or draccus)."""
+def readable_config(config_path: str | Path | None) -> Iterator[tuple[str | Path | None, dict[str, Any] | None]]:
+    """The ``--config_path`` file as draccus can read it, and its settings (``None`` without a readable file): a run's
+    sealed ``train_config.json`` is checked against its seal (:func:`~sr_imitation.io.read_config_json`: one line
+    naming the file if it was edited or damaged) and handed over as a copy without the seal, in a temporary folder
+    removed afterwards; any other file as it is (a missing or unreadable one is reported by the caller or draccus)."""
     if config_path is None or not Path(config_path).is_file():
-        yield config_path
+        yield config_path, None
         return
     config, sealed = read_config_json(config_path)
     if not sealed:
-        yield config_path
+        yield config_path, config
         return
     with tempfile.TemporaryDirectory(prefix="sr-config-") as folder:
         copy = Path(folder) / Path(config_path).name
         copy.write_text(json.dumps(config, indent=2, sort_keys=True))
-        yield copy
+        yield copy, config
 
 
 # --- help ------------------------------------------------------------------------------------------------------------

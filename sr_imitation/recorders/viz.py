@@ -31,10 +31,10 @@ def torchcodec_loads() -> bool:
     return True
 
 
-def use_pyav_unless_torchcodec_loads() -> str:
-    """Make LeRobot's datasets default to PyAV when torchcodec does not load; returns the default decoder now."""
+def use_pyav_unless_torchcodec_loads() -> None:
+    """Make LeRobot's datasets default to PyAV when torchcodec does not load (where it loads, nothing changes)."""
     if torchcodec_loads():
-        return "torchcodec"
+        return
     import lerobot.datasets.lerobot_dataset as lerobot_dataset  # noqa: PLC0415
     import lerobot.datasets.video_utils as video_utils  # noqa: PLC0415
 
@@ -44,7 +44,6 @@ def use_pyav_unless_torchcodec_loads() -> str:
     video_utils.get_safe_default_codec = pyav
     lerobot_dataset.get_safe_default_codec = pyav  # imported by name there
     logger.info("torchcodec does not load here (FFmpeg libraries missing): decoding videos with pyav")
-    return "pyav"
 
 
 def view_hint(repo_id: str, root: str) -> str:

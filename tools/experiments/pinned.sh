@@ -11,15 +11,11 @@
 # in <command> resolve in the worktree: give output_root and archive as absolute paths into the clone.
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
-commit="$(git -C "$root" rev-parse --short "$1")"; log="$2"; shift 2
-wt="$root/../wt-$commit"
-if [ ! -e "$wt/.git" ]; then
-  git -C "$root" worktree add --detach "$wt" "$commit" >/dev/null
-fi
-for d in "$root"/datasets/*/; do
-  name="$(basename "$d")"
-  [ -e "$wt/datasets/$name" ] || ln -s "$root/datasets/$name" "$wt/datasets/$name"
-done
+# shellcheck source=tools/experiments/worktree.sh
+source "$root/tools/experiments/worktree.sh"
+log="$2"
+wt="$(pinned_worktree "$root" "$1")"
+shift 2
 cd "$wt"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr${PYTHONPATH:+:$PYTHONPATH}"

@@ -16,16 +16,8 @@ set -uo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/../.." && pwd)"
 default_commit="$1"; queue="$(realpath "$2")"; logs="$(mkdir -p "$3" && realpath "$3")"
 
-worktree() {  # <commit> -> prints the worktree path, created once, with the clone's datasets linked in
-  local commit wt d name
-  commit="$(git -C "$root" rev-parse --short "$1")" || return 1
-  wt="$root/../wt-$commit"
-  [ -e "$wt/.git" ] || git -C "$root" worktree add --detach "$wt" "$commit" >/dev/null || return 1
-  for d in "$root"/datasets/*/; do
-    name="$(basename "$d")"; [ -e "$wt/datasets/$name" ] || ln -s "$root/datasets/$name" "$wt/datasets/$name"
-  done
-  echo "$wt"
-}
+# shellcheck source=tools/experiments/worktree.sh
+source "$root/tools/experiments/worktree.sh"
 
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 touch "$queue"
@@ -40,7 +32,7 @@ while true; do
   name="${line%% *}"; args="${line#* }"; commit="$default_commit"
   if [[ "$args" == @* ]]; then commit="${args%% *}"; commit="${commit#@}"; args="${args#* }"; fi
   echo "$(date -u +%FT%TZ) start $name" >> "$queue.done"
-  if wt="$(worktree "$commit")"; then
+  if wt="$(pinned_worktree "$root" "$commit")"; then
     # shellcheck disable=SC2086  (the line's arguments are split as a shell splits them, without globbing)
     (cd "$wt" && set -f && export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr" \
       && exec "$root/.venv/bin/python" $args) > "$logs/$name.log" 2>&1
