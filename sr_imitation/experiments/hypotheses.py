@@ -6,9 +6,11 @@
 A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0, ``A!=B`` the two-sided one
 (:func:`sr_imitation.reporting.stats.paired_test`, with the exact sign-flip p beside it), over the training seeds both
 variants have in the archive (``<variant>_seed<S>/results.json``, read and checked by
-:func:`sr_imitation.reporting.results.load_results`); each seed's value is the run's final metric (its mean over
-evaluation units), or for runs without closed-loop evaluation (``--eval.env=none``: a real robot's datasets and no
-simulator) an offline one (:data:`LOSS_METRICS`: lower is better, so the test of "sleep helps" is ``sr<wake_only``).
+:func:`sr_imitation.reporting.results.load_results`); ``<folder>::A>B`` reads another archive, and
+``<folder>::A!=<other folder>::B`` pairs runs of two archives (one variant under two settings). Each seed's value is
+the run's final metric (its mean over evaluation units), or for runs without closed-loop evaluation
+(``--eval.env=none``: a real robot's datasets and no simulator) an offline one (:data:`LOSS_METRICS`: lower is
+better, so the test of "sleep helps" is ``sr<wake_only``).
 Written: ``hypotheses.md`` and ``hypotheses.json`` (per test: seeds, per-seed values, mean +- SE of the difference,
 t, p, bootstrap 95% CI) and ``hypotheses.png`` (per test, each training seed's A and B joined by a line: the pairing
 the test uses). """
@@ -32,7 +34,7 @@ from sr_imitation.reporting.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
 
-_TEST = re.compile(r"^(?:(.+)::)?([\w.]+)(>|<|!=)([\w.]+)$")
+_TEST = re.compile(r"^(?:([^<>!]+)::)?([\w.]+)(>|<|!=)(?:([^<>!]+)::)?([\w.]+)$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
 
 
@@ -42,7 +44,9 @@ class HypothesesConfig:
     """A folder of finished runs, ``<variant>_seed<S>/`` each (a comparison's archive)."""
     tests: list[str] = field(default_factory=lambda: ["sr>wake_only", "sr!=replay"])
     """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided), on ``archive``'s runs; a test
-    ``<folder>::A>B`` reads another archive's runs (one family over several streams, e.g. with ``--holm``)."""
+    ``<folder>::A>B`` reads another archive's runs (one family over several streams, e.g. with ``--holm``), and
+    ``<folder>::A!=<other folder>::B`` pairs A's runs in one archive with B's in another (the same variant under two
+    settings, paired by training seed)."""
     metric: str = "afsr"
     """The final metric compared: afsr, prs, bwt, bwt_wake, spi (evaluated runs) or val_l1, memory_loss (runs
     without evaluation, lower is better: :data:`LOSS_METRICS`)."""
@@ -62,11 +66,12 @@ class HypothesesConfig:
     def __post_init__(self) -> None:
         bad = [t for t in self.tests if not _TEST.match(t)]
         if bad:
-            raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B (or <folder>::A>B)")
+            raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B (or <folder>::A>B, "
+                             "<folder>::A!=<folder>::B)")
         for test in self.tests:
-            folder = _TEST.match(test).group(1)  # type: ignore[union-attr]
-            if folder is not None and not Path(folder).is_dir():
-                raise FileNotFoundError(f"tests: {test!r}: {folder} is not a folder")
+            for folder in _TEST.match(test).group(1, 4):  # type: ignore[union-attr]
+                if folder is not None and not Path(folder).is_dir():
+                    raise FileNotFoundError(f"tests: {test!r}: {folder} is not a folder")
         if self.metric not in METRICS and self.metric not in LOSS_METRICS:
             raise ValueError(f"metric: {self.metric!r} is not one of {[*METRICS, *LOSS_METRICS]}")
         if not 0 < self.alpha < 1:
@@ -108,15 +113,18 @@ def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float
 def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     rows = []
     for test in cfg.tests:
-        folder, a, op, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked in __post_init__)
+        folder, a, op, folder_b, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked above)
         archive = Path(folder) if folder is not None else Path(cfg.archive)
-        va, vb = archived_values(archive, a, cfg.metric), archived_values(archive, b, cfg.metric)
-        for variant, values in ((a, va), (b, vb)):
+        archive_b = Path(folder_b) if folder_b is not None else archive  # ``<folder>::A>B``: both in that folder
+        va, vb = archived_values(archive, a, cfg.metric), archived_values(archive_b, b, cfg.metric)
+        for variant, values, where in ((a, va, archive), (b, vb, archive_b)):
             if not values:
-                logger.warning("%s: no finished %s runs in %s (yet)", test, variant, archive)
+                logger.warning("%s: no finished %s runs in %s (yet)", test, variant, where)
         seeds = sorted(set(va) & set(vb))
         result = paired_test([va[s] for s in seeds], [vb[s] for s in seeds], _ALTERNATIVE[op])
-        rows.append({"test": test, "archive": str(archive), "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
+        where = str(archive) if archive_b == archive else f"{archive} vs {archive_b}"
+        rows.append({"test": test, "archive": where, "archive_a": str(archive), "archive_b": str(archive_b),
+                     "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
                      "a_values": [va[s] for s in seeds], "b_values": [vb[s] for s in seeds], **result.to_dict(),
                      "alpha": cfg.alpha, "significant": bool(result.p < cfg.alpha)})
     if cfg.holm:
@@ -181,7 +189,10 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
             if len(values):
                 sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
                 ax.errorbar([x], [values.mean()], yerr=[sem], fmt="s", color="k", capsize=4, ms=5)
-        ax.set_xticks([0, 1], [r["a"], r["b"]])
+        ticks = [r["a"], r["b"]]
+        if r.get("archive_a", r["archive"]) != r.get("archive_b", r["archive"]):  # one variant, two archives
+            ticks = [f"{r['a']}\n{Path(r['archive_a']).name}", f"{r['b']}\n{Path(r['archive_b']).name}"]
+        ax.set_xticks([0, 1], ticks, fontsize=7)
         ax.set_xlim(-0.6, 1.6)
         ax.set_ylabel(f"final {r['metric']}")
         if r["n"] >= 2:

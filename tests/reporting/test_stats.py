@@ -194,6 +194,32 @@ def test_a_family_spans_archives_and_labels_are_exploratory_unless_pre_registere
         HypothesesConfig(archive=first, tests=[f"{tmp_path / 'nowhere'}::sr>wake_only"])
 
 
+def test_a_test_pairs_one_variant_across_two_archives_by_training_seed(tmp_path):
+    """``<folder>::sr!=<other>::sr``: the same variant under two settings, paired by seed (only common seeds)."""
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, main, render, run_tests
+
+    seen, union = tmp_path / "seen", tmp_path / "union"
+    _archive(seen, {"sr": [0.7, 0.6, 0.65], "wake_only": [0.4, 0.5, 0.45]})
+    _archive(union, {"sr": [0.5, 0.55, 0.6, 0.7], "wake_only": [0.4, 0.3, 0.5, 0.2]})
+    tests = [f"{seen}::sr!={union}::sr", f"{seen}::wake_only<{union}::wake_only", f"{seen}::sr>wake_only"]
+    rows = run_tests(HypothesesConfig(archive=union, tests=tests))
+    assert [r["seeds"] for r in rows] == [[0, 1, 2], [0, 1, 2], [0, 1, 2]]  # union's seed 3 has no partner
+    assert rows[0]["a_values"] == pytest.approx([0.7, 0.6, 0.65])
+    assert rows[0]["b_values"] == pytest.approx([0.5, 0.55, 0.6])
+    assert rows[0]["mean"] == pytest.approx(0.1) and rows[0]["alternative"] == "two-sided"
+    assert rows[0]["sign_flip_p"] == 2 / 8  # all three positive, two-sided
+    assert rows[1]["b_values"] == pytest.approx([0.4, 0.3, 0.5]) and rows[1]["alternative"] == "less"
+    assert rows[2]["b_values"] == pytest.approx([0.4, 0.5, 0.45])  # a left folder alone holds both variants
+    assert rows[0]["archive"] == f"{seen} vs {union}" and rows[2]["archive"] == str(seen)
+    assert f"{seen} vs {union}" in render(rows, union)
+    main([f"--archive={union}", f"--tests=[{tests[0]}]", f"--output={tmp_path / 'h'}"])
+    assert (tmp_path / "h" / "hypotheses.png").stat().st_size > 0
+    with pytest.raises(FileNotFoundError, match="nowhere is not a folder"):
+        HypothesesConfig(archive=seen, tests=[f"{seen}::sr!={tmp_path / 'nowhere'}::sr"])
+    with pytest.raises(ValueError, match="not of the form"):
+        HypothesesConfig(archive=seen, tests=["sr>>wake_only"])
+
+
 def _archive(folder, finals: dict[str, list[float]]) -> None:
     """Runs ``<variant>_seed<S>`` whose final AFSR is the given value (the toy results' 0.7 shifted)."""
     from sr_imitation.io import write_checked_json
