@@ -232,6 +232,9 @@ def _list(values: list[float]) -> str:
         f"(MT-Joint {c['C1']['mt_joint_afsr']:.3f}, final reach {c['C1']['mt_joint_final_per_skill'][0]:.2f})",
         f"right after its own wake {_list(c['C2']['own_wake_per_skill'])}",
         f"(final AFSR {c['C3']['final_afsr']:.3f})"]),
+    ("metaworld_mt5_imitation_calibration_k4", lambda c: [  # K4 re-runs wake-only only (RESULTS, 04:27 UTC)
+        f"mean {c['C4']['wake_only_afsr']:.3f}; final per skill {_list(c['C4']['wake_only_final_per_skill'])}: "
+        "C4 **met**"]),
 ])
 def test_each_calibration_step_s_reading_recomputes_from_its_raw_runs(step, phrases, text):
     """Each archived step's ``calibration/calibration.json`` equals the reading recomputed now from the step's raw
