@@ -259,9 +259,22 @@ class ACTSubstrate:
     def warn_far_outside(self, k: int) -> None:
         """One warning line, before skill ``k``'s first gradient, when its dataset's mean lies more than
         :data:`~sr_imitation.imitation.normalization.FAR_OUTSIDE` standard deviations of the statistics in use
-        from their mean in some state or action dimension."""
+        from their mean in some state or action dimension. Under ``seen`` the statistics in use already hold skill
+        ``k``; there the line says how far it lies outside those of the skills before it, which widen to take it
+        in (the policy, re-expressed exactly, meets it as that far an outlier; docs/RESULTS.md measures what
+        ``seen`` costs against ``union`` on the needle stream, where such jumps occur)."""
         stream = self.cfg.stream
         meta = load_metadata(stream.dataset_path(k), stream.repo_id(k))
+        if stream.stats == "seen":
+            found = None if k == 0 else far_outside(meta.stats, self.stage_stats(k - 1), [OBS_STATE, ACTION])
+            if found is not None:
+                key, dim, z = found
+                logger.warning("skill %s: its %s[%d] lies %.0f standard deviations outside the statistics of the "
+                               "skills before it (--stream.stats=seen widens them to take it in); on the needle "
+                               "stream seen ended below union (docs/RESULTS.md, 'The normalization default "
+                               "measured'): --stream.stats=union if every skill's dataset is at hand from the start",
+                               self.skills[k], key, dim, z)
+            return
         found = far_outside(meta.stats, self.stats, [OBS_STATE, ACTION])
         if found is not None:
             key, dim, z = found

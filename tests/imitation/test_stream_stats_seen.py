@@ -96,6 +96,20 @@ def test_a_skill_far_outside_the_statistics_in_use_is_reported_before_its_first_
     with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
         ACTTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
     assert not [r for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
+    # under seen the statistics in use hold place already: the line says how far it lies outside approach's
+    lines = [r.getMessage() for r in caplog.records if "outside the statistics of the skills before" in r.getMessage()]
+    assert len(lines) == 1 and lines[0].startswith("skill place: its ") and "--stream.stats=union" in lines[0]
+    z = float(lines[0].split(" lies ")[1].split(" standard")[0])
+    assert z > 10
+
+
+def test_seen_says_nothing_of_a_skill_inside_the_statistics_before_it(tmp_path, caplog):
+    root = tmp_path / "near"
+    make_skill_dataset(root, "approach", 0, image=False, offset=0.0)
+    make_skill_dataset(root, "place", 1, image=False, offset=0.0)
+    with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
+        ACTTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
+    assert not [r for r in caplog.records if "standard deviations" in r.getMessage()]
 
 
 def test_methods_that_keep_normalized_data_are_refused_with_seen(datasets, tmp_path):
