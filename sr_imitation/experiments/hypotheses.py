@@ -36,6 +36,7 @@ logger = logging.getLogger(__name__)
 
 _TEST = re.compile(r"^(?:([^<>!]+)::)?([\w.]+)(>|<|!=)(?:([^<>!]+)::)?([\w.]+)$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
+_OPERATOR = {alternative: op for op, alternative in _ALTERNATIVE.items()}
 
 
 @dataclass
@@ -189,18 +190,19 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
             if len(values):
                 sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
                 ax.errorbar([x], [values.mean()], yerr=[sem], fmt="s", color="k", capsize=4, ms=5)
-        ticks = [r["a"], r["b"]]
+        ticks, name = [r["a"], r["b"]], r["test"].rsplit("::", 1)[-1] if "::" in r["test"] else r["test"]
         if r.get("archive_a", r["archive"]) != r.get("archive_b", r["archive"]):  # one variant, two archives
             ticks = [f"{r['a']}\n{Path(r['archive_a']).name}", f"{r['b']}\n{Path(r['archive_b']).name}"]
-        ax.set_xticks([0, 1], ticks, fontsize=7)
+            name = f"{r['a']} {_OPERATOR[r['alternative']]} {r['b']}"
+        ax.set_xticks([0, 1], ticks, fontsize=6)
         ax.set_xlim(-0.6, 1.6)
         ax.set_ylabel(f"final {r['metric']}")
         if r["n"] >= 2:
-            ax.set_title(f"{r['test']}: {r['mean']:+.3f} +- {r['sem']:.3f}\n"
+            ax.set_title(f"{name}: {r['mean']:+.3f} +- {r['sem']:.3f}\n"
                          f"CI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], p = {r['p']:.4f}, "
                          f"sign-flip {r['sign_flip_p']:.4f}", fontsize=8)
         else:
-            ax.set_title(f"{r['test']}: {r['n']} paired seed(s), no test", fontsize=8)
+            ax.set_title(f"{name}: {r['n']} paired seed(s), no test", fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()
