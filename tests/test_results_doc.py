@@ -214,6 +214,47 @@ def test_the_vision_oracle_at_twice_the_steps_rows_recompute(text):
     assert f"paired to SR {_signed(list(np.array(long_) - np.array(sr)))}" in text
 
 
+# --- the normalization default measured: --stream.stats=seen against union on needle_cpu_m16 ----------------------
+
+def test_the_seen_against_union_table_and_its_tests_recompute(text):
+    """Each row of the seen-vs-union table against its two runs, the means, the paired differences and the
+    exploratory tests' p values as RESULTS quotes them, and the union re-run's agreement with the archived run."""
+    seen, union = DOCS / "results" / "needle_cpu_m16_stats_seen", DOCS / "results" / "needle_cpu_m16_compare"
+    rows = _table_rows("| variant | training seed | final AFSR, union | final AFSR, seen | BWT, union | BWT, seen "
+                       "| seen: final per skill | seen: right after own wake |")
+    assert [(c[0], int(c[1])) for c in rows] == [(v, s) for v in ("sr", "wake_only") for s in (0, 1, 2)]
+    for cells in rows:
+        run = f"{cells[0]}_seed{cells[1]}"
+        u, n = (json.loads((a / run / "results.json").read_text()) for a in (union, seen))
+        assert json.loads((seen / run / "train_config.json").read_text())["stream"]["stats"] == "seen"
+        assert json.loads((union / run / "train_config.json").read_text())["stream"]["stats"] == "union"
+        assert cells[2:6] == [f"{u['metrics']['afsr']['final']:.3f}", f"{n['metrics']['afsr']['final']:.3f}",
+                              f"{u['metrics']['bwt']['final']:+.3f}", f"{n['metrics']['bwt']['final']:+.3f}"], cells
+        assert cells[6] == " / ".join(f"{x:.2f}" for x in n["success_matrix"][-1])
+        assert cells[7] == " / ".join(f"{x:.2f}" for x in n["success_after_own_wake"])
+    assert sorted(archived_values(seen, "sr", "afsr")) == [0, 1, 2]
+    tests = [f"{seen}::sr!={union}::sr", f"{seen}::wake_only!={union}::wake_only", "sr>wake_only"]
+    sr, wake, sleep = run_tests(HypothesesConfig(archive=seen, tests=tests))
+    assert f"SR {_mean_se(sr['a_values'])} under `seen` against {_mean_se(sr['b_values'])} under `union`" in text
+    assert f"(paired {_signed(list(np.subtract(sr['a_values'], sr['b_values'])))}, two-sided t-test p = " \
+           f"{sr['p']:.3f}, sign-flip p = {sr['sign_flip_p']:.2f})" in text
+    assert f"wake-only {_mean_se(wake['a_values'])} against {_mean_se(wake['b_values'])} (paired " \
+           f"{wake['mean']:+.3f} +- {wake['sem']:.3f}, p = {wake['p']:.3f}, sign-flip p = {wake['sign_flip_p']:.2f}" \
+           in text
+    assert all(a < b for t in (sr, wake) for a, b in zip(t["a_values"], t["b_values"], strict=True))  # every pair
+    assert f"SR - wake-only {sleep['mean']:+.3f} +- {sleep['sem']:.3f} (one-sided p = {sleep['p']:.3f}, " \
+           f"sign-flip p = {sleep['sign_flip_p']:.3f}" in text
+    stored = json.loads((seen / "hypotheses" / "hypotheses.json").read_text())["tests"]
+    assert [t["p"] for t in stored] == pytest.approx([sr["p"], wake["p"], sleep["p"]])
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert f"SR {np.mean(sr['a_values']):.3f} against {np.mean(sr['b_values']):.3f} and wake-only " \
+           f"{np.mean(wake['a_values']):.3f} against {np.mean(wake['b_values']):.3f}, lower on every seed" in readme
+    assert f"sleep still helps under it ({sleep['mean']:+.3f} over wake-only)" in readme
+    rerun = json.loads((seen / "union_rerun_sr_seed0" / "results.json").read_text())
+    archived = json.loads((union / "sr_seed0" / "results.json").read_text())
+    assert rerun["success_matrix"] == archived["success_matrix"] and rerun["code"]["commit"].startswith("f3e38eb")
+
+
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
 
 def _list(values: list[float]) -> str:

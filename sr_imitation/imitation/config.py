@@ -100,7 +100,8 @@ class StreamConfig(StreamSettings):
     """Normalization statistics - seen (default - the skills seen so far, updated at each wake; the policy and the
     memories' targets are re-expressed when they change; what a continual learner may use), first (the first skill's
     dataset for the whole stream; later skills may lie far outside it) or union (all the stream's datasets, read
-    before the first wake - future skills' data, which a continual learner may not read); see
+    before the first wake - future skills' data, which a continual learner may not read; measured better than seen
+    on the needle stream, docs/RESULTS.md: use it when every skill's dataset is at hand from the start); see
     sr_imitation.imitation.data."""
     stats_min_std: float = 1e-2
     """Floor on every standard deviation of the stream's statistics (a constant dimension stays constant)."""
