@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_values, run_tests
+from sr_imitation.io import read_checked_json
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 ARCHIVE = DOCS / "results" / "needle_cpu_m16_compare"
@@ -250,6 +251,18 @@ def test_the_seen_against_union_table_and_its_tests_recompute(text):
     assert f"SR {np.mean(sr['a_values']):.3f} against {np.mean(sr['b_values']):.3f} and wake-only " \
            f"{np.mean(wake['a_values']):.3f} against {np.mean(wake['b_values']):.3f}, lower on every seed" in readme
     assert f"sleep still helps under it ({sleep['mean']:+.3f} over wake-only)" in readme
+    scale = read_checked_json(seen / "input_scale.json")["runs"]  # the state input weights, measured on checkpoints
+    wakes = {run: [r for r in rows if r["phase"] == "wake"] for run, rows in scale.items()}
+    seen_runs = [w for run, w in wakes.items() if "m16_seen" in run]
+    (union_run,) = [w for run, w in wakes.items() if "m16_union_check" in run]
+    assert len(seen_runs) == 6 and all(len(w) == 5 for w in wakes.values())
+    last = [w[-1]["max"] for w in seen_runs]
+    assert f"largest column norm is {min(last):.0f}-{max(last):.0f} in all six `seen` runs" in text
+    medians = [w[-1]["median"] for w in seen_runs]
+    assert f"(median over the 35 state dimensions {min(medians):.1f}-{max(medians):.1f})" in text
+    assert f"against {union_run[-1]['max']:.2f} (median {union_run[-1]['median']:.2f}) in the union" in text
+    first = [w[0]["max"] for w in wakes.values()]
+    assert f"{min(first):.2f}-{max(first):.2f} in every run" in text
     rerun = json.loads((seen / "union_rerun_sr_seed0" / "results.json").read_text())
     archived = json.loads((union / "sr_seed0" / "results.json").read_text())
     assert rerun["success_matrix"] == archived["success_matrix"] and rerun["code"]["commit"].startswith("f3e38eb")
