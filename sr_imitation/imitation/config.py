@@ -105,6 +105,11 @@ class StreamConfig(StreamSettings):
     sr_imitation.imitation.data."""
     stats_min_std: float = 1e-2
     """Floor on every standard deviation of the stream's statistics (a constant dimension stays constant)."""
+    reexpress_inputs: bool = True
+    """Under stats=seen, when the statistics change: true (default) re-expresses the policy's input layers with its
+    action head, exactly (the same actions; the input weights grow as the statistics widen); false re-expresses the
+    action head only, so earlier skills' inputs read differently until the memories bring them back (exploratory,
+    docs/RESULTS.md, 'The normalization default measured')."""
 
     def __post_init__(self) -> None:
         if not self.skills:
@@ -113,6 +118,9 @@ class StreamConfig(StreamSettings):
             raise ValueError(f"skills must be distinct, got {self.skills}")
         if self.stats not in STATS_SOURCES:
             raise ValueError(f"stream.stats must be one of {STATS_SOURCES}, got {self.stats!r}")
+        if not self.reexpress_inputs and self.stats != "seen":
+            raise ValueError(f"stream.reexpress_inputs=false acts only when the statistics change "
+                             f"(--stream.stats=seen), got --stream.stats={self.stats}")
         if self.dataset_paths is not None and len(self.dataset_paths) != len(self.skills):
             raise ValueError(f"{len(self.dataset_paths)} dataset_paths for {len(self.skills)} skills")
         if self.repo_ids is not None:
@@ -294,6 +302,7 @@ SETTINGS_ADDED: dict[str, Any] = {
     "eval.env_tasks": None,
     "eval.env_options": {},
     "stream.stats": "first",
+    "stream.reexpress_inputs": True,
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
 (the needle environment): a stored fingerprint without one of them resumes with that value and is refused

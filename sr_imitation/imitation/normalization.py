@@ -114,11 +114,14 @@ def _input_key(key: str, stats: Mapping[str, object]) -> str | None:
 
 
 def reexpress_state_dict(state: Mapping[str, Tensor], old: Mapping[str, Mapping[str, Tensor]],
-                         new: Mapping[str, Mapping[str, Tensor]], min_std: float = MIN_STD) -> dict[str, Tensor]:
+                         new: Mapping[str, Mapping[str, Tensor]], min_std: float = MIN_STD,
+                         inputs: bool = True) -> dict[str, Tensor]:
     """An ACT-SR policy's weights ``state`` under statistics ``old`` rewritten for ``new`` (module docstring); layers
-    or keys absent from either are left as they are."""
+    or keys absent from either are left as they are. ``inputs=False`` rewrites the action head only: the input
+    projections keep their weights and read the inputs in ``new``'s statistics (the policy's behaviour then changes
+    where the inputs' statistics changed; ``--stream.reexpress_inputs=false``, exploratory)."""
     out = dict(state)
-    for key, layers in INPUT_LAYERS.items():
+    for key, layers in INPUT_LAYERS.items() if inputs else ():
         k_old, k_new = _input_key(key, old), _input_key(key, new)
         if k_old is None or k_new is None:
             continue
@@ -143,10 +146,10 @@ def reexpress_state_dict(state: Mapping[str, Tensor], old: Mapping[str, Mapping[
 
 
 def reexpress_policy(policy: torch.nn.Module, old: Mapping[str, Mapping[str, Tensor]],
-                     new: Mapping[str, Mapping[str, Tensor]], min_std: float = MIN_STD) -> None:
+                     new: Mapping[str, Mapping[str, Tensor]], min_std: float = MIN_STD, inputs: bool = True) -> None:
     """:func:`reexpress_state_dict` applied to ``policy`` in place."""
     state = dict(policy.state_dict())
-    changed = reexpress_state_dict(state, old, new, min_std)
+    changed = reexpress_state_dict(state, old, new, min_std, inputs)
     with torch.no_grad():
         for name, tensor in policy.state_dict().items():
             if changed[name] is not state[name]:

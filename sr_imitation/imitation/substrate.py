@@ -236,7 +236,7 @@ class ACTSubstrate:
         if self._policy_stage != k:
             old = self.stage_stats(self._policy_stage)
             if not same_stats(old, new, list(new)):
-                reexpress_policy(self.policy, old, new, floor)
+                reexpress_policy(self.policy, old, new, floor, self.cfg.stream.reexpress_inputs)
             self._policy_stage = k
         if self._stats_stage != k:
             self.stats, self._stats_stage = new, k
@@ -411,7 +411,8 @@ class ACTSubstrate:
     def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
         state = self._checked_state(k, phase)
         if self.cfg.stream.stats == "seen" and k != self._stats_stage:  # in the statistics in use
-            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std)
+            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std,
+                                         self.cfg.stream.reexpress_inputs)
         return deployed_parameters(self.policy, state)
 
     # -- phases --------------------------------------------------------------------------------------------

@@ -98,6 +98,8 @@ COMPANIONS: dict[str, dict[tuple[str, ...], Any]] = {
     "eval.env_type": {("eval", "env"): "lerobot"},
     "eval.env_tasks": {("eval", "env"): "lerobot", ("eval", "env_type"): "needle"},
     "eval.env_options": {("eval", "env"): "lerobot", ("eval", "env_type"): "needle"},
+    # acts only where the statistics change (refused at parse time with the tiny config's first)
+    "stream.reexpress_inputs": {("stream", "stats"): "seen"},
 }
 SKIP: dict[str, str] = {
     "policy.type": "sr-train trains act_sr only: TrainStreamConfig.__post_init__ refuses any other policy type",

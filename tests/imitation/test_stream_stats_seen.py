@@ -141,3 +141,27 @@ def test_archived_runs_and_presets_keep_their_recorded_setting(tmp_path):
     # every ACT preset states its statistics
     for preset in ("needle_cpu", "needle_cpu_m16", "needle_cpu_vision", "needle_paper", "needle_try"):
         assert parse_train_config(str(root / "configs" / f"{preset}.json"), []).stream.stats == "union", preset
+
+
+def test_reexpress_inputs_false_rewrites_the_action_head_only(datasets, tmp_path):
+    """``--stream.reexpress_inputs=false`` (exploratory): under seen the state input weights keep the scale
+    training leaves them at, while the action head is still re-expressed (a memory's targets stay finite), and the
+    setting is refused where the statistics never change."""
+    from sr_imitation.imitation.normalization import reexpress_state_dict
+    from sr_imitation.reporting.input_scale import STATE_INPUT, stage_input_norms
+
+    cfg = _config(datasets, tmp_path / "actions")
+    cfg.stream.reexpress_inputs = False
+    results = ACTTrainer(cfg).run()
+    norms = stage_input_norms(cfg.output_dir)
+    assert max(r["max"] for r in norms) < 2 * norms[0]["max"]
+    assert all(x is not None and 0 <= x < 10 for x in results["losses"]["memory_loss"][-1])
+    metas = [load_metadata(datasets / s, f"local/sr_needle_{s}") for s in SKILLS]
+    old, new = (stream_stats(m, {"observation.state": None}) for m in (metas[:1], metas))
+    state = load_file(str(cfg.output_dir / "skill_1_approach" / "wake" / "pretrained_model" / "model.safetensors"))
+    head = reexpress_state_dict(state, old, new, inputs=False)
+    assert torch.equal(head[STATE_INPUT], state[STATE_INPUT])
+    assert not torch.equal(head["model.action_head.weight"], state["model.action_head.weight"])
+    assert not torch.equal(reexpress_state_dict(state, old, new)[STATE_INPUT], state[STATE_INPUT])
+    with pytest.raises(ValueError, match="reexpress_inputs=false acts only when the statistics change"):
+        StreamConfig(stats="union", reexpress_inputs=False)
