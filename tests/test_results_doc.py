@@ -286,6 +286,11 @@ def _list(values: list[float]) -> str:
         f"(MT-Joint {c['C1']['mt_joint_afsr']:.3f}, final reach {c['C1']['mt_joint_final_per_skill'][0]:.2f})",
         f"right after its own wake {_list(c['C2']['own_wake_per_skill'])}",
         f"(final AFSR {c['C3']['final_afsr']:.3f})"]),
+    ("metaworld_mt5_imitation_calibration_k3", lambda c: [  # C1 (MT-Joint) re-read when its runs are archived
+        f"right after its own wake {_list(c['C2']['own_wake_per_skill'])}",
+        f"after the next stage {_list(c['C3']['after_next_stage'])} (final AFSR {c['C3']['final_afsr']:.3f})",
+        f"mean {c['C4']['wake_only_afsr']:.3f}; final per skill {_list(c['C4']['wake_only_final_per_skill'])}: C4 "
+        "**not met**"]),
     ("metaworld_mt5_imitation_calibration_k4", lambda c: [  # K4 re-runs wake-only only (RESULTS, 04:27 UTC)
         f"mean {c['C4']['wake_only_afsr']:.3f}; final per skill {_list(c['C4']['wake_only_final_per_skill'])}: "
         "C4 **met**"]),
