@@ -268,6 +268,33 @@ def test_the_seen_against_union_table_and_its_tests_recompute(text):
     assert rerun["success_matrix"] == archived["success_matrix"] and rerun["code"]["commit"].startswith("f3e38eb")
 
 
+def test_the_reexpress_inputs_check_recomputes(text):
+    """The exploratory check (seen with --stream.reexpress_inputs=false): its runs' settings, what their wakes
+    learned, and the means, paired differences and p values RESULTS quotes, recomputed from the three archives."""
+    results = DOCS / "results"
+    actions, seen = results / "needle_cpu_m16_stats_seen_actions", results / "needle_cpu_m16_stats_seen"
+    runs = {(v, s): json.loads((actions / f"{v}_seed{s}" / "results.json").read_text())
+            for v in ("sr", "wake_only") for s in (0, 1, 2)}
+    for v, s in runs:
+        stream = json.loads((actions / f"{v}_seed{s}" / "train_config.json").read_text())["stream"]
+        assert stream["stats"] == "seen" and stream["reexpress_inputs"] is False
+    own = [x for r in runs.values() for x in r["success_after_own_wake"]]
+    assert f"every skill >= {min(own):.2f} right after its own wake in all six runs" in text
+    assert all(r["success_after_own_wake"][3] == 1.0 for r in runs.values())  # regrasp 1.00 in all six
+    sr, wake = run_tests(HypothesesConfig(archive=actions, tests=[f"{actions}::sr!={seen}::sr",
+                                                                  f"{actions}::wake_only!={seen}::wake_only"]))
+    assert f"SR {_mean_se(sr['a_values'])} (seen, exact: {np.mean(sr['b_values']):.3f}; union" in text
+    assert f"paired to exact {sr['mean']:+.3f} +- {sr['sem']:.3f} (two-sided p = {sr['p']:.3f}, sign-flip p = " \
+           f"{sr['sign_flip_p']:.2f})" in text
+    assert f"wake-only {_mean_se(wake['a_values'])} (exact {np.mean(wake['b_values']):.3f}; union" in text
+    assert f"paired {wake['mean']:+.3f} +- {wake['sem']:.3f} (p = {wake['p']:.3f}, sign-flip p = " \
+           f"{wake['sign_flip_p']:.2f})" in text
+    bwt = {v: [runs[(v, s)]["metrics"]["bwt"]["final"] for s in (0, 1, 2)] for v in ("sr", "wake_only")}
+    assert f"BWT {_signed(bwt['sr'])} for SR and {_signed(bwt['wake_only'])} for wake-only" in text
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert f"(SR {np.mean(sr['a_values']):.3f}, wake-only {np.mean(wake['a_values']):.3f})" in readme
+
+
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
 
 def _list(values: list[float]) -> str:
