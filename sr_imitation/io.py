@@ -267,6 +267,21 @@ def verify_manifest(directory: str | os.PathLike[str]) -> None:
             raise CorruptFileError(directory / name, "contents differ from checksums.json (corrupted or edited)")
 
 
+def load_checkpoint_weights(directory: str | os.PathLike[str],
+                            weights: str = "pretrained_model/model.safetensors") -> dict[str, torch.Tensor]:
+    """The weights of a sealed checkpoint ``directory`` (LeRobot's layout: ``weights`` inside it), after checking
+    every file of it against its ``checksums.json`` (:func:`verify_manifest`); ``CorruptFileError`` naming the file
+    when that fails or the weights do not load (the caller checks the file exists, with its own message)."""
+    from safetensors.torch import load_file  # noqa: PLC0415  (only here: the other readers take bytes)
+
+    verify_manifest(directory)
+    path = Path(directory) / weights
+    try:
+        return load_file(str(path))
+    except Exception as exc:  # safetensors raises its own error types without the file name
+        raise CorruptFileError(path, f"unreadable weights ({exc})") from exc
+
+
 def load_checked_safetensors(path: str | os.PathLike[str]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """Load a file written by :func:`save_checked_safetensors`; verify its header and checksum.
 

@@ -190,10 +190,9 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
             if len(values):
                 sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
                 ax.errorbar([x], [values.mean()], yerr=[sem], fmt="s", color="k", capsize=4, ms=5)
-        ticks, name = [r["a"], r["b"]], r["test"].rsplit("::", 1)[-1] if "::" in r["test"] else r["test"]
-        if r.get("archive_a", r["archive"]) != r.get("archive_b", r["archive"]):  # one variant, two archives
+        name, ticks = f"{r['a']}{_OPERATOR[r['alternative']]}{r['b']}", [r["a"], r["b"]]
+        if r["archive_a"] != r["archive_b"]:  # one variant, two archives: name them under the variants
             ticks = [f"{r['a']}\n{Path(r['archive_a']).name}", f"{r['b']}\n{Path(r['archive_b']).name}"]
-            name = f"{r['a']} {_OPERATOR[r['alternative']]} {r['b']}"
         ax.set_xticks([0, 1], ticks, fontsize=6)
         ax.set_xlim(-0.6, 1.6)
         ax.set_ylabel(f"final {r['metric']}")

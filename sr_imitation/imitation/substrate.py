@@ -31,7 +31,6 @@ import numpy as np
 import torch
 from lerobot.policies.factory import make_policy, make_pre_post_processors
 from lerobot.utils.constants import ACTION, OBS_STATE
-from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
@@ -63,11 +62,11 @@ from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import (
     CorruptFileError,
     atomic_write_json,
+    load_checkpoint_weights,
     read_checked_json,
     read_config_json,
     save_checked_safetensors,
     staged_directory,
-    verify_manifest,
     write_checked_json,
 )
 from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
@@ -323,11 +322,7 @@ class ACTSubstrate:
         path = directory / "pretrained_model" / "model.safetensors"
         if not path.is_file():
             raise FileNotFoundError(f"{path}: checkpoint recorded in progress.json is missing")
-        verify_manifest(directory)
-        try:
-            return load_file(str(path))
-        except Exception as exc:  # safetensors raises its own error types without the file name
-            raise CorruptFileError(path, f"unreadable weights ({exc})") from exc
+        return load_checkpoint_weights(directory)
 
     def load_policy(self, k: int, phase: str) -> None:
         path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"

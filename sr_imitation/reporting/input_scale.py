@@ -18,10 +18,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
-from safetensors.torch import load_file
-
 from sr_imitation.infra.cli_errors import run_cli
-from sr_imitation.io import verify_manifest, write_checked_json
+from sr_imitation.io import load_checkpoint_weights, write_checked_json
 
 STATE_INPUT = "model.encoder_robot_state_input_proj.weight"
 """ACT's linear layer that reads the normalized robot state into the encoder (dim_model x state dimensions)."""
@@ -40,8 +38,7 @@ def stage_input_norms(run: Path) -> list[dict[str, Any]]:
             model = checkpoint / "pretrained_model" / "model.safetensors"
             if not model.is_file():
                 continue
-            verify_manifest(checkpoint)
-            norms = load_file(str(model))[STATE_INPUT].double().norm(dim=0)
+            norms = load_checkpoint_weights(checkpoint)[STATE_INPUT].double().norm(dim=0)
             rows.append({"stage": int(stage.name.split("_")[1]), "skill": stage.name.split("_", 2)[2], "phase": phase,
                          "max": float(norms.max()), "argmax": int(norms.argmax()), "median": float(norms.median()),
                          "column_norms": [float(x) for x in norms]})
