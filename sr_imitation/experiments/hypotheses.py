@@ -7,7 +7,8 @@ A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0
 (:func:`sr_imitation.reporting.stats.paired_test`, with the exact sign-flip p beside it), over the training seeds both
 variants have in the archive (``<variant>_seed<S>/results.json``, read and checked by
 :func:`sr_imitation.reporting.results.load_results`); ``<folder>::A>B`` reads another archive, and
-``<folder>::A!=<other folder>::B`` pairs runs of two archives (one variant under two settings). Each seed's value is
+``<folder>::A!=<other folder>::B`` pairs runs of two archives (one variant under two settings); ``M1=A>B`` names a
+test as a protocol declares it (the name heads its row and panel). Each seed's value is
 the run's final metric (its mean over evaluation units), or for runs without closed-loop evaluation
 (``--eval.env=none``: a real robot's datasets and no simulator) an offline one (:data:`LOSS_METRICS`: lower is
 better, so the test of "sleep helps" is ``sr<wake_only``).
@@ -34,7 +35,7 @@ from sr_imitation.reporting.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
 
-_TEST = re.compile(r"^(?:([^<>!]+)::)?([\w.]+)(>|<|!=)(?:([^<>!]+)::)?([\w.]+)$")
+_TEST = re.compile(r"^(?:(\w+)=)?(?:([^<>!=]+)::)?([\w.]+)(>|<|!=)(?:([^<>!=]+)::)?([\w.]+)$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
 _OPERATOR = {alternative: op for op, alternative in _ALTERNATIVE.items()}
 
@@ -47,7 +48,7 @@ class HypothesesConfig:
     """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided), on ``archive``'s runs; a test
     ``<folder>::A>B`` reads another archive's runs (one family over several streams, e.g. with ``--holm``), and
     ``<folder>::A!=<other folder>::B`` pairs A's runs in one archive with B's in another (the same variant under two
-    settings, paired by training seed)."""
+    settings, paired by training seed). ``NAME=`` before a test names it as its protocol does (``M1=sr>wake_only``)."""
     metric: str = "afsr"
     """The final metric compared: afsr, prs, bwt, bwt_wake, spi (evaluated runs) or val_l1, memory_loss (runs
     without evaluation, lower is better: :data:`LOSS_METRICS`)."""
@@ -68,9 +69,9 @@ class HypothesesConfig:
         bad = [t for t in self.tests if not _TEST.match(t)]
         if bad:
             raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B (or <folder>::A>B, "
-                             "<folder>::A!=<folder>::B)")
+                             "<folder>::A!=<folder>::B, each optionally named: M1=A>B)")
         for test in self.tests:
-            for folder in _TEST.match(test).group(1, 4):  # type: ignore[union-attr]
+            for folder in _TEST.match(test).group(2, 5):  # type: ignore[union-attr]
                 if folder is not None and not Path(folder).is_dir():
                     raise FileNotFoundError(f"tests: {test!r}: {folder} is not a folder")
         if self.metric not in METRICS and self.metric not in LOSS_METRICS:
@@ -114,7 +115,7 @@ def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float
 def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     rows = []
     for test in cfg.tests:
-        folder, a, op, folder_b, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked above)
+        name, folder, a, op, folder_b, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked above)
         archive = Path(folder) if folder is not None else Path(cfg.archive)
         archive_b = Path(folder_b) if folder_b is not None else archive  # ``<folder>::A>B``: both in that folder
         va, vb = archived_values(archive, a, cfg.metric), archived_values(archive_b, b, cfg.metric)
@@ -124,8 +125,8 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
         seeds = sorted(set(va) & set(vb))
         result = paired_test([va[s] for s in seeds], [vb[s] for s in seeds], _ALTERNATIVE[op])
         where = str(archive) if archive_b == archive else f"{archive} vs {archive_b}"
-        rows.append({"test": test, "archive": where, "archive_a": str(archive), "archive_b": str(archive_b),
-                     "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
+        rows.append({"test": test, "name": name, "archive": where, "archive_a": str(archive),
+                     "archive_b": str(archive_b), "a": a, "b": b, "metric": cfg.metric, "seeds": seeds,
                      "a_values": [va[s] for s in seeds], "b_values": [vb[s] for s in seeds], **result.to_dict(),
                      "alpha": cfg.alpha, "significant": bool(result.p < cfg.alpha)})
     if cfg.holm:
@@ -134,6 +135,12 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
         for row, adjusted in zip(rows, holm([r["sign_flip_p"] for r in rows]), strict=True):
             row["sign_flip_p_holm"] = adjusted
     return rows
+
+
+def _label(row: dict[str, Any]) -> str:
+    """A row's test as the table shows it: ``M1: sr>wake_only`` for a named test (``M1=sr>wake_only``)."""
+    name, test = row.get("name"), row["test"]
+    return f"{name}: {test[len(name) + 1:]}" if name else test
 
 
 def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = False, note: str = "") -> str:
@@ -148,7 +155,7 @@ def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = Fals
         return "-" if r["n"] < 2 else ("reject H0" if significant else "not significant")
 
     for r in rows:
-        line = (f"| {r['test']} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
+        line = (f"| {_label(r)} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
                 f"{r['mean']:+.3f} +- {r['sem']:.3f} | [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}] | "
                 f"{r['t']:.2f} | {r['p']:.4f} | {r['sign_flip_p']:.4f} | {verdict(r, r['significant'])} "
                 f"({r['alpha']}) |")
@@ -191,6 +198,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
                 sem = values.std(ddof=1) / np.sqrt(len(values)) if len(values) > 1 else 0.0
                 ax.errorbar([x], [values.mean()], yerr=[sem], fmt="s", color="k", capsize=4, ms=5)
         name, ticks = f"{r['a']}{_OPERATOR[r['alternative']]}{r['b']}", [r["a"], r["b"]]
+        if r.get("name"):
+            name = f"{r['name']}: {name}"
         if r["archive_a"] != r["archive_b"]:  # one variant, two archives: name them under the variants
             ticks = [f"{r['a']}\n{Path(r['archive_a']).name}", f"{r['b']}\n{Path(r['archive_b']).name}"]
         ax.set_xticks([0, 1], ticks, fontsize=6)

@@ -230,3 +230,28 @@ def _archive(folder, finals: dict[str, list[float]]) -> None:
             run = folder / f"{variant}_seed{seed}"
             run.mkdir(parents=True)
             write_checked_json(run / "results.json", _results(seed=seed, shift=value - 0.7, sleep=variant == "sr"))
+
+
+def test_a_named_test_carries_its_protocol_name_into_the_table_and_figure(tmp_path):
+    """``M1=sr>wake_only``: the same test as ``sr>wake_only``, headed by the name the protocol gives it."""
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, main, render, run_tests
+
+    first, second = tmp_path / "one", tmp_path / "two"
+    _archive(first, {"sr": [0.7, 0.6, 0.65], "wake_only": [0.5, 0.55, 0.4], "replay": [0.6, 0.7, 0.5]})
+    _archive(second, {"sr": [0.3, 0.4, 0.35], "wake_only": [0.3, 0.2, 0.4]})
+    named = run_tests(HypothesesConfig(archive=first, holm=True,
+                                       tests=["M1=sr>wake_only", "M2=sr!=replay", f"N1={second}::sr>wake_only"]))
+    plain = run_tests(HypothesesConfig(archive=first, holm=True,
+                                       tests=["sr>wake_only", "sr!=replay", f"{second}::sr>wake_only"]))
+    assert [r["name"] for r in named] == ["M1", "M2", "N1"] and [r["name"] for r in plain] == [None] * 3
+    for a, b in zip(named, plain, strict=True):  # the name changes nothing else
+        assert {k: v for k, v in a.items() if k not in ("name", "test")} == \
+            {k: v for k, v in b.items() if k not in ("name", "test")}
+    text = render(named, first)
+    assert "| M1: sr>wake_only (greater) |" in text and "| M2: sr!=replay (two-sided) |" in text
+    assert f"| N1: {second}::sr>wake_only (greater) |" in text
+    main([f"--archive={first}", "--tests=[M1=sr>wake_only,M2=sr!=replay]", f"--output={tmp_path / 'h'}"])
+    assert (tmp_path / "h" / "hypotheses.png").stat().st_size > 0
+    for bad in ("M 1=sr>wake_only", "=sr>wake_only", "M1=M2=sr>wake_only"):
+        with pytest.raises(ValueError, match="not of the form"):
+            HypothesesConfig(archive=first, tests=[bad])
