@@ -301,6 +301,14 @@ def _list(values: list[float]) -> str:
     return " / ".join(f"{v:.2f}" for v in values)
 
 
+def _seeds(step: str, variant: str, metric: str) -> str:
+    """A calibration step's final ``metric`` of ``variant`` on seeds 100 / 101 / 102, as RESULTS writes it."""
+    archive = DOCS / "results" / f"metaworld_mt5_imitation_calibration_{step}"
+    finals = [json.loads((archive / f"{variant}_seed{s}" / "results.json").read_text())["metrics"][metric]["final"]
+              for s in (100, 101, 102)]
+    return " / ".join(f"{v:.3f}" for v in finals)
+
+
 @pytest.mark.parametrize("step, phrases", [
     ("metaworld_mt5_imitation_calibration", lambda c: [
         f"MT-Joint AFSR {c['C1']['mt_joint_afsr']:.3f}", f"final {_list(c['C1']['mt_joint_final_per_skill'])}",
@@ -313,7 +321,10 @@ def _list(values: list[float]) -> str:
         f"(MT-Joint {c['C1']['mt_joint_afsr']:.3f}, final reach {c['C1']['mt_joint_final_per_skill'][0]:.2f})",
         f"right after its own wake {_list(c['C2']['own_wake_per_skill'])}",
         f"(final AFSR {c['C3']['final_afsr']:.3f})"]),
-    ("metaworld_mt5_imitation_calibration_k3", lambda c: [  # C1 (MT-Joint) re-read when its runs are archived
+    ("metaworld_mt5_imitation_calibration_k3", lambda c: [
+        f"MT-Joint final AFSR {_seeds('k3', 'mt_joint', 'afsr')} on seeds 100 / 101 / 102, mean "
+        f"{c['C1']['mt_joint_afsr']:.3f}; final per skill {_list(c['C1']['mt_joint_final_per_skill'])}",
+        f"(MT-Joint {c['C1']['mt_joint_afsr']:.3f}, reach {c['C1']['mt_joint_final_per_skill'][0]:.2f})",
         f"right after its own wake {_list(c['C2']['own_wake_per_skill'])}",
         f"after the next stage {_list(c['C3']['after_next_stage'])} (final AFSR {c['C3']['final_afsr']:.3f})",
         f"mean {c['C4']['wake_only_afsr']:.3f}; final per skill {_list(c['C4']['wake_only_final_per_skill'])}: C4 "
