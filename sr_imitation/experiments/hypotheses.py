@@ -8,7 +8,9 @@ A test ``A>B`` is the one-sided paired t-test of A - B > 0, ``A<B`` of A - B < 0
 variants have in the archive (``<variant>_seed<S>/results.json``, read and checked by
 :func:`sr_imitation.reporting.results.load_results`); ``<folder>::A>B`` reads another archive, and
 ``<folder>::A!=<other folder>::B`` pairs runs of two archives (one variant under two settings); ``M1=A>B`` names a
-test as a protocol declares it (the name heads its row and panel). Each seed's value is
+test as a protocol declares it (the name heads its row and panel), and ``A>B@0-9`` names the training seeds it is
+declared on: it is then computed on exactly those, and refused, before any statistic, while one of them has no
+finished run of A or B (a protocol computes no test before all of its runs are archived). Each seed's value is
 the run's final metric (its mean over evaluation units), or for runs without closed-loop evaluation
 (``--eval.env=none``: a real robot's datasets and no simulator) an offline one (:data:`LOSS_METRICS`: lower is
 better, so the test of "sleep helps" is ``sr<wake_only``).
@@ -35,7 +37,7 @@ from sr_imitation.reporting.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
 
-_TEST = re.compile(r"^(?:(\w+)=)?(?:([^<>!=]+)::)?([\w.]+)(>|<|!=)(?:([^<>!=]+)::)?([\w.]+)$")
+_TEST = re.compile(r"^(?:(\w+)=)?(?:([^<>!=@]+)::)?([\w.]+)(>|<|!=)(?:([^<>!=@]+)::)?([\w.]+)(?:@(\d+)-(\d+))?$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
 _OPERATOR = {alternative: op for op, alternative in _ALTERNATIVE.items()}
 
@@ -48,7 +50,9 @@ class HypothesesConfig:
     """Paired tests ``A>B`` (one-sided, A - B > 0), ``A<B`` or ``A!=B`` (two-sided), on ``archive``'s runs; a test
     ``<folder>::A>B`` reads another archive's runs (one family over several streams, e.g. with ``--holm``), and
     ``<folder>::A!=<other folder>::B`` pairs A's runs in one archive with B's in another (the same variant under two
-    settings, paired by training seed). ``NAME=`` before a test names it as its protocol does (``M1=sr>wake_only``)."""
+    settings, paired by training seed). ``NAME=`` before a test names it as its protocol does (``M1=sr>wake_only``);
+    ``@<first>-<last>`` after it gives the training seeds it is declared on (``M1=sr>wake_only@0-9``): exactly those
+    are used, and the test is refused while any of them lacks a finished run."""
     metric: str = "afsr"
     """The final metric compared: afsr, prs, bwt, bwt_wake, spi (evaluated runs) or val_l1, memory_loss (runs
     without evaluation, lower is better: :data:`LOSS_METRICS`)."""
@@ -69,7 +73,11 @@ class HypothesesConfig:
         bad = [t for t in self.tests if not _TEST.match(t)]
         if bad:
             raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B (or <folder>::A>B, "
-                             "<folder>::A!=<folder>::B, each optionally named: M1=A>B)")
+                             "<folder>::A!=<folder>::B, each optionally named and with its seeds: M1=A>B@0-9)")
+        for test in self.tests:
+            first, last = _TEST.match(test).group(7, 8)  # type: ignore[union-attr]
+            if first is not None and int(first) > int(last):
+                raise ValueError(f"tests: {test!r}: the seed range {first}-{last} is empty")
         for test in self.tests:
             for folder in _TEST.match(test).group(2, 5):  # type: ignore[union-attr]
                 if folder is not None and not Path(folder).is_dir():
@@ -115,7 +123,7 @@ def archived_values(archive: Path, variant: str, metric: str) -> dict[int, float
 def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     rows = []
     for test in cfg.tests:
-        name, folder, a, op, folder_b, b = _TEST.match(test).groups()  # type: ignore[union-attr]  (checked above)
+        name, folder, a, op, folder_b, b, first, last = _TEST.match(test).groups()  # type: ignore[union-attr]
         archive = Path(folder) if folder is not None else Path(cfg.archive)
         archive_b = Path(folder_b) if folder_b is not None else archive  # ``<folder>::A>B``: both in that folder
         va, vb = archived_values(archive, a, cfg.metric), archived_values(archive_b, b, cfg.metric)
@@ -123,6 +131,15 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
             if not values:
                 logger.warning("%s: no finished %s runs in %s (yet)", test, variant, where)
         seeds = sorted(set(va) & set(vb))
+        if first is not None:  # declared seeds: exactly those, all of them archived
+            declared = list(range(int(first), int(last) + 1))
+            missing = [(v, [s for s in declared if s not in values], where)
+                       for v, values, where in ((a, va, archive), (b, vb, archive_b))]
+            if any(m for _, m, _ in missing):
+                gaps = "; ".join(f"{v} seeds {m} (in {where})" for v, m, where in missing if m)
+                raise ValueError(f"tests: {test!r} is declared on seeds {first}-{last}, and these have no finished "
+                                 f"run yet: {gaps}; no statistic is computed before all of a test's runs are archived")
+            seeds = declared
         result = paired_test([va[s] for s in seeds], [vb[s] for s in seeds], _ALTERNATIVE[op])
         where = str(archive) if archive_b == archive else f"{archive} vs {archive_b}"
         rows.append({"test": test, "name": name, "archive": where, "archive_a": str(archive),

@@ -255,3 +255,32 @@ def test_a_named_test_carries_its_protocol_name_into_the_table_and_figure(tmp_pa
     for bad in ("M 1=sr>wake_only", "=sr>wake_only", "M1=M2=sr>wake_only"):
         with pytest.raises(ValueError, match="not of the form"):
             HypothesesConfig(archive=first, tests=[bad])
+
+
+def test_a_test_declared_on_seeds_uses_exactly_them_and_is_refused_while_one_is_missing(tmp_path, capsys):
+    """``M1=sr>wake_only@0-2``: the protocol's seeds; a missing run refuses the test before any statistic (and
+    names what is missing); a seed beyond the declared ones is left out."""
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, main, run_tests
+    from sr_imitation.infra.cli_errors import run_cli
+
+    archive, other = tmp_path / "a", tmp_path / "b"
+    _archive(archive, {"sr": [0.7, 0.6, 0.65, 0.5], "wake_only": [0.5, 0.55, 0.4, 0.6], "replay": [0.6, 0.7]})
+    _archive(other, {"sr": [0.5, 0.4, 0.6]})
+    _archive(three := tmp_path / "three", {"sr": [0.7, 0.6, 0.65], "wake_only": [0.5, 0.55, 0.4]})
+    row, = run_tests(HypothesesConfig(archive=archive, tests=["M1=sr>wake_only@0-2"]))
+    assert row["seeds"] == [0, 1, 2] and row["n"] == 3  # seed 3 (a negative pair) is not declared
+    same, = run_tests(HypothesesConfig(archive=three, tests=["sr>wake_only"]))
+    assert (row["mean"], row["p"], row["sign_flip_p"]) == (same["mean"], same["p"], same["sign_flip_p"])
+    assert run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only"]))[0]["n"] == 4  # undeclared: all
+    with pytest.raises(ValueError, match=r"declared on seeds 0-2.*replay seeds \[2\]"):
+        run_tests(HypothesesConfig(archive=archive, tests=["M2=sr!=replay@0-2"]))
+    with pytest.raises(ValueError, match=r"sr seeds \[3\] \(in .*b\)"):  # one variant across two archives
+        run_tests(HypothesesConfig(archive=archive, tests=[f"{archive}::sr!={other}::sr@0-3"]))
+    with pytest.raises(ValueError, match="seed range 3-1 is empty"):
+        HypothesesConfig(archive=archive, tests=["sr>wake_only@3-1"])
+    out = tmp_path / "h"
+    with pytest.raises(SystemExit):
+        run_cli("hypotheses", main, [f"--archive={archive}", "--tests=[M1=sr>wake_only@0-3,M2=sr!=replay@0-2]",
+                                     f"--output={out}"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "M2=sr!=replay@0-2" in err[0] and not out.exists()  # nothing written
