@@ -61,15 +61,18 @@ class Progress:
         enabled: ``False`` shows nothing either way (the ``progress=False`` of the library's functions).
         every_s: seconds between two log lines at least; default :data:`EVERY_S`.
         unit: tqdm's unit name.
+        initial: steps already done before this bar (a resumed loop): counted as done, left out of the time
+            estimate, which extrapolates from the steps this bar has seen.
     """
 
     def __init__(self, total: int, desc: str, logger: logging.Logger, enabled: bool = True,
-                 every_s: float | None = None, unit: str = "it") -> None:
+                 every_s: float | None = None, unit: str = "it", initial: int = 0) -> None:
         self.total, self.desc, self.logger = int(total), desc, logger
         self.every_s = EVERY_S if every_s is None else float(every_s)
-        self.n = 0
+        self.n = self.initial = int(initial)
         self.postfix: dict[str, Any] = {}
-        self.bar = tqdm(total=total, desc=desc, unit=unit, leave=False) if enabled and interactive() else None
+        self.bar = (tqdm(total=total, initial=self.initial, desc=desc, unit=unit, leave=False)
+                    if enabled and interactive() else None)
         self.logs = enabled and self.bar is None
         self.start = self.last = time.monotonic()
 
@@ -92,7 +95,8 @@ class Progress:
         self.last = now
         elapsed = now - self.start
         share = self.n / self.total if self.total > 0 else 0.0
-        left = f", ~{format_duration(elapsed * (1 - share) / share)} left" if 0 < share < 1 else ""
+        done = (self.n - self.initial) / (self.total - self.initial) if self.total > self.initial else 0.0
+        left = f", ~{format_duration(elapsed * (1 - done) / done)} left" if 0 < done < 1 else ""
         values = "; " + ", ".join(f"{k}={v}" for k, v in self.postfix.items()) if self.postfix else ""
         self.logger.info("%s: %d/%d (%.0f%%), %s elapsed%s%s", self.desc, self.n, self.total, 100 * share,
                          format_duration(elapsed), left, values)

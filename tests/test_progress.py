@@ -40,6 +40,17 @@ def test_off_a_terminal_it_logs_count_elapsed_time_left_and_the_latest_values(mo
     assert lines[1].startswith("wake approach: 3/10 (30%), ") and lines[1].endswith("; val_l1=0.4512")
 
 
+def test_a_resumed_loop_counts_what_was_done_and_estimates_from_what_this_bar_saw(monkeypatch, caplog):
+    monkeypatch.setenv("SR_PROGRESS", "log")
+    caplog.set_level(logging.INFO, logger=LOGGER.name)
+    clock = iter([0.0, 10.0, 10.0])  # start; one step 10 s later; the line's time
+    monkeypatch.setattr(progress_module.time, "monotonic", lambda: next(clock))
+    bar = Progress(100, "wake reach", LOGGER, every_s=0.0, initial=50)
+    bar.update(1)  # 51 of 100 done; this bar saw one step in 10 s: 49 left, ~490 s
+    line, = [r.getMessage() for r in caplog.records]
+    assert line.startswith("wake reach: 51/100 (51%), 10s elapsed, ~8m10s left"), line
+
+
 def test_lines_are_throttled_and_disabled_progress_says_nothing(monkeypatch, caplog):
     monkeypatch.setenv("SR_PROGRESS", "log")
     caplog.set_level(logging.INFO, logger=LOGGER.name)

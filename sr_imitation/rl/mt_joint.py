@@ -10,7 +10,9 @@ skill). Reported apart: there is no sequence, so the results file's success matr
 every row and the after-wake row (AFSR and PRS are the final ones; BWT = 0 by definition; SPI is undefined, null).
 
 Phases (``progress.json``; a run killed inside a phase redoes it with the same numbers): ``train`` (checkpoint
-``agent.safetensors``), ``eval``. Settings are fingerprinted and checked before anything is written, as for a stream.
+``agent.safetensors``; a training killed inside continues from ``train_snapshot.safetensors``, written every few
+minutes, :mod:`sr_imitation.rl.wake_snapshot`), ``eval``. Settings are fingerprinted and checked before anything
+is written, as for a stream.
 """
 
 from __future__ import annotations
@@ -60,6 +62,15 @@ class MultiSkillEnv:
         self._rng = np.random.default_rng([seed % (2**63), 99])
         for i, env in enumerate(self.envs):
             env.seed(seed % (2**31) + i)
+
+    def rng_state(self) -> dict[str, Any]:
+        """The skill choice's generator and every skill environment's (:meth:`SkillEnv.rng_state`)."""
+        return {"choice": self._rng.bit_generator.state, "envs": [env.rng_state() for env in self.envs]}
+
+    def set_rng_state(self, state: dict[str, Any]) -> None:
+        self._rng.bit_generator.state = state["choice"]
+        for env, own in zip(self.envs, state["envs"], strict=True):
+            env.set_rng_state(own)
 
     def reset(self) -> np.ndarray:
         self.current = self.envs[int(self._rng.integers(len(self.envs)))]
@@ -118,7 +129,7 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
             t0 = time.perf_counter()
             with MultiSkillEnv(skills, seed, cfg.max_episode_steps) as env:
                 wake, _ = train_skill(agent, env, 0, cfg.sac, cfg.wake, cfg.excitability, cfg.memory, seed=seed,
-                                      progress=cfg.progress)
+                                      progress=cfg.progress, snapshot=out / "train_snapshot.safetensors")
             tensors = {n: t.reshape(-1) if t.ndim == 0 else t for n, t in agent.state_dict().items()}
             save_checked_safetensors(checkpoint, tensors, header)
             run.mark(0, "train", {"wake": wake.summary(), "seconds": time.perf_counter() - t0})

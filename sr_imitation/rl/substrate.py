@@ -3,7 +3,9 @@
 Per stage k, under ``stages/<k+1:02d>_<skill>/`` (every file written atomically; checkpoints checksummed):
 
 - ``wake``: SAC on skill k (:func:`~sr_imitation.rl.wake.train_skill`, excitability at the wake rate), which also
-  freezes the critic memory M_k from its replay buffer (``memory.safetensors``, written with the wake);
+  freezes the critic memory M_k from its replay buffer (``memory.safetensors``, written with the wake); while it
+  runs, ``wake_snapshot.safetensors`` every few minutes (:mod:`sr_imitation.rl.wake_snapshot`: a wake killed
+  inside resumes from it with identical results);
   checkpoint ``wake/agent.safetensors`` (the whole agent: theta_k^wake, the gate snapshot of later sleeps);
 - ``wake.eval``: before a sleep, skill k alone (``eval.after_wake``; the reference of BWT_wake); without a sleep,
   every learned skill (the stage's evaluation, reused as the after-wake one: same policy, same configurations);
@@ -52,6 +54,8 @@ from sr_imitation.stream.substrate import MethodSettings, SleepProblem, seed_seq
 
 logger = logging.getLogger(__name__)
 
+WAKE_SNAPSHOT = "wake_snapshot.safetensors"
+"""A wake's snapshot in its stage folder, while the wake runs (:mod:`sr_imitation.rl.wake_snapshot`)."""
 CHECKPOINT_FORMAT = "sr_imitation.rl.stage"
 CHECKPOINT_VERSION = 3
 """3: one checkpoint per policy-changing phase (``wake/``, ``sleep/``) of the stream engine (2: one per stage with
@@ -153,8 +157,10 @@ class SACSubstrate:
         cfg = self.cfg
         seed = seed_sequence(cfg.seed, k)
         with SkillEnv(self.skills[k], seed=seed % (2**31), max_episode_steps=cfg.max_episode_steps) as env:
+            self.stage_dir(k).mkdir(parents=True, exist_ok=True)
             wake, memory = train_skill(self.agent, env, k, cfg.sac, cfg.wake, cfg.excitability, cfg.memory,
-                                       seed=seed, progress=cfg.progress, method=method)
+                                       seed=seed, progress=cfg.progress, method=method,
+                                       snapshot=self.stage_dir(k) / WAKE_SNAPSHOT)
         snapshot = getattr(self.agent.actor, "snapshot_normalizer", None)  # per-skill modules (CompoNet)
         if snapshot is not None:
             snapshot(k, self.agent.normalizer)  # before the wake checkpoint, which keeps it

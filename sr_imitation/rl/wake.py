@@ -8,6 +8,7 @@ import dataclasses
 import logging
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,7 @@ from torch import Tensor
 from sr_imitation.core.excitability import ExcitabilityConfig, activity_recording_off
 from sr_imitation.envs.metaworld.tasks import SkillEnv
 from sr_imitation.progress import Progress
+from sr_imitation.rl import wake_snapshot
 from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
 from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent
@@ -84,6 +86,8 @@ def train_skill(
     seed: int,
     progress: bool = True,
     method: ContinualMethod | None = None,
+    snapshot: Path | None = None,
+    snapshot_every_s: float | None = None,
 ) -> tuple[WakeResult, CriticMemory]:
     """Train ``agent`` on one skill and freeze its critic memory.
 
@@ -93,6 +97,11 @@ def train_skill(
     first skill). Stops at the scaled ``max_episodes`` or by :func:`should_stop_early`. A ``method`` with wake
     hooks shapes every actor update (:class:`~sr_imitation.stream.methods.base.WakeHooks`); its averaged numbers
     are ``result.method``.
+
+    ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.rl.wake_snapshot`), written at an episode
+    boundary every ``snapshot_every_s`` seconds (default :data:`~sr_imitation.rl.wake_snapshot.EVERY_S`); a wake
+    that finds one continues from it with identical results, and removes it when it ends. Not used with a method's
+    wake hooks (they keep state of their own).
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -112,8 +121,21 @@ def train_skill(
     if method is not None and method.has_wake_hooks:  # the actor's recorded activity is left alone by the hooks
         hooks = WakeHooks(method, skill_index, agent.actor_parameters(), agent.policy_fn, seed,
                           quiet=lambda: activity_recording_off(agent.actor))
-    bar = Progress(budget.max_episodes, f"wake {env.skill}", logger, enabled=progress, unit="ep")
-    for episode in range(budget.max_episodes):
+        snapshot = None  # the hooks keep state of their own: such a wake, killed, starts again
+    every_s = wake_snapshot.EVERY_S if snapshot_every_s is None else snapshot_every_s
+    identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63)}
+    if snapshot is not None and snapshot.is_file():
+        loop = wake_snapshot.load(snapshot, identity, agent, env, replay, holdout, rng)
+        result.episodes, result.env_steps, result.updates = loop.episodes, loop.env_steps, loop.updates
+        result.episode_rewards, result.episode_successes = loop.episode_rewards, loop.episode_successes
+        episode_starts, update_credit, info = loop.episode_starts, loop.update_credit, loop.info
+        t0 -= loop.seconds
+        logger.info("wake %s: resumed from %s after %d episodes (%d steps, %d updates)", env.skill, snapshot,
+                    result.episodes, result.env_steps, result.updates)
+    last_snapshot = time.perf_counter()
+    bar = Progress(budget.max_episodes, f"wake {env.skill}", logger, enabled=progress, unit="ep",
+                   initial=result.episodes)
+    for episode in range(result.episodes, budget.max_episodes):
         bar.update(1)
         episode_starts.append(replay.total)
         rate = exc_cfg.rate("wake", skill_index, episode)
@@ -128,6 +150,12 @@ def train_skill(
                                                          wake_cfg.improvement):
             result.stop_reason = "early_stopping"
             break
+        if snapshot is not None and time.perf_counter() - last_snapshot >= every_s:
+            loop = wake_snapshot.WakeLoop(result.episode_rewards, result.episode_successes, episode_starts,
+                                          result.env_steps, result.updates, update_credit, info,
+                                          time.perf_counter() - t0)
+            wake_snapshot.save(snapshot, identity, loop, agent, env, replay, holdout, rng)
+            last_snapshot = time.perf_counter()
     bar.close()
     if result.updates:
         result.last_update = dataclasses.asdict(info)
@@ -143,6 +171,8 @@ def train_skill(
     memory = CriticMemory.from_agent(env.skill.removesuffix("-v3"), agent, states)
     _method_samples(result, replay, method, seed)
     result.seconds = time.perf_counter() - t0
+    if snapshot is not None:
+        snapshot.unlink(missing_ok=True)
     return result, memory
 
 

@@ -148,6 +148,15 @@ class SkillEnv:
         self._rng = np.random.default_rng(seed)
         self._env.seed(int(seed))
 
+    def rng_state(self) -> dict[str, Any]:
+        """The state of this environment's generators (the configuration choice and the simulator's own), as plain
+        data: what a wake snapshot keeps (:mod:`sr_imitation.rl.wake_snapshot`)."""
+        return {"choice": self._rng.bit_generator.state, "env": self._env.np_random.bit_generator.state}
+
+    def set_rng_state(self, state: dict[str, Any]) -> None:
+        self._rng.bit_generator.state = state["choice"]
+        self._env.np_random.bit_generator.state = state["env"]
+
     def reset(self, configuration: int | None = None) -> np.ndarray:
         """Start an episode with a uniformly sampled configuration (or the given index); returns the 39-d
         observation."""

@@ -1,0 +1,149 @@
+"""Mid-wake snapshots: a SAC wake killed at any point resumes from its last snapshot with identical results.
+
+A wake is one phase of the stream engine, and a phase killed inside used to be redone from its start (same numbers,
+all its time again): at the gate preset's budgets (``configs/sac_mt5_gate.json``) one wake, or the MT-Joint oracle's
+one training phase, is up to two hours on one core. So :func:`~sr_imitation.rl.wake.train_skill` writes, at an
+episode boundary every :data:`EVERY_S` seconds of wall time (our choice), everything the rest of the wake depends on
+to one checked safetensors file, and a wake that finds that file continues from it:
+
+- the agent's whole state (actor with its excitability, twin critic and its target, alpha, the observation
+  normalizer) and its three Adam states;
+- the replay buffer and the critic's held-out transitions (the rows filled so far, and the running count);
+- the wake's own generator, torch's and numpy's global generators, and the environment's generators (per-episode
+  configuration choice and the simulator's own);
+- the loop's record: episode rewards, successes and start positions, counters, the carried update credit and the
+  last update's numbers.
+
+When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
+the numbers of a run never depend on it (``tests/rl/test_wake_snapshot.py`` kills a wake between episodes and checks
+the resumed one bit for bit against one that was never stopped). The file is removed when the wake ends. A wake
+shaped by a continual method's wake hooks (EWC, A-GEM, DER, CLEAR, LwF, M2Distill, PCGrad, Nash-MTL) is not
+snapshotted: the hooks keep state of their own, so such a wake, killed, starts again from its start.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from pathlib import Path
+from typing import Any, Protocol
+
+import numpy as np
+import torch
+
+from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.rl.sac import ReplayBuffer, SACAgent, UpdateInfo
+
+logger = logging.getLogger(__name__)
+
+FORMAT = "sr_imitation.rl.wake_snapshot"
+VERSION = 1
+EVERY_S = 300.0
+"""Seconds of wall time between two snapshots of one wake (our choice: a kill loses at most about five minutes; a
+snapshot of a full 160k-transition replay is about 55 MB, written in well under a second)."""
+
+_BUFFER_FIELDS = ("obs", "next_obs", "actions", "rewards", "terminated")
+_OPTIMIZERS = ("actor_optimizer", "critic_optimizer", "alpha_optimizer")
+
+
+class SeededEnv(Protocol):
+    """What a snapshot needs of an environment: its generators' state, as plain data."""
+
+    def rng_state(self) -> dict[str, Any]: ...
+
+    def set_rng_state(self, state: dict[str, Any]) -> None: ...
+
+
+@dataclasses.dataclass
+class WakeLoop:
+    """The wake loop's own record (what :class:`~sr_imitation.rl.wake.WakeResult` accumulates, and the loop's carried
+    variables)."""
+
+    episode_rewards: list[float]
+    episode_successes: list[bool]
+    episode_starts: list[int]
+    env_steps: int
+    updates: int
+    update_credit: float
+    info: UpdateInfo | None
+    seconds: float
+    """Wall time of the wake so far (reported only; never part of a result's numbers)."""
+
+    @property
+    def episodes(self) -> int:
+        return len(self.episode_rewards)
+
+
+def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, env: SeededEnv,
+         replay: ReplayBuffer, holdout: ReplayBuffer, rng: np.random.Generator) -> None:
+    """Write the snapshot of a wake between two episodes (atomically; checked on load)."""
+    tensors: dict[str, torch.Tensor] = {f"agent.{n}": t.reshape(-1) if t.ndim == 0 else t
+                                        for n, t in agent.state_dict().items()}
+    for name in _OPTIMIZERS:
+        for index, state in getattr(agent, name).state_dict()["state"].items():
+            for key, value in state.items():
+                tensors[f"{name}.{index}.{key}"] = value.reshape(-1) if value.ndim == 0 else value
+    for prefix, buffer in (("replay", replay), ("holdout", holdout)):
+        for field in _BUFFER_FIELDS:
+            tensors[f"{prefix}.{field}"] = torch.from_numpy(getattr(buffer, field)[: len(buffer)].copy())
+    tensors["torch_rng"] = torch.get_rng_state()
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    tensors["numpy_rng.keys"] = torch.from_numpy(np.asarray(keys, dtype=np.int64))
+    tensors["loop.episode_rewards"] = torch.tensor(loop.episode_rewards, dtype=torch.float64)
+    tensors["loop.episode_successes"] = torch.tensor(loop.episode_successes, dtype=torch.bool)
+    tensors["loop.episode_starts"] = torch.tensor(loop.episode_starts, dtype=torch.int64)
+    header = {
+        "format": FORMAT, "version": VERSION, **identity,
+        "replay_total": replay.total, "holdout_total": holdout.total,
+        "rng": rng.bit_generator.state, "env_rng": env.rng_state(),
+        "numpy_rng": {"kind": kind, "pos": int(pos), "has_gauss": int(has_gauss), "cached": float(cached)},
+        "env_steps": loop.env_steps, "updates": loop.updates, "update_credit": loop.update_credit,
+        "info": None if loop.info is None else dataclasses.asdict(loop.info), "seconds": loop.seconds,
+    }
+    save_checked_safetensors(path, tensors, header)
+
+
+def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, replay: ReplayBuffer,
+         holdout: ReplayBuffer, rng: np.random.Generator) -> WakeLoop:
+    """Restore a wake from its snapshot into freshly built ``agent``, ``env``, buffers and ``rng``; returns the
+    loop's record. A snapshot of another wake, format or agent is a :class:`CorruptFileError` naming the file."""
+    tensors, header = load_checked_safetensors(path)
+    want = {"format": FORMAT, "version": VERSION, **identity}
+    got = {k: header.get(k) for k in want}
+    if got != want:
+        raise CorruptFileError(path, f"wake snapshot of {got}, expected {want}; remove it to redo the wake from its "
+                                     "start")
+    shapes = {n: t.shape for n, t in agent.state_dict().items()}
+    weights = {n.removeprefix("agent."): t for n, t in tensors.items() if n.startswith("agent.")}
+    if set(weights) != set(shapes):
+        raise CorruptFileError(path, "the snapshot's agent does not fit this configuration")
+    agent.load_state_dict({n: t.reshape(shapes[n]) for n, t in weights.items()})
+    agent.normalizer.refresh_seen()
+    for name in _OPTIMIZERS:
+        optimizer = getattr(agent, name)
+        state, params = optimizer.state_dict(), [p for group in optimizer.param_groups for p in group["params"]]
+        for key, value in tensors.items():
+            if key.startswith(f"{name}."):  # Adam's step is a scalar, its moments have their parameter's shape
+                _, index, field = key.split(".", 2)
+                shape = () if field == "step" else params[int(index)].shape
+                state["state"].setdefault(int(index), {})[field] = value.reshape(shape)
+        optimizer.load_state_dict(state)
+    for prefix, buffer in (("replay", replay), ("holdout", holdout)):
+        for field in _BUFFER_FIELDS:
+            rows = tensors[f"{prefix}.{field}"].numpy()
+            getattr(buffer, field)[: len(rows)] = rows
+        buffer.total = int(header[f"{prefix}_total"])
+    rng.bit_generator.state = header["rng"]
+    env.set_rng_state(header["env_rng"])
+    torch.set_rng_state(tensors["torch_rng"])
+    n = header["numpy_rng"]
+    np.random.set_state((n["kind"], tensors["numpy_rng.keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached"]))
+    info = header["info"]
+    return WakeLoop(
+        episode_rewards=tensors["loop.episode_rewards"].tolist(),
+        episode_successes=tensors["loop.episode_successes"].tolist(),
+        episode_starts=tensors["loop.episode_starts"].tolist(),
+        env_steps=int(header["env_steps"]), updates=int(header["updates"]),
+        update_credit=float(header["update_credit"]), info=None if info is None else UpdateInfo(**info),
+        seconds=float(header["seconds"]))

@@ -1,0 +1,139 @@
+"""A SAC wake killed between episodes resumes from its snapshot bit for bit (sr_imitation.rl.wake_snapshot): the
+wake alone, the oracle's one training phase, and a stream run through ``--resume``."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+
+from sr_imitation.core.excitability import ExcitabilityConfig
+from sr_imitation.envs.metaworld import tasks
+from sr_imitation.envs.metaworld.tasks import SkillEnv
+from sr_imitation.io import CorruptFileError, load_checked_safetensors
+from sr_imitation.rl import wake_snapshot
+from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, SACConfig, SkillBudget, WakeConfig
+from sr_imitation.rl.mt_joint import run_mt_joint
+from sr_imitation.rl.sac import SACAgent
+from sr_imitation.rl.trainer import SACTrainer
+from sr_imitation.rl.wake import train_skill
+from tests.rl.test_trainer import SimulatedKillError as Killed  # stands for kill -9
+from tests.rl.test_trainer import tiny_config
+
+SAC = SACConfig(hidden_dim=32, batch_size=16, utd_ratio=0.5, warmup_steps=40, buffer_size=5000)
+WAKE = WakeConfig(budgets={"reach": SkillBudget(7, 4, 2)}, rolling_window=3, early_stopping=False)
+MEMORY = CriticMemoryConfig(buffer_size=32, validation_chunk=5, validation_max_rounds=1)
+
+
+def _kill_at_reset(monkeypatch, n: int) -> None:
+    """Every SkillEnv raises :class:`Killed` at its process's n-th episode start."""
+    calls = {"n": 0}
+    reset = SkillEnv.reset
+
+    def counting(self, configuration=None):
+        calls["n"] += 1
+        if calls["n"] == n:
+            raise Killed
+        return reset(self, configuration)
+
+    monkeypatch.setattr(tasks.SkillEnv, "reset", counting)
+
+
+def _wake(snapshot: Path | None, every_s: float = 0.0):
+    """One wake on reach as a fresh process would run it (seeds first), with a snapshot every ``every_s``."""
+    torch.manual_seed(11)
+    np.random.seed(12)
+    agent = SACAgent(SAC, ExcitabilityConfig())
+    with SkillEnv("reach-v3", seed=5, max_episode_steps=25) as env:
+        result, memory = train_skill(agent, env, 0, SAC, WAKE, ExcitabilityConfig(), MEMORY, seed=5,
+                                     progress=False, snapshot=snapshot, snapshot_every_s=every_s)
+    return result, memory, agent
+
+
+def _same_wake(a, b) -> None:
+    (ra, ma, agent_a), (rb, mb, agent_b) = a, b
+    assert ra.episode_rewards == rb.episode_rewards and ra.episode_successes == rb.episode_successes
+    assert (ra.episodes, ra.env_steps, ra.updates, ra.stop_reason) == (rb.episodes, rb.env_steps, rb.updates,
+                                                                       rb.stop_reason)
+    assert ra.last_update == rb.last_update and ra.critic_validation == rb.critic_validation
+    for (name, x), (_, y) in zip(agent_a.state_dict().items(), agent_b.state_dict().items(), strict=True):
+        assert torch.equal(x, y), name
+    for name in ("actor_optimizer", "critic_optimizer", "alpha_optimizer"):
+        sa, sb = getattr(agent_a, name).state_dict()["state"], getattr(agent_b, name).state_dict()["state"]
+        assert all(torch.equal(sa[i][k], sb[i][k]) for i in sa for k in sa[i]), name
+    assert ma.tensors.keys() == mb.tensors.keys()
+    assert all(torch.equal(ma.tensors[n], mb.tensors[n]) for n in ma.tensors)  # the frozen critic memory
+
+
+@pytest.mark.parametrize("kill_at", [2, 4, 7])  # during the warm-up, after it, before the last episode
+def test_a_wake_killed_between_episodes_resumes_bit_for_bit(tmp_path, monkeypatch, kill_at):
+    whole = _wake(None)
+    assert whole[0].episodes == 7 and whole[0].updates > 0  # the budget, with updates after the warm-up
+    snapshot = tmp_path / "wake_snapshot.safetensors"
+    with monkeypatch.context() as m:
+        _kill_at_reset(m, kill_at)
+        with pytest.raises(Killed):
+            _wake(snapshot)
+    _, header = load_checked_safetensors(snapshot)
+    assert header["env_steps"] == 25 * (kill_at - 1)  # every finished episode is in it
+    resumed = _wake(snapshot)
+    _same_wake(whole, resumed)
+    assert not snapshot.exists()  # removed when the wake ended
+
+
+def test_no_snapshot_is_written_before_its_time_and_a_foreign_one_is_refused(tmp_path, monkeypatch):
+    snapshot = tmp_path / "wake_snapshot.safetensors"
+    with monkeypatch.context() as m:
+        _kill_at_reset(m, 5)
+        with pytest.raises(Killed):
+            _wake(snapshot, every_s=3600.0)
+    assert not snapshot.exists()  # an hour had not passed: a killed wake starts again, same numbers
+    with monkeypatch.context() as m:
+        _kill_at_reset(m, 3)
+        with pytest.raises(Killed):
+            _wake(snapshot)
+    torch.manual_seed(11)
+    agent = SACAgent(SAC, ExcitabilityConfig())
+    with SkillEnv("reach-v3", seed=6, max_episode_steps=25) as env, pytest.raises(CorruptFileError,
+                                                                                  match="wake_snapshot.safetensors"):
+        train_skill(agent, env, 0, SAC, WAKE, ExcitabilityConfig(), MEMORY, seed=6, progress=False,
+                    snapshot=snapshot, snapshot_every_s=0.0)  # another seed's wake
+
+
+def test_the_oracle_s_training_killed_inside_resumes_to_the_same_results(tmp_path, monkeypatch):
+    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    config = {"eval": EvalConfig(episodes=2, videos_per_skill=0), "wake": WakeConfig(budget_scale=0.002)}
+    whole = run_mt_joint(tiny_config(tmp_path / "whole", **config), episodes=2000)  # 4 episodes
+    with monkeypatch.context() as m:
+        _kill_at_reset(m, 4)
+        with pytest.raises(Killed):
+            run_mt_joint(tiny_config(tmp_path / "killed", **config), episodes=2000)
+    assert (tmp_path / "killed" / "train_snapshot.safetensors").is_file()
+    resumed = run_mt_joint(tiny_config(tmp_path / "killed", resume=True, **config), episodes=2000)
+    assert resumed["success_matrix"] == whole["success_matrix"]
+    weights = [load_checked_safetensors(tmp_path / run / "agent.safetensors")[0] for run in ("whole", "killed")]
+    assert all(torch.equal(weights[0][n], weights[1][n]) for n in weights[0])
+    assert not (tmp_path / "killed" / "train_snapshot.safetensors").exists()
+
+
+def test_a_stream_killed_inside_a_wake_resumes_to_the_same_results(tmp_path, monkeypatch):
+    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    config = {"eval": EvalConfig(episodes=2, videos_per_skill=0), "wake": WakeConfig(budget_scale=0.004)}
+    SACTrainer(tiny_config(tmp_path / "whole", **config)).run()
+    with monkeypatch.context() as m:
+        _kill_at_reset(m, 10)  # stage 2's wake (reach: 6 episodes, its evaluation: 2)
+        with pytest.raises(Killed):
+            SACTrainer(tiny_config(tmp_path / "killed", **config)).run()
+    stage = tmp_path / "killed" / "stages" / "02_door-open"
+    assert (stage / "wake_snapshot.safetensors").is_file()
+    SACTrainer(tiny_config(tmp_path / "killed", resume=True, **config)).run()
+    runs = [json.loads((tmp_path / run / "results.json").read_text()) for run in ("whole", "killed")]
+    assert runs[0]["success_matrix"] == runs[1]["success_matrix"] and runs[0]["metrics"] == runs[1]["metrics"]
+    for name in ("wake", "sleep"):
+        a, b = (load_checked_safetensors(tmp_path / run / "stages" / "02_door-open" / name / "agent.safetensors")[0]
+                for run in ("whole", "killed"))
+        assert all(torch.equal(a[n], b[n]) for n in a), name
+    assert not (stage / "wake_snapshot.safetensors").exists()
