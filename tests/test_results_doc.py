@@ -295,6 +295,67 @@ def test_the_reexpress_inputs_check_recomputes(text):
     assert f"(SR {np.mean(sr['a_values']):.3f}, wake-only {np.mean(wake['a_values']):.3f})" in readme
 
 
+# --- the needle replication N1 (seeds 5-9; the protocol's third test) -------------------------------------------------
+
+def test_the_needle_replication_n1_recomputes(text):
+    """N1's table, test and descriptive numbers against its ten archived runs; its runs' settings equal seeds 0-4's
+    but for the seed (and settings added since, at the values of the earlier behaviour); the stored test equals a
+    recompute, and a test over seeds 5-9 cannot run on fewer."""
+    replication = DOCS / "results" / "needle_cpu_m16_replication"
+    rows = _table_rows("| training seed | SR final AFSR | wake-only final AFSR | SR - wake-only |")
+    runs = {(v, s): json.loads((replication / f"{v}_seed{s}" / "results.json").read_text())
+            for v in ("sr", "wake_only") for s in range(5, 10)}
+    assert [int(c[0]) for c in rows] == [5, 6, 7, 8, 9]
+    for seed, sr, wake, diff in rows:
+        a, b = (runs[(v, int(seed))]["metrics"]["afsr"]["final"] for v in ("sr", "wake_only"))
+        assert [sr, wake, diff] == [f"{a:.3f}", f"{b:.3f}", f"{a - b:+.3f}"], seed
+    added = {"eval.env": "needle", "allow_unhashed_inputs": False, "torch_threads": 1}
+
+    def settings(run: Path) -> dict:
+        def flat(d: dict, prefix: str = "") -> dict:
+            out = {}
+            for key, value in d.items():
+                out.update(flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+            return out
+
+        return {k: v for k, v in flat(json.loads((run / "train_config.json").read_text())).items()
+                if k not in ("seed", "output_dir")}
+
+    for v in ("sr", "wake_only"):
+        new, old = settings(replication / f"{v}_seed5"), settings(ARCHIVE / f"{v}_seed0")
+        differ = {k for k in new.keys() | old.keys() if new.get(k) != old.get(k) and k not in ("seed", "output_dir")}
+        assert differ <= set(added) and all(new[k] == added[k] and k not in old for k in differ), (v, differ)
+    (n1,) = run_tests(HypothesesConfig(archive=replication, tests=["N1=sr>wake_only@5-9"]))
+    assert f"SR {_mean_se(n1['a_values'])} vs wake-only {_mean_se(n1['b_values'])}, paired {n1['mean']:+.3f} +- " \
+           f"{n1['sem']:.3f}, t = {n1['t']:.2f}, one-sided p = {n1['p']:.3f}, exact sign-flip p = " \
+           f"{n1['sign_flip_p']:.3f} (every pair positive" in text and min(np.subtract(n1["a_values"],
+                                                                                       n1["b_values"])) > 0
+    assert f"bootstrap 95% CI [{n1['ci_low']:+.3f}, {n1['ci_high']:+.3f}]" in text
+    stored = json.loads((replication / "hypotheses" / "hypotheses.json").read_text())["tests"]
+    assert [(t["name"], t["seeds"], t["p"], t["sign_flip_p"]) for t in stored] == \
+        [("N1", [5, 6, 7, 8, 9], n1["p"], n1["sign_flip_p"])]
+    old = run_tests(HypothesesConfig(archive=ARCHIVE, tests=["sr>wake_only"]))[0]
+    assert f"seeds 0-4 gave {old['mean']:+.3f} +- {old['sem']:.3f} (SR {np.mean(old['a_values']):.3f}, wake-only " \
+           f"{np.mean(old['b_values']):.3f})" in text
+    bwt = {v: [runs[(v, s)]["metrics"]["bwt"]["final"] for s in range(5, 10)] for v in ("sr", "wake_only")}
+    assert f"BWT {_signed(bwt['sr'])} (SR) vs {_signed(bwt['wake_only'])} (wake-only)" in text
+    final = {v: np.mean([runs[(v, s)]["success_matrix"][-1] for s in range(5, 10)], axis=0)
+             for v in ("sr", "wake_only")}
+    assert f"final approach {final['sr'][0]:.2f} vs {final['wake_only'][0]:.2f} and insert {final['sr'][2]:.2f} vs " \
+           f"{final['wake_only'][2]:.2f}" in text
+    own = {(v, s): r["success_after_own_wake"] for (v, s), r in runs.items()}
+    below = sorted((s, x[2]) for (v, s), x in own.items() if min(x) < 1)
+    assert all(v == "wake_only" and min(x) == x[2] for (v, s), x in own.items() if min(x) < 1)
+    assert [s for s, _ in below] == [7, 9] and f"insert on seeds 7 and 9, {below[0][1]:.2f} and {below[1][1]:.2f})" \
+        in text
+    with pytest.raises(ValueError, match="no finished run yet"):
+        run_tests(HypothesesConfig(archive=replication, tests=["sr>wake_only@5-10"]))
+    short = f"SR {np.mean(n1['a_values']):.3f} vs wake-only {np.mean(n1['b_values']):.3f}, paired {n1['mean']:+.3f} " \
+            f"+- {n1['sem']:.3f}, every pair positive, one-sided p = {n1['p']:.3f} (sign-flip {n1['sign_flip_p']:.3f})"
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert short in readme and short in text  # README's "Does sleep help?" and RESULTS' first paragraph
+
+
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
 
 def _list(values: list[float]) -> str:
