@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import re
+import subprocess
 from pathlib import Path
 
 import numpy as np
@@ -293,6 +294,45 @@ def test_the_reexpress_inputs_check_recomputes(text):
     assert f"BWT {_signed(bwt['sr'])} for SR and {_signed(bwt['wake_only'])} for wake-only" in text
     readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert f"(SR {np.mean(sr['a_values']):.3f}, wake-only {np.mean(wake['a_values']):.3f})" in readme
+
+
+# --- provenance: the protocol's runs were made by code that already held the protocol --------------------------------
+
+PROTOCOL_COMMIT, GATE_COMMIT, TEST_CODE = "67f93d6", "1702742", "c8c03d9"
+"""The imitation protocol's commit, the SAC gate statement's, and the code every calibration and test run of the
+imitation protocol was recorded to run from (RESULTS)."""
+
+
+def _git(*args: str) -> subprocess.CompletedProcess:
+    return subprocess.run(["git", "-C", str(DOCS.parent), *args], capture_output=True, text=True, check=False)
+
+
+@pytest.mark.parametrize("archives, statement, code", [
+    (["metaworld_mt5_imitation_calibration", "metaworld_mt5_imitation_calibration_k1",
+      "metaworld_mt5_imitation_calibration_k2", "metaworld_mt5_imitation_calibration_k3",
+      "metaworld_mt5_imitation_calibration_k4", "needle_cpu_m16_replication", "metaworld_mt5_imitation_compare"],
+     PROTOCOL_COMMIT, TEST_CODE),
+    (["sac_mt5_gate"], GATE_COMMIT, None),
+])
+def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code):
+    """A run cannot start before the code it ran from exists: every archived run of a protocol (its results.json
+    ``code``) ran from a clean checkout of a commit that descends from the commit stating the protocol, so git shows
+    the statement first. The imitation protocol's runs all ran from the one recorded code commit."""
+    if _git("rev-parse", "--is-shallow-repository").stdout.strip() != "false":
+        pytest.skip("needs the repository's history (a shallow clone has none)")
+    runs = [run for name in archives if (DOCS / "results" / name).is_dir()
+            for run in sorted((DOCS / "results" / name).glob("*_seed*")) if (run / "results.json").is_file()]
+    if statement == PROTOCOL_COMMIT:
+        assert len(runs) >= 46  # calibration (36 runs over five steps) and N1 (10): the runs are there to check
+    commits = {}
+    for run in runs:
+        recorded = json.loads((run / "results.json").read_text())["code"]
+        assert recorded["dirty"] is False, run
+        commits.setdefault(recorded["commit"], []).append(run.name)
+    for commit in commits:
+        assert _git("merge-base", "--is-ancestor", statement, commit).returncode == 0, (commit, commits[commit])
+        if code is not None:
+            assert commit.startswith(_git("rev-parse", code).stdout.strip()), (commit, commits[commit])
 
 
 # --- the needle replication N1 (seeds 5-9; the protocol's third test) -------------------------------------------------
