@@ -335,6 +335,38 @@ def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archiv
             assert commit.startswith(_git("rev-parse", code).stdout.strip()), (commit, commits[commit])
 
 
+def test_every_mt5_test_run_ran_the_recorded_test_preset():
+    """Each archived test run of the MT5 imitation stream is ``configs/metaworld_mt5_imitation.json`` with exactly
+    the ``--extra`` flags of RESULTS' dated test-preset line (08:49 UTC), on a training seed 0-9 (calibration seeds
+    never enter a test)."""
+    line = re.search(r"the test preset \(recorded before any test-seed run\).*?\n\n\s+(--extra=\[.*?\])\n",
+                     (DOCS / "RESULTS.md").read_text(), re.S)
+    assert line is not None
+    flags = dict(f.removeprefix("--").split("=", 1) for f in line.group(1)[len("--extra=["):-1].split(","))
+    assert flags["memory.buffer_size"] == "8" and flags["policy.dim_model"] == "256"
+
+    def flat(d: dict, prefix: str = "") -> dict:
+        out = {}
+        for key, value in d.items():
+            out.update(flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+        return out
+
+    preset = flat(json.loads((DOCS.parent / "configs" / "metaworld_mt5_imitation.json").read_text()))
+    expected = {k: v for k, v in preset.items() if k not in ("output_dir", "seed", "method")}
+    expected.update({k: type(preset[k])(v) if k in preset else v for k, v in flags.items()})
+    from sr_imitation.experiments.needle_compare import VARIANTS as NEEDLE_VARIANTS
+
+    runs = sorted((DOCS / "results" / "metaworld_mt5_imitation_compare").glob("*_seed*"))
+    for run in runs:
+        config = flat(json.loads((run / "train_config.json").read_text()))
+        variant = NEEDLE_VARIANTS[run.name.rsplit("_seed", 1)[0]]  # what the variant itself changes
+        own = {"method": variant.method, **{f"sleep.{k}": v for k, v in variant.sleep.items()},
+               **{f"policy.{k}": v for k, v in variant.policy.items()},
+               **{f"method_options.{k}": v for k, v in variant.options.items()}}
+        assert {k: config.get(k) for k in expected | own} == expected | own, run.name
+        assert 0 <= config["seed"] <= 9 and run.name.endswith(f"_seed{config['seed']}"), run.name
+
+
 # --- the needle replication N1 (seeds 5-9; the protocol's third test) -------------------------------------------------
 
 def test_the_needle_replication_n1_recomputes(text):
