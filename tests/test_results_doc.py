@@ -303,6 +303,14 @@ PROTOCOL_COMMIT, GATE_COMMIT, TEST_CODE = "67f93d6", "1702742", "c8c03d9"
 imitation protocol was recorded to run from (RESULTS)."""
 
 
+def _flat(d: dict, prefix: str = "") -> dict:
+    """A nested config as ``{"a.b": value}`` (an empty section adds nothing)."""
+    out = {}
+    for key, value in d.items():
+        out.update(_flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
+    return out
+
+
 def _git(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(["git", "-C", str(DOCS.parent), *args], capture_output=True, text=True, check=False)
 
@@ -345,20 +353,14 @@ def test_every_mt5_test_run_ran_the_recorded_test_preset():
     flags = dict(f.removeprefix("--").split("=", 1) for f in line.group(1)[len("--extra=["):-1].split(","))
     assert flags["memory.buffer_size"] == "8" and flags["policy.dim_model"] == "256"
 
-    def flat(d: dict, prefix: str = "") -> dict:
-        out = {}
-        for key, value in d.items():
-            out.update(flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
-        return out
-
-    preset = flat(json.loads((DOCS.parent / "configs" / "metaworld_mt5_imitation.json").read_text()))
+    preset = _flat(json.loads((DOCS.parent / "configs" / "metaworld_mt5_imitation.json").read_text()))
     expected = {k: v for k, v in preset.items() if k not in ("output_dir", "seed", "method")}
     expected.update({k: type(preset[k])(v) if k in preset else v for k, v in flags.items()})
     from sr_imitation.experiments.needle_compare import VARIANTS as NEEDLE_VARIANTS
 
     runs = sorted((DOCS / "results" / "metaworld_mt5_imitation_compare").glob("*_seed*"))
     for run in runs:
-        config = flat(json.loads((run / "train_config.json").read_text()))
+        config = _flat(json.loads((run / "train_config.json").read_text()))
         variant = NEEDLE_VARIANTS[run.name.rsplit("_seed", 1)[0]]  # what the variant itself changes
         own = {"method": variant.method, **{f"sleep.{k}": v for k, v in variant.sleep.items()},
                **{f"policy.{k}": v for k, v in variant.policy.items()},
@@ -384,13 +386,7 @@ def test_the_needle_replication_n1_recomputes(text):
     added = {"eval.env": "needle", "allow_unhashed_inputs": False, "torch_threads": 1}
 
     def settings(run: Path) -> dict:
-        def flat(d: dict, prefix: str = "") -> dict:
-            out = {}
-            for key, value in d.items():
-                out.update(flat(value, f"{prefix}{key}.") if isinstance(value, dict) else {prefix + key: value})
-            return out
-
-        return {k: v for k, v in flat(json.loads((run / "train_config.json").read_text())).items()
+        return {k: v for k, v in _flat(json.loads((run / "train_config.json").read_text())).items()
                 if k not in ("seed", "output_dir")}
 
     for v in ("sr", "wake_only"):

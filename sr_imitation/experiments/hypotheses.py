@@ -75,13 +75,12 @@ class HypothesesConfig:
             raise ValueError(f"tests: {bad} are not of the form A>B, A<B or A!=B (or <folder>::A>B, "
                              "<folder>::A!=<folder>::B, each optionally named and with its seeds: M1=A>B@0-9)")
         for test in self.tests:
-            first, last = _TEST.match(test).group(7, 8)  # type: ignore[union-attr]
+            _, folder, _, _, folder_b, _, first, last = _TEST.match(test).groups()  # type: ignore[union-attr]
             if first is not None and int(first) > int(last):
                 raise ValueError(f"tests: {test!r}: the seed range {first}-{last} is empty")
-        for test in self.tests:
-            for folder in _TEST.match(test).group(2, 5):  # type: ignore[union-attr]
-                if folder is not None and not Path(folder).is_dir():
-                    raise FileNotFoundError(f"tests: {test!r}: {folder} is not a folder")
+            for where in (folder, folder_b):
+                if where is not None and not Path(where).is_dir():
+                    raise FileNotFoundError(f"tests: {test!r}: {where} is not a folder")
         if self.metric not in METRICS and self.metric not in LOSS_METRICS:
             raise ValueError(f"metric: {self.metric!r} is not one of {[*METRICS, *LOSS_METRICS]}")
         if not 0 < self.alpha < 1:

@@ -77,15 +77,13 @@ class WakeLoop:
 def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, env: SeededEnv,
          replay: ReplayBuffer, holdout: ReplayBuffer, rng: np.random.Generator) -> None:
     """Write the snapshot of a wake between two episodes (atomically; checked on load)."""
-    tensors: dict[str, torch.Tensor] = {f"agent.{n}": t.reshape(-1) if t.ndim == 0 else t
-                                        for n, t in agent.state_dict().items()}
-    for name in _OPTIMIZERS:
+    tensors: dict[str, torch.Tensor] = {f"agent.{n}": t for n, t in agent.state_dict().items()}
+    for name in _OPTIMIZERS:  # 0-d tensors (alpha, Adam's steps) keep their shape: checked files store them as is
         for index, state in getattr(agent, name).state_dict()["state"].items():
-            for key, value in state.items():
-                tensors[f"{name}.{index}.{key}"] = value.reshape(-1) if value.ndim == 0 else value
+            tensors.update({f"{name}.{index}.{key}": value for key, value in state.items()})
     for prefix, buffer in (("replay", replay), ("holdout", holdout)):
-        for field in _BUFFER_FIELDS:
-            tensors[f"{prefix}.{field}"] = torch.from_numpy(getattr(buffer, field)[: len(buffer)].copy())
+        for field in _BUFFER_FIELDS:  # the filled rows: a view, written as it is
+            tensors[f"{prefix}.{field}"] = torch.from_numpy(getattr(buffer, field)[: len(buffer)])
     tensors["torch_rng"] = torch.get_rng_state()
     kind, keys, pos, has_gauss, cached = np.random.get_state()
     tensors["numpy_rng.keys"] = torch.from_numpy(np.asarray(keys, dtype=np.int64))
@@ -113,20 +111,19 @@ def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, 
     if got != want:
         raise CorruptFileError(path, f"wake snapshot of {got}, expected {want}; remove it to redo the wake from its "
                                      "start")
-    shapes = {n: t.shape for n, t in agent.state_dict().items()}
     weights = {n.removeprefix("agent."): t for n, t in tensors.items() if n.startswith("agent.")}
-    if set(weights) != set(shapes):
-        raise CorruptFileError(path, "the snapshot's agent does not fit this configuration")
-    agent.load_state_dict({n: t.reshape(shapes[n]) for n, t in weights.items()})
+    try:
+        agent.load_state_dict(weights, strict=True)
+    except RuntimeError as exc:
+        raise CorruptFileError(path, f"the snapshot's agent does not fit this configuration: {exc}") from exc
     agent.normalizer.refresh_seen()
     for name in _OPTIMIZERS:
         optimizer = getattr(agent, name)
-        state, params = optimizer.state_dict(), [p for group in optimizer.param_groups for p in group["params"]]
+        state = optimizer.state_dict()
         for key, value in tensors.items():
-            if key.startswith(f"{name}."):  # Adam's step is a scalar, its moments have their parameter's shape
+            if key.startswith(f"{name}."):
                 _, index, field = key.split(".", 2)
-                shape = () if field == "step" else params[int(index)].shape
-                state["state"].setdefault(int(index), {})[field] = value.reshape(shape)
+                state["state"].setdefault(int(index), {})[field] = value
         optimizer.load_state_dict(state)
     for prefix, buffer in (("replay", replay), ("holdout", holdout)):
         for field in _BUFFER_FIELDS:
