@@ -15,8 +15,9 @@ no sequence, so the success matrix repeats the final evaluation in every row and
 definition; SPI (subspace preservation across stages) is undefined (null).
 
 Phases (``progress.json``; a run killed inside a phase redoes it with the same numbers): ``1.wake`` (checkpoint
-``mt_joint/wake``), ``1.wake.eval`` (its evaluation, next to it). Settings are fingerprinted and checked before
-anything is written, as for a stream.
+``mt_joint/wake``; a training killed inside continues from ``wake_snapshot.safetensors``, written every few minutes,
+:mod:`sr_imitation.imitation.wake_snapshot`), ``1.wake.eval`` (its evaluation, next to it). Settings are
+fingerprinted and checked before anything is written, as for a stream.
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import torch
 from sr_imitation.imitation.cli import _setup_logging, parse_train_args
 from sr_imitation.imitation.data import SkillData, check_stream_datasets, load_metadata, load_skill_data
 from sr_imitation.imitation.report import pair_list
-from sr_imitation.imitation.substrate import ACTSubstrate
+from sr_imitation.imitation.substrate import WAKE_SNAPSHOT, ACTSubstrate
 from sr_imitation.imitation.trainer import (
     RESUME_ALLOW_LIST,
     SETTINGS_ADDED,
@@ -123,7 +124,8 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
             substrate.begin_phase(0, "wake", substrate.phase_seed(0, "wake"))
             t0 = time.perf_counter()
             result = wake_train(substrate.policy, substrate.preprocessor, union_data(substrate), joint_wake(cfg),
-                                substrate.phase_seed(0, "wake"), cfg.progress)
+                                substrate.phase_seed(0, "wake"), cfg.progress,
+                                snapshot=cfg.output_dir / WAKE_SNAPSHOT)
             history = dataclasses.asdict(result)
             substrate.save_policy(0, "wake", {"wake_history.json": history})
             run.mark(0, "wake", {"seconds": time.perf_counter() - t0, "epochs": result.epochs,

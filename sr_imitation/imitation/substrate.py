@@ -4,7 +4,9 @@ Per stage k (files under the run directory; every file written atomically, check
 
 - ``wake``: behaviour cloning on skill k's LeRobot dataset (:func:`~sr_imitation.imitation.wake.wake_train`) with
   the method's distillation from earlier memories; checkpoint ``skill_k_<name>/wake/pretrained_model`` (LeRobot
-  layout, loadable by ``lerobot-eval --policy.path``) and ``wake_history.json``;
+  layout, loadable by ``lerobot-eval --policy.path``) and ``wake_history.json``; while the wake runs,
+  ``skill_k_<name>/wake_snapshot.safetensors`` every few minutes (:mod:`sr_imitation.imitation.wake_snapshot`: a wake
+  killed inside continues from it with identical results);
 - ``memory``: the frozen actor memory M_k (``memories/skill_k_<name>.safetensors``);
 - ``wake.eval`` / ``sleep.eval``: success on the learned skills (``eval.json``), SPI trajectories
   (``trajectories.safetensors``) and a few rollout videos (``videos/``), in the environment ``--eval.env`` names;
@@ -78,6 +80,8 @@ logger = logging.getLogger(__name__)
 PER_SKILL_EVAL_KEYS = ("eval.gym_ids", "eval.env_tasks")
 """Evaluation settings with one entry per skill: an extended stream has more; its first entries must equal the run
 it extends (:meth:`ACTSubstrate.source_skills`)."""
+WAKE_SNAPSHOT = "wake_snapshot.safetensors"
+"""A wake's snapshot in its stage folder, while the wake runs (:mod:`sr_imitation.imitation.wake_snapshot`)."""
 STATS_FILE = "stream_stats.safetensors"
 """The stream's statistics: in the run directory (the first skill's, or those ``--stream.stats`` fixes), and under
 ``--stream.stats=seen`` in each later stage's folder (those of skills 1..k)."""
@@ -436,7 +440,8 @@ class ACTSubstrate:
         if method is not None and method.has_wake_hooks:
             hooks = WakeHooks(method, k, self.trainable(), self.chunk_policy, self.phase_seed(k, "wake"))
         result = wake_train(self.policy, self.preprocessor, data, self.cfg.wake, self.phase_seed(k, "wake"),
-                            self.cfg.progress, on_epoch=on_epoch, hooks=hooks)
+                            self.cfg.progress, on_epoch=on_epoch, hooks=hooks,
+                            snapshot=self.out / self.stage_dir_name(k) / WAKE_SNAPSHOT)
         self.policy.set_wake_memories([], 0.0)
         history = dataclasses.asdict(result) | {"distill_weight": distill_weight, "n_memories": len(memories)}
         record = {"seconds": time.perf_counter() - t0, "epochs": result.epochs, "best_epoch": result.best_epoch,

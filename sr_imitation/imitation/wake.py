@@ -3,7 +3,9 @@ policy's own distillation term when earlier memories are attached; AdamW from AC
 backbone 1e-5, weight decay 1e-4); up to ``max_epochs`` epochs; early stopping on an l1 validation plateau after
 ``min_epochs``; the best-l1 weights restored at the end.
 
-Each step is LeRobot's own ``update_policy`` (forward, backward, gradient clipping, optimizer step).
+Each step is LeRobot's own ``update_policy`` (forward, backward, gradient clipping, optimizer step). Given a
+``snapshot`` path, the wake keeps a snapshot every few minutes and a wake killed inside continues from it with
+identical results (:mod:`sr_imitation.imitation.wake_snapshot`).
 """
 
 from __future__ import annotations
@@ -15,6 +17,7 @@ import math
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import torch
@@ -24,6 +27,7 @@ from lerobot.utils.constants import ACTION
 from lerobot.utils.logging_utils import AverageMeter, MetricsTracker
 from torch.utils.data import DataLoader, Subset
 
+from sr_imitation.imitation import wake_snapshot
 from sr_imitation.imitation.data import SkillData
 from sr_imitation.infra.distributed import Processes, average_gradients, average_scalars, current, shard
 from sr_imitation.progress import Progress
@@ -195,8 +199,15 @@ def wake_train(
     progress: bool = True,
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     hooks: Any = None,
+    snapshot: Path | None = None,
+    snapshot_every_s: float | None = None,
 ) -> WakeResult:
-    """Train ``policy`` in place on one skill; returns the history and the restored best epoch."""
+    """Train ``policy`` in place on one skill; returns the history and the restored best epoch.
+
+    ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.imitation.wake_snapshot`), written at the end
+    of an epoch every ``snapshot_every_s`` seconds (default :data:`~sr_imitation.imitation.wake_snapshot.EVERY_S`); a
+    wake that finds one continues from it, and removes it when it ends. Ignored with ``hooks`` (their state is not in
+    the snapshot: such a wake, killed, starts again)."""
     device = policy.config.device
     accelerator = Accelerator(cpu=device == "cpu")
     processes = current()
@@ -215,8 +226,23 @@ def wake_train(
                               "lr": AverageMeter("lr", ":0.1e"), "update_s": AverageMeter("updt_s", ":.3f")})
     result = WakeResult(data.skill, 0, -1, math.inf, 0)
     best_state: dict[str, torch.Tensor] | None = None
-    bar = Progress(cfg.max_epochs * steps_per_epoch, f"wake {data.skill}", logger, enabled=progress)
-    for epoch in range(cfg.max_epochs):
+    if hooks is not None:
+        snapshot = None
+    generators = wake_snapshot.WakeGenerators(train_loader.generator, val_loader.generator,
+                                              getattr(policy, "memory_generator", None))
+    identity = {"skill": data.skill, "seed": seed, "train_frames": len(data.train_indices),
+                "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs}
+    if snapshot is not None and snapshot.is_file():
+        record, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators)
+        result = WakeResult(data.skill, record.epochs, record.best_epoch, record.best_val_l1, record.steps,
+                            record.history)
+        logger.info("wake %s: resumed from %s after %d epochs (%d steps)", data.skill, snapshot, result.epochs,
+                    result.steps)
+    every_s = wake_snapshot.EVERY_S if snapshot_every_s is None else snapshot_every_s
+    last_snapshot = time.perf_counter()
+    bar = Progress(cfg.max_epochs * steps_per_epoch, f"wake {data.skill}", logger, enabled=progress,
+                   initial=result.steps)
+    for epoch in range(result.epochs, cfg.max_epochs):
         sums: dict[str, float] = {}
         for step, raw in enumerate(train_loader):
             if step >= steps_per_epoch:
@@ -252,7 +278,15 @@ def wake_train(
             logger.info("wake %s: l1 plateau, stopping after epoch %d (best %d)", data.skill, epoch,
                         result.best_epoch)
             break
+        if (snapshot is not None and processes.is_main and epoch + 1 < cfg.max_epochs
+                and time.perf_counter() - last_snapshot >= every_s):
+            record = wake_snapshot.WakeRecord(result.epochs, result.best_epoch, result.best_val_l1, result.steps,
+                                              result.history)
+            wake_snapshot.save(snapshot, identity, record, policy, optimizer, best_state, generators)
+            last_snapshot = time.perf_counter()
     bar.close()
+    if snapshot is not None and processes.is_main:
+        snapshot.unlink(missing_ok=True)
     if best_state is not None:
         policy.load_state_dict(best_state)
     return result

@@ -198,6 +198,12 @@ class ACTSRPolicy(ACTPolicy):
         self._memory_generator = torch.Generator().manual_seed(seed)
 
     @property
+    def memory_generator(self) -> torch.Generator:
+        """The generator the wake's distillation term draws its memory frames from (seeded by
+        :meth:`set_wake_memories`): part of what a mid-wake snapshot keeps."""
+        return self._memory_generator
+
+    @property
     def wake_memories(self) -> list[Memory]:
         return list(self._wake_memories)
 

@@ -1,0 +1,135 @@
+"""Mid-wake snapshots for ACT-SR: a wake killed at any point resumes from its last epoch boundary with identical
+results.
+
+A wake is one phase of the stream engine (and the MT-Joint oracle's one training phase), and a phase killed inside
+used to be redone from its start: same numbers, all its time again (5-30 min on a CPU preset, hours at the paper's
+budgets on a GPU). So :func:`~sr_imitation.imitation.wake.wake_train` writes, at the end of an epoch every
+:data:`EVERY_S` seconds of wall time (our choice), everything the rest of the wake depends on to one checked
+safetensors file, and a wake that finds that file continues from it with the next epoch:
+
+- the policy's whole state (the training-only VAE encoder included) and the optimizer's state;
+- the weights of the best epoch so far, when the wake restores them at its end (``--wake.restore=best``);
+- the wake's own generators (the training and validation loaders', the distillation's memory sampler) and the
+  process's global ones (torch's, CUDA's on a GPU, numpy's, Python's): dropout, ACT's VAE sampling and the loaders'
+  worker seeds draw from them;
+- the loop's record: epochs done, steps, the per-epoch history, the best epoch and its validation l1.
+
+When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
+the numbers of a run never depend on it (``tests/imitation/test_wake_snapshot.py`` kills wakes inside an epoch and
+checks the resumed ones bit for bit against wakes that were never stopped). The file is removed when the wake ends.
+Only the main process writes (the processes of a launched run hold the same state); every process reads it. A wake
+shaped by a continual method's wake hooks (replay, EWC, LwF, ...) is not snapshotted: the hooks keep state of their
+own, so such a wake, killed, starts again from its start. The SAC wake's counterpart is
+:mod:`sr_imitation.rl.wake_snapshot`.
+"""
+
+from __future__ import annotations
+
+import random
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
+
+FORMAT = "sr_imitation.imitation.wake_snapshot"
+VERSION = 1
+EVERY_S = 300.0
+"""Seconds of wall time between two snapshots of one wake (our choice: a kill loses at most about five minutes and
+one epoch; a snapshot of the CPU presets' policy with its AdamW state is a few MB)."""
+
+
+@dataclass
+class WakeGenerators:
+    """The generators a wake owns (the process's global ones are saved beside them)."""
+
+    train: torch.Generator
+    validation: torch.Generator
+    memory: torch.Generator | None
+    """The distillation's memory sampler (``policy.memory_generator``); None for a policy without one."""
+
+    def named(self) -> dict[str, torch.Generator]:
+        out = {"train": self.train, "validation": self.validation}
+        return out if self.memory is None else out | {"memory": self.memory}
+
+
+@dataclass
+class WakeRecord:
+    """The loop's record at an epoch boundary (what :class:`~sr_imitation.imitation.wake.WakeResult` holds)."""
+
+    epochs: int
+    best_epoch: int
+    best_val_l1: float
+    steps: int
+    history: list[dict[str, float]]
+
+
+def save(path: Path, identity: dict[str, Any], record: WakeRecord, policy: torch.nn.Module,
+         optimizer: torch.optim.Optimizer, best_state: dict[str, torch.Tensor] | None,
+         generators: WakeGenerators) -> None:
+    """Write the snapshot of a wake at the end of an epoch (atomically; checked on load)."""
+    tensors: dict[str, torch.Tensor] = {f"policy.{n}": t for n, t in policy.state_dict().items()}
+    for index, state in optimizer.state_dict()["state"].items():  # 0-d tensors (Adam's step) keep their shape
+        tensors.update({f"optimizer.{index}.{key}": value for key, value in state.items()})
+    if best_state is not None:
+        tensors.update({f"best.{n}": t for n, t in best_state.items()})
+    tensors.update({f"rng.{name}": g.get_state() for name, g in generators.named().items()})
+    tensors["rng.torch"] = torch.get_rng_state()
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        tensors["rng.cuda"] = torch.cuda.get_rng_state()
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    tensors["rng.numpy.keys"] = torch.from_numpy(np.asarray(keys, dtype=np.int64))
+    version, python_state, gauss = random.getstate()
+    tensors["rng.python"] = torch.tensor(python_state, dtype=torch.int64)
+    tensors["loop.best_val_l1"] = torch.tensor(record.best_val_l1, dtype=torch.float64)  # inf before a best
+    header = {
+        "format": FORMAT, "version": VERSION, **identity,
+        "epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps, "history": record.history,
+        "best_state": best_state is not None,
+        "numpy_rng": {"kind": kind, "pos": int(pos), "has_gauss": int(has_gauss), "cached": float(cached)},
+        "python_rng": {"version": version, "gauss": gauss},
+    }
+    save_checked_safetensors(path, tensors, header)
+
+
+def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimizer: torch.optim.Optimizer,
+         generators: WakeGenerators) -> tuple[WakeRecord, dict[str, torch.Tensor] | None]:
+    """Restore a wake from its snapshot into the freshly built ``policy``, ``optimizer`` and ``generators`` (and the
+    process's global generators); returns the loop's record and the best epoch's weights (None when the wake keeps
+    its last ones). A snapshot of another wake, format or policy is a :class:`CorruptFileError` naming the file."""
+    tensors, header = load_checked_safetensors(path)
+    want = {"format": FORMAT, "version": VERSION, **identity}
+    got = {k: header.get(k) for k in want}
+    if got != want:
+        raise CorruptFileError(path, f"wake snapshot of {got}, expected {want}; remove it to redo the wake from its "
+                                     "start")
+    try:
+        policy.load_state_dict(_prefixed(tensors, "policy."), strict=True)
+    except RuntimeError as exc:
+        raise CorruptFileError(path, f"the snapshot's policy does not fit this configuration: {exc}") from exc
+    state = optimizer.state_dict()
+    for key, value in _prefixed(tensors, "optimizer.").items():
+        index, field = key.split(".", 1)
+        state["state"].setdefault(int(index), {})[field] = value
+    optimizer.load_state_dict(state)
+    for name, generator in generators.named().items():
+        generator.set_state(tensors[f"rng.{name}"])
+    torch.set_rng_state(tensors["rng.torch"])
+    if "rng.cuda" in tensors and torch.cuda.is_available():
+        torch.cuda.set_rng_state(tensors["rng.cuda"])
+    n = header["numpy_rng"]
+    np.random.set_state((n["kind"], tensors["rng.numpy.keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
+                         n["cached"]))
+    p = header["python_rng"]
+    random.setstate((p["version"], tuple(tensors["rng.python"].tolist()), p["gauss"]))
+    record = WakeRecord(epochs=int(header["epochs"]), best_epoch=int(header["best_epoch"]),
+                        best_val_l1=float(tensors["loop.best_val_l1"]), steps=int(header["steps"]),
+                        history=list(header["history"]))
+    return record, (_prefixed(tensors, "best.") if header["best_state"] else None)
+
+
+def _prefixed(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    return {n.removeprefix(prefix): t for n, t in tensors.items() if n.startswith(prefix)}

@@ -1,0 +1,150 @@
+"""An ACT wake killed inside an epoch resumes from its last snapshot bit for bit (sr_imitation.imitation.wake_snapshot):
+a stream's wake with memories attached (the distillation's sampler), ACT's VAE and dropout (the global generator)
+and the best epoch's weights kept, and the MT-Joint oracle's one training phase. The references never write a
+snapshot, so the checks also show that writing one draws nothing."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pytest
+import torch
+from safetensors.torch import load_file
+
+from sr_imitation.imitation import wake, wake_snapshot
+from sr_imitation.imitation.mt_joint import run_mt_joint
+from sr_imitation.imitation.substrate import WAKE_SNAPSHOT
+from sr_imitation.imitation.trainer import train_stream
+from sr_imitation.io import CorruptFileError, load_checked_safetensors
+from tests.imitation.conftest import SKILLS
+from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+
+EPOCHS, STEPS = 4, 2  # per wake: 4 epochs of 2 updates
+
+
+class Killed(BaseException):
+    """Stands for kill -9 (not an Exception: nothing may catch it)."""
+
+
+def _config(datasets: Path, out: Path, skills: list[str]):
+    cfg = tiny_stream_config(datasets, out, skills, use_images=False, dropout=0.1, use_vae=True)
+    cfg.wake.max_epochs = cfg.wake.min_epochs = EPOCHS
+    cfg.wake.restore = "best"
+    return cfg
+
+
+def _kill_at_update(monkeypatch, n: int) -> None:
+    """The n-th optimizer update of the process (1-based) raises :class:`Killed` before it changes anything."""
+    calls = {"n": 0}
+    update = wake.update_policy
+
+    def counting(*args, **kwargs):
+        calls["n"] += 1
+        if calls["n"] == n:
+            raise Killed
+        return update(*args, **kwargs)
+
+    monkeypatch.setattr(wake, "update_policy", counting)
+
+
+def _weights(folder: Path) -> dict[str, torch.Tensor]:
+    return load_file(folder / "pretrained_model" / "model.safetensors")
+
+
+def _same_weights(a: Path, b: Path) -> None:
+    wa, wb = _weights(a), _weights(b)
+    assert wa.keys() == wb.keys()
+    assert all(torch.equal(wa[k], wb[k]) for k in wa), a
+
+
+@pytest.fixture(scope="module")
+def never_stopped(state_datasets, tmp_path_factory):
+    out = tmp_path_factory.mktemp("never_stopped") / "stream"
+    with pytest.MonkeyPatch.context() as m:
+        m.setattr(wake_snapshot, "EVERY_S", float("inf"))  # no snapshot at all
+        results = train_stream(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
+    return out, results
+
+
+# Updates 1-8 are the first skill's wake, 9-16 the second's (with the first skill's memory attached).
+@pytest.mark.parametrize(("kill_at", "epochs_in_snapshot"), [
+    (10, None),  # inside the second wake's first epoch: no snapshot yet, the wake starts again
+    (13, 2),  # at the start of its third epoch
+    (16, 3),  # at its very last update
+    (4, 1),  # inside the first wake (no memories)
+])
+def test_a_stream_wake_killed_inside_an_epoch_resumes_bit_for_bit(never_stopped, state_datasets, tmp_path,
+                                                                  monkeypatch, kill_at, epochs_in_snapshot):
+    reference, expected = never_stopped
+    out = tmp_path / "stream"
+    stage = "skill_2_place" if kill_at > EPOCHS * STEPS else "skill_1_approach"
+    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)  # a snapshot at every epoch's end
+    with monkeypatch.context() as m:
+        _kill_at_update(m, kill_at)
+        with pytest.raises(Killed):
+            train_stream(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
+    snapshot = out / stage / WAKE_SNAPSHOT
+    if epochs_in_snapshot is None:
+        assert not snapshot.exists()
+    else:
+        _, header = load_checked_safetensors(snapshot)
+        assert header["epochs"] == epochs_in_snapshot and header["steps"] == epochs_in_snapshot * STEPS
+        assert header["best_state"] is True  # --wake.restore=best: the best epoch's weights travel with it
+    cfg = _config(state_datasets, out, SKILLS[:2])
+    cfg.resume = True
+    results = train_stream(cfg, fake_env_factory)
+    assert not snapshot.exists()  # removed when the wake ends
+    assert results["success_matrix_per_unit"] == expected["success_matrix_per_unit"]
+    assert results["metrics"] == expected["metrics"]
+    for name in ("skill_1_approach", "skill_2_place"):
+        _same_weights(out / name / "wake", reference / name / "wake")
+        history = json.loads((out / name / "wake" / "wake_history.json").read_text())
+        assert history == json.loads((reference / name / "wake" / "wake_history.json").read_text())
+    _same_weights(out / "skill_2_place" / "sleep", reference / "skill_2_place" / "sleep")
+
+
+def test_the_oracles_training_killed_inside_resumes_bit_for_bit(state_datasets, tmp_path, monkeypatch):
+    with monkeypatch.context() as m:
+        m.setattr(wake_snapshot, "EVERY_S", float("inf"))
+        expected = run_mt_joint(_config(state_datasets, tmp_path / "whole", SKILLS[:2]), fake_env_factory)
+    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    out = tmp_path / "killed"
+    with monkeypatch.context() as m:
+        _kill_at_update(m, 2 * STEPS * 2 + 1)  # the union's epochs are 2 x 2 updates: inside the third epoch
+        with pytest.raises(Killed):
+            run_mt_joint(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
+    assert load_checked_safetensors(out / WAKE_SNAPSHOT)[1]["epochs"] == 2
+    cfg = _config(state_datasets, out, SKILLS[:2])
+    cfg.resume = True
+    results = run_mt_joint(cfg, fake_env_factory)
+    assert not (out / WAKE_SNAPSHOT).exists()
+    assert results["success_matrix_per_unit"] == expected["success_matrix_per_unit"]
+    _same_weights(out / "mt_joint" / "wake", tmp_path / "whole" / "mt_joint" / "wake")
+
+
+def test_a_snapshot_of_another_wake_or_a_damaged_one_is_refused_naming_the_file(state_datasets, tmp_path,
+                                                                                 monkeypatch):
+    out = tmp_path / "stream"
+    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    with monkeypatch.context() as m:
+        _kill_at_update(m, 5)
+        with pytest.raises(Killed):
+            train_stream(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
+    snapshot = out / "skill_1_approach" / WAKE_SNAPSHOT
+    _, header = load_checked_safetensors(snapshot)
+    identity = {k: header[k] for k in ("skill", "seed", "train_frames", "steps_per_epoch", "max_epochs")}
+    cfg = _config(state_datasets, out, SKILLS[:2])
+    generators = wake_snapshot.WakeGenerators(torch.Generator(), torch.Generator(), None)
+    policy = torch.nn.Linear(2, 2)
+    with pytest.raises(CorruptFileError, match=r"wake_snapshot.safetensors: wake snapshot of .*'seed': 8"):
+        wake_snapshot.load(snapshot, identity | {"seed": 8}, policy, torch.optim.AdamW(policy.parameters()),
+                           generators)
+    with pytest.raises(CorruptFileError, match="wake_snapshot.safetensors: the snapshot's policy does not fit"):
+        wake_snapshot.load(snapshot, identity, policy, torch.optim.AdamW(policy.parameters()), generators)
+    data = bytearray(snapshot.read_bytes())
+    data[-3] ^= 0xFF
+    snapshot.write_bytes(bytes(data))
+    cfg.resume = True
+    with pytest.raises(CorruptFileError, match="wake_snapshot.safetensors"):
+        train_stream(cfg, fake_env_factory)
