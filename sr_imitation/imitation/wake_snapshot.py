@@ -25,15 +25,22 @@ own, so such a wake, killed, starts again from its start. The SAC wake's counter
 
 from __future__ import annotations
 
-import random
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 import torch
 
-from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.infra.snapshot import (
+    global_rng_state,
+    load_snapshot,
+    load_weights,
+    optimizer_tensors,
+    prefixed,
+    restore_global_rng,
+    restore_optimizer,
+)
+from sr_imitation.io import save_checked_safetensors
 
 FORMAT = "sr_imitation.imitation.wake_snapshot"
 VERSION = 1
@@ -71,27 +78,16 @@ def save(path: Path, identity: dict[str, Any], record: WakeRecord, policy: torch
          optimizer: torch.optim.Optimizer, best_state: dict[str, torch.Tensor] | None,
          generators: WakeGenerators) -> None:
     """Write the snapshot of a wake at the end of an epoch (atomically; checked on load)."""
-    tensors: dict[str, torch.Tensor] = {f"policy.{n}": t for n, t in policy.state_dict().items()}
-    for index, state in optimizer.state_dict()["state"].items():  # 0-d tensors (Adam's step) keep their shape
-        tensors.update({f"optimizer.{index}.{key}": value for key, value in state.items()})
+    tensors, rng_header = global_rng_state()
+    tensors.update({f"policy.{n}": t for n, t in policy.state_dict().items()})
+    tensors.update(optimizer_tensors("optimizer", optimizer))
     if best_state is not None:
         tensors.update({f"best.{n}": t for n, t in best_state.items()})
     tensors.update({f"rng.{name}": g.get_state() for name, g in generators.named().items()})
-    tensors["rng.torch"] = torch.get_rng_state()
-    if torch.cuda.is_available() and torch.cuda.is_initialized():
-        tensors["rng.cuda"] = torch.cuda.get_rng_state()
-    kind, keys, pos, has_gauss, cached = np.random.get_state()
-    tensors["rng.numpy.keys"] = torch.from_numpy(np.asarray(keys, dtype=np.int64))
-    version, python_state, gauss = random.getstate()
-    tensors["rng.python"] = torch.tensor(python_state, dtype=torch.int64)
     tensors["loop.best_val_l1"] = torch.tensor(record.best_val_l1, dtype=torch.float64)  # inf before a best
-    header = {
-        "format": FORMAT, "version": VERSION, **identity,
-        "epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps, "history": record.history,
-        "best_state": best_state is not None,
-        "numpy_rng": {"kind": kind, "pos": int(pos), "has_gauss": int(has_gauss), "cached": float(cached)},
-        "python_rng": {"version": version, "gauss": gauss},
-    }
+    header = {"format": FORMAT, "version": VERSION, **identity, **rng_header,
+              "epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps,
+              "history": record.history, "best_state": best_state is not None}
     save_checked_safetensors(path, tensors, header)
 
 
@@ -99,37 +95,15 @@ def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimize
          generators: WakeGenerators) -> tuple[WakeRecord, dict[str, torch.Tensor] | None]:
     """Restore a wake from its snapshot into the freshly built ``policy``, ``optimizer`` and ``generators`` (and the
     process's global generators); returns the loop's record and the best epoch's weights (None when the wake keeps
-    its last ones). A snapshot of another wake, format or policy is a :class:`CorruptFileError` naming the file."""
-    tensors, header = load_checked_safetensors(path)
-    want = {"format": FORMAT, "version": VERSION, **identity}
-    got = {k: header.get(k) for k in want}
-    if got != want:
-        raise CorruptFileError(path, f"wake snapshot of {got}, expected {want}; remove it to redo the wake from its "
-                                     "start")
-    try:
-        policy.load_state_dict(_prefixed(tensors, "policy."), strict=True)
-    except RuntimeError as exc:
-        raise CorruptFileError(path, f"the snapshot's policy does not fit this configuration: {exc}") from exc
-    state = optimizer.state_dict()
-    for key, value in _prefixed(tensors, "optimizer.").items():
-        index, field = key.split(".", 1)
-        state["state"].setdefault(int(index), {})[field] = value
-    optimizer.load_state_dict(state)
+    its last ones). A snapshot of another wake, format or policy is a :class:`~sr_imitation.io.CorruptFileError`
+    naming the file."""
+    tensors, header = load_snapshot(path, {"format": FORMAT, "version": VERSION, **identity})
+    load_weights(path, policy, prefixed(tensors, "policy."), "policy")
+    restore_optimizer("optimizer", optimizer, tensors)
     for name, generator in generators.named().items():
         generator.set_state(tensors[f"rng.{name}"])
-    torch.set_rng_state(tensors["rng.torch"])
-    if "rng.cuda" in tensors and torch.cuda.is_available():
-        torch.cuda.set_rng_state(tensors["rng.cuda"])
-    n = header["numpy_rng"]
-    np.random.set_state((n["kind"], tensors["rng.numpy.keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
-                         n["cached"]))
-    p = header["python_rng"]
-    random.setstate((p["version"], tuple(tensors["rng.python"].tolist()), p["gauss"]))
+    restore_global_rng(tensors, header)
     record = WakeRecord(epochs=int(header["epochs"]), best_epoch=int(header["best_epoch"]),
                         best_val_l1=float(tensors["loop.best_val_l1"]), steps=int(header["steps"]),
                         history=list(header["history"]))
-    return record, (_prefixed(tensors, "best.") if header["best_state"] else None)
-
-
-def _prefixed(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
-    return {n.removeprefix(prefix): t for n, t in tensors.items() if n.startswith(prefix)}
+    return record, (prefixed(tensors, "best.") if header["best_state"] else None)

@@ -9,8 +9,8 @@ to one checked safetensors file, and a wake that finds that file continues from 
 - the agent's whole state (actor with its excitability, twin critic and its target, alpha, the observation
   normalizer) and its three Adam states;
 - the replay buffer and the critic's held-out transitions (the rows filled so far, and the running count);
-- the wake's own generator, torch's and numpy's global generators, and the environment's generators (per-episode
-  configuration choice and the simulator's own);
+- the wake's own generator, the process's global generators (torch's, CUDA's, NumPy's, Python's), and the
+  environment's generators (per-episode configuration choice and the simulator's own);
 - the loop's record: episode rewards, successes and start positions, counters, the carried update credit and the
   last update's numbers.
 
@@ -31,13 +31,22 @@ from typing import Any, Protocol
 import numpy as np
 import torch
 
-from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.infra.snapshot import (
+    global_rng_state,
+    load_snapshot,
+    load_weights,
+    optimizer_tensors,
+    prefixed,
+    restore_global_rng,
+    restore_optimizer,
+)
+from sr_imitation.io import save_checked_safetensors
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent, UpdateInfo
 
 logger = logging.getLogger(__name__)
 
 FORMAT = "sr_imitation.rl.wake_snapshot"
-VERSION = 1
+VERSION = 2
 EVERY_S = 300.0
 """Seconds of wall time between two snapshots of one wake (our choice: a kill loses at most about five minutes; a
 snapshot of a full 160k-transition replay is about 55 MB, written in well under a second)."""
@@ -77,24 +86,20 @@ class WakeLoop:
 def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, env: SeededEnv,
          replay: ReplayBuffer, holdout: ReplayBuffer, rng: np.random.Generator) -> None:
     """Write the snapshot of a wake between two episodes (atomically; checked on load)."""
-    tensors: dict[str, torch.Tensor] = {f"agent.{n}": t for n, t in agent.state_dict().items()}
+    tensors, rng_header = global_rng_state()
+    tensors.update({f"agent.{n}": t for n, t in agent.state_dict().items()})
     for name in _OPTIMIZERS:  # 0-d tensors (alpha, Adam's steps) keep their shape: checked files store them as is
-        for index, state in getattr(agent, name).state_dict()["state"].items():
-            tensors.update({f"{name}.{index}.{key}": value for key, value in state.items()})
+        tensors.update(optimizer_tensors(name, getattr(agent, name)))
     for prefix, buffer in (("replay", replay), ("holdout", holdout)):
         for field in _BUFFER_FIELDS:  # the filled rows: a view, written as it is
             tensors[f"{prefix}.{field}"] = torch.from_numpy(getattr(buffer, field)[: len(buffer)])
-    tensors["torch_rng"] = torch.get_rng_state()
-    kind, keys, pos, has_gauss, cached = np.random.get_state()
-    tensors["numpy_rng.keys"] = torch.from_numpy(np.asarray(keys, dtype=np.int64))
     tensors["loop.episode_rewards"] = torch.tensor(loop.episode_rewards, dtype=torch.float64)
     tensors["loop.episode_successes"] = torch.tensor(loop.episode_successes, dtype=torch.bool)
     tensors["loop.episode_starts"] = torch.tensor(loop.episode_starts, dtype=torch.int64)
     header = {
-        "format": FORMAT, "version": VERSION, **identity,
+        "format": FORMAT, "version": VERSION, **identity, **rng_header,
         "replay_total": replay.total, "holdout_total": holdout.total,
         "rng": rng.bit_generator.state, "env_rng": env.rng_state(),
-        "numpy_rng": {"kind": kind, "pos": int(pos), "has_gauss": int(has_gauss), "cached": float(cached)},
         "env_steps": loop.env_steps, "updates": loop.updates, "update_credit": loop.update_credit,
         "info": None if loop.info is None else dataclasses.asdict(loop.info), "seconds": loop.seconds,
     }
@@ -105,26 +110,11 @@ def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, 
          holdout: ReplayBuffer, rng: np.random.Generator) -> WakeLoop:
     """Restore a wake from its snapshot into freshly built ``agent``, ``env``, buffers and ``rng``; returns the
     loop's record. A snapshot of another wake, format or agent is a :class:`CorruptFileError` naming the file."""
-    tensors, header = load_checked_safetensors(path)
-    want = {"format": FORMAT, "version": VERSION, **identity}
-    got = {k: header.get(k) for k in want}
-    if got != want:
-        raise CorruptFileError(path, f"wake snapshot of {got}, expected {want}; remove it to redo the wake from its "
-                                     "start")
-    weights = {n.removeprefix("agent."): t for n, t in tensors.items() if n.startswith("agent.")}
-    try:
-        agent.load_state_dict(weights, strict=True)
-    except RuntimeError as exc:
-        raise CorruptFileError(path, f"the snapshot's agent does not fit this configuration: {exc}") from exc
+    tensors, header = load_snapshot(path, {"format": FORMAT, "version": VERSION, **identity})
+    load_weights(path, agent, prefixed(tensors, "agent."), "agent")
     agent.normalizer.refresh_seen()
     for name in _OPTIMIZERS:
-        optimizer = getattr(agent, name)
-        state = optimizer.state_dict()
-        for key, value in tensors.items():
-            if key.startswith(f"{name}."):
-                _, index, field = key.split(".", 2)
-                state["state"].setdefault(int(index), {})[field] = value
-        optimizer.load_state_dict(state)
+        restore_optimizer(name, getattr(agent, name), tensors)
     for prefix, buffer in (("replay", replay), ("holdout", holdout)):
         for field in _BUFFER_FIELDS:
             rows = tensors[f"{prefix}.{field}"].numpy()
@@ -132,10 +122,7 @@ def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, 
         buffer.total = int(header[f"{prefix}_total"])
     rng.bit_generator.state = header["rng"]
     env.set_rng_state(header["env_rng"])
-    torch.set_rng_state(tensors["torch_rng"])
-    n = header["numpy_rng"]
-    np.random.set_state((n["kind"], tensors["numpy_rng.keys"].numpy().astype(np.uint32), n["pos"], n["has_gauss"],
-                         n["cached"]))
+    restore_global_rng(tensors, header)
     info = header["info"]
     return WakeLoop(
         episode_rewards=tensors["loop.episode_rewards"].tolist(),

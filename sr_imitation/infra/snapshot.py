@@ -1,0 +1,83 @@
+"""What the mid-wake snapshots of both substrates share (:mod:`sr_imitation.imitation.wake_snapshot`,
+:mod:`sr_imitation.rl.wake_snapshot`): the check that a snapshot is the one of this wake, optimizer states as
+tensors, and the process's global generators (torch's, CUDA's when initialized, NumPy's, Python's).
+
+A snapshot is one checked safetensors file (:func:`~sr_imitation.io.save_checked_safetensors`): tensors plus a JSON
+header; the helpers here fill and read both. 0-d tensors (Adam's step, torch's scalars) are stored as they are.
+"""
+
+from __future__ import annotations
+
+import random
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from sr_imitation.io import CorruptFileError, load_checked_safetensors
+
+
+def load_snapshot(path: Path, identity: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Read a checked snapshot and check that its header holds ``identity`` (format, version and what names the
+    wake); another wake's snapshot is a :class:`CorruptFileError` naming the file and what differs."""
+    tensors, header = load_checked_safetensors(path)
+    got = {k: header.get(k) for k in identity}
+    if got != identity:
+        raise CorruptFileError(path, f"wake snapshot of {got}, expected {identity}; remove it to redo the wake from "
+                                     "its start")
+    return tensors, header
+
+
+def load_weights(path: Path, module: torch.nn.Module, weights: dict[str, torch.Tensor], what: str) -> None:
+    """``module.load_state_dict(weights, strict=True)``; a misfit is a :class:`CorruptFileError` naming the file."""
+    try:
+        module.load_state_dict(weights, strict=True)
+    except RuntimeError as exc:
+        raise CorruptFileError(path, f"the snapshot's {what} does not fit this configuration: {exc}") from exc
+
+
+def prefixed(tensors: dict[str, torch.Tensor], prefix: str) -> dict[str, torch.Tensor]:
+    """The tensors named ``<prefix><name>``, by ``name``."""
+    return {n.removeprefix(prefix): t for n, t in tensors.items() if n.startswith(prefix)}
+
+
+def optimizer_tensors(name: str, optimizer: torch.optim.Optimizer) -> dict[str, torch.Tensor]:
+    """An optimizer's per-parameter state as ``<name>.<index>.<field>`` tensors (its parameter groups are rebuilt
+    with it, not stored)."""
+    return {f"{name}.{index}.{field}": value
+            for index, state in optimizer.state_dict()["state"].items() for field, value in state.items()}
+
+
+def restore_optimizer(name: str, optimizer: torch.optim.Optimizer, tensors: dict[str, torch.Tensor]) -> None:
+    """Load what :func:`optimizer_tensors` stored under ``name`` into a freshly built ``optimizer``."""
+    state = optimizer.state_dict()
+    for key, value in prefixed(tensors, f"{name}.").items():
+        index, field = key.split(".", 1)
+        state["state"].setdefault(int(index), {})[field] = value
+    optimizer.load_state_dict(state)
+
+
+def global_rng_state() -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """The process's global generators as tensors (``global_rng.*``) and a header entry (``global_rng``)."""
+    tensors = {"global_rng.torch": torch.get_rng_state()}
+    if torch.cuda.is_available() and torch.cuda.is_initialized():
+        tensors["global_rng.cuda"] = torch.cuda.get_rng_state()
+    kind, keys, pos, has_gauss, cached = np.random.get_state()
+    tensors["global_rng.numpy.keys"] = torch.from_numpy(np.asarray(keys, dtype=np.int64))
+    version, python_state, gauss = random.getstate()
+    tensors["global_rng.python"] = torch.tensor(python_state, dtype=torch.int64)
+    header = {"numpy": {"kind": kind, "pos": int(pos), "has_gauss": int(has_gauss), "cached": float(cached)},
+              "python": {"version": version, "gauss": gauss}}
+    return tensors, {"global_rng": header}
+
+
+def restore_global_rng(tensors: dict[str, torch.Tensor], header: dict[str, Any]) -> None:
+    """Set the process's global generators to what :func:`global_rng_state` stored."""
+    torch.set_rng_state(tensors["global_rng.torch"])
+    if "global_rng.cuda" in tensors and torch.cuda.is_available():
+        torch.cuda.set_rng_state(tensors["global_rng.cuda"])
+    n, p = header["global_rng"]["numpy"], header["global_rng"]["python"]
+    keys = tensors["global_rng.numpy.keys"].numpy().astype(np.uint32)
+    np.random.set_state((n["kind"], keys, n["pos"], n["has_gauss"], n["cached"]))
+    random.setstate((p["version"], tuple(tensors["global_rng.python"].tolist()), p["gauss"]))
