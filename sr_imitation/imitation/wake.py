@@ -206,8 +206,8 @@ def wake_train(
 
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.imitation.wake_snapshot`), written at the end
     of an epoch every ``snapshot_every_s`` seconds (default :data:`~sr_imitation.imitation.wake_snapshot.EVERY_S`); a
-    wake that finds one continues from it, and removes it when it ends. Ignored with ``hooks`` (their state is not in
-    the snapshot: such a wake, killed, starts again)."""
+    wake that finds one continues from it, and removes it when it ends. Ignored with ``hooks`` that keep state of
+    their own (``not hooks.resumable``: such a wake, killed, starts again)."""
     device = policy.config.device
     accelerator = Accelerator(cpu=device == "cpu")
     processes = current()
@@ -226,14 +226,15 @@ def wake_train(
                               "lr": AverageMeter("lr", ":0.1e"), "update_s": AverageMeter("updt_s", ":.3f")})
     result = WakeResult(data.skill, 0, -1, math.inf, 0)
     best_state: dict[str, torch.Tensor] | None = None
-    if hooks is not None:
-        snapshot = None
+    if hooks is not None and not hooks.resumable:
+        snapshot = None  # hooks that keep state of their own: such a wake, killed, starts again
     generators = wake_snapshot.WakeGenerators(train_loader.generator, val_loader.generator,
                                               getattr(policy, "memory_generator", None))
     identity = {"skill": data.skill, "seed": seed, "train_frames": len(data.train_indices),
-                "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs}
+                "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs,
+                "method_hooks": None if hooks is None else hooks.method.name}
     if snapshot is not None and snapshot.is_file():
-        record, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators)
+        record, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators, hooks)
         result = WakeResult(data.skill, record.epochs, record.best_epoch, record.best_val_l1, record.steps,
                             record.history)
         logger.info("wake %s: resumed from %s after %d epochs (%d steps)", data.skill, snapshot, result.epochs,
@@ -282,7 +283,7 @@ def wake_train(
                 and time.perf_counter() - last_snapshot >= every_s):
             record = wake_snapshot.WakeRecord(result.epochs, result.best_epoch, result.best_val_l1, result.steps,
                                               result.history)
-            wake_snapshot.save(snapshot, identity, record, policy, optimizer, best_state, generators)
+            wake_snapshot.save(snapshot, identity, record, policy, optimizer, best_state, generators, hooks)
             last_snapshot = time.perf_counter()
     bar.close()
     if snapshot is not None and processes.is_main:

@@ -12,15 +12,16 @@ safetensors file, and a wake that finds that file continues from it with the nex
 - the wake's own generators (the training and validation loaders', the distillation's memory sampler) and the
   process's global ones (torch's, CUDA's on a GPU, numpy's, Python's): dropout, ACT's VAE sampling and the loaders'
   worker seeds draw from them;
-- the loop's record: epochs done, steps, the per-epoch history, the best epoch and its validation l1.
+- the loop's record: epochs done, steps, the per-epoch history, the best epoch and its validation l1;
+- a continual method's wake hooks, where they carry nothing between updates but their generator and counters
+  (``ContinualMethod.stateless_wake_hooks``: replay, EWC, LwF, M2Distill).
 
 When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
 the numbers of a run never depend on it (``tests/imitation/test_wake_snapshot.py`` kills wakes inside an epoch and
 checks the resumed ones bit for bit against wakes that were never stopped). The file is removed when the wake ends.
 Only the main process writes (the processes of a launched run hold the same state); every process reads it. A wake
-shaped by a continual method's wake hooks (replay, EWC, LwF, ...) is not snapshotted: the hooks keep state of their
-own, so such a wake, killed, starts again from its start. The SAC wake's counterpart is
-:mod:`sr_imitation.rl.wake_snapshot`.
+shaped by hooks that keep state of their own (``stateless_wake_hooks`` False) is not snapshotted: such a wake,
+killed, starts again from its start. The SAC wake's counterpart is :mod:`sr_imitation.rl.wake_snapshot`.
 """
 
 from __future__ import annotations
@@ -33,11 +34,13 @@ import torch
 
 from sr_imitation.infra.snapshot import (
     global_rng_state,
+    hooks_state,
     load_snapshot,
     load_weights,
     optimizer_tensors,
     prefixed,
     restore_global_rng,
+    restore_hooks,
     restore_optimizer,
 )
 from sr_imitation.io import save_checked_safetensors
@@ -76,23 +79,26 @@ class WakeRecord:
 
 def save(path: Path, identity: dict[str, Any], record: WakeRecord, policy: torch.nn.Module,
          optimizer: torch.optim.Optimizer, best_state: dict[str, torch.Tensor] | None,
-         generators: WakeGenerators) -> None:
-    """Write the snapshot of a wake at the end of an epoch (atomically; checked on load)."""
+         generators: WakeGenerators, hooks: Any = None) -> None:
+    """Write the snapshot of a wake at the end of an epoch (atomically; checked on load); ``hooks``: the method's
+    resumable wake hooks, if any."""
     tensors, rng_header = global_rng_state()
+    hook_tensors, hook_header = hooks_state(hooks)
+    tensors.update(hook_tensors)
     tensors.update({f"policy.{n}": t for n, t in policy.state_dict().items()})
     tensors.update(optimizer_tensors("optimizer", optimizer))
     if best_state is not None:
         tensors.update({f"best.{n}": t for n, t in best_state.items()})
     tensors.update({f"rng.{name}": g.get_state() for name, g in generators.named().items()})
     tensors["loop.best_val_l1"] = torch.tensor(record.best_val_l1, dtype=torch.float64)  # inf before a best
-    header = {"format": FORMAT, "version": VERSION, **identity, **rng_header,
+    header = {"format": FORMAT, "version": VERSION, **identity, **rng_header, **hook_header,
               "epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps,
               "history": record.history, "best_state": best_state is not None}
     save_checked_safetensors(path, tensors, header)
 
 
 def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimizer: torch.optim.Optimizer,
-         generators: WakeGenerators) -> tuple[WakeRecord, dict[str, torch.Tensor] | None]:
+         generators: WakeGenerators, hooks: Any = None) -> tuple[WakeRecord, dict[str, torch.Tensor] | None]:
     """Restore a wake from its snapshot into the freshly built ``policy``, ``optimizer`` and ``generators`` (and the
     process's global generators); returns the loop's record and the best epoch's weights (None when the wake keeps
     its last ones). A snapshot of another wake, format or policy is a :class:`~sr_imitation.io.CorruptFileError`
@@ -103,6 +109,7 @@ def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimize
     for name, generator in generators.named().items():
         generator.set_state(tensors[f"rng.{name}"])
     restore_global_rng(tensors, header)
+    restore_hooks(hooks, tensors, header)
     record = WakeRecord(epochs=int(header["epochs"]), best_epoch=int(header["best_epoch"]),
                         best_val_l1=float(tensors["loop.best_val_l1"]), steps=int(header["steps"]),
                         history=list(header["history"]))

@@ -1,6 +1,7 @@
 """What the mid-wake snapshots of both substrates share (:mod:`sr_imitation.imitation.wake_snapshot`,
 :mod:`sr_imitation.rl.wake_snapshot`): the check that a snapshot is the one of this wake, optimizer states as
-tensors, and the process's global generators (torch's, CUDA's when initialized, NumPy's, Python's).
+tensors, the process's global generators (torch's, CUDA's when initialized, NumPy's, Python's), and the state of a
+continual method's wake hooks where they can carry it (``WakeHooks.state``).
 
 A snapshot is one checked safetensors file (:func:`~sr_imitation.io.save_checked_safetensors`): tensors plus a JSON
 header; the helpers here fill and read both. 0-d tensors (Adam's step, torch's scalars) are stored as they are.
@@ -81,3 +82,18 @@ def restore_global_rng(tensors: dict[str, torch.Tensor], header: dict[str, Any])
     keys = tensors["global_rng.numpy.keys"].numpy().astype(np.uint32)
     np.random.set_state((n["kind"], keys, n["pos"], n["has_gauss"], n["cached"]))
     random.setstate((p["version"], tuple(tensors["global_rng.python"].tolist()), p["gauss"]))
+
+
+def hooks_state(hooks: Any) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """A wake's method hooks (a resumable ``sr_imitation.stream.methods.base.WakeHooks``, or None) as tensors
+    (``hooks.generator``) and a header entry (``hooks``: their update count and sums, or None)."""
+    if hooks is None:
+        return {}, {"hooks": None}
+    generator, record = hooks.state()
+    return {"hooks.generator": generator}, {"hooks": record}
+
+
+def restore_hooks(hooks: Any, tensors: dict[str, torch.Tensor], header: dict[str, Any]) -> None:
+    """Set ``hooks`` to what :func:`hooks_state` stored (nothing for a wake without hooks)."""
+    if hooks is not None:
+        hooks.load_state(tensors["hooks.generator"], header["hooks"])

@@ -100,8 +100,8 @@ def train_skill(
 
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.rl.wake_snapshot`), written at an episode
     boundary every ``snapshot_every_s`` seconds (default :data:`~sr_imitation.rl.wake_snapshot.EVERY_S`); a wake
-    that finds one continues from it with identical results, and removes it when it ends. Not used with a method's
-    wake hooks (they keep state of their own).
+    that finds one continues from it with identical results, and removes it when it ends. Not used with wake hooks
+    that keep state of their own (``not hooks.resumable``).
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -121,11 +121,13 @@ def train_skill(
     if method is not None and method.has_wake_hooks:  # the actor's recorded activity is left alone by the hooks
         hooks = WakeHooks(method, skill_index, agent.actor_parameters(), agent.policy_fn, seed,
                           quiet=lambda: activity_recording_off(agent.actor))
-        snapshot = None  # the hooks keep state of their own: such a wake, killed, starts again
+        if not hooks.resumable:
+            snapshot = None  # the hooks keep state of their own: such a wake, killed, starts again
     every_s = wake_snapshot.EVERY_S if snapshot_every_s is None else snapshot_every_s
-    identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63)}
+    identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63),
+                "method_hooks": None if hooks is None else hooks.method.name}
     if snapshot is not None and snapshot.is_file():
-        loop = wake_snapshot.load(snapshot, identity, agent, env, replay, holdout, rng)
+        loop = wake_snapshot.load(snapshot, identity, agent, env, replay, holdout, rng, hooks)
         result.episodes, result.env_steps, result.updates = loop.episodes, loop.env_steps, loop.updates
         result.episode_rewards, result.episode_successes = loop.episode_rewards, loop.episode_successes
         episode_starts, update_credit, info = loop.episode_starts, loop.update_credit, loop.info
@@ -154,7 +156,7 @@ def train_skill(
             loop = wake_snapshot.WakeLoop(result.episode_rewards, result.episode_successes, episode_starts,
                                           result.env_steps, result.updates, update_credit, info,
                                           time.perf_counter() - t0)
-            wake_snapshot.save(snapshot, identity, loop, agent, env, replay, holdout, rng)
+            wake_snapshot.save(snapshot, identity, loop, agent, env, replay, holdout, rng, hooks)
             last_snapshot = time.perf_counter()
     bar.close()
     if result.updates:

@@ -16,9 +16,10 @@ to one checked safetensors file, and a wake that finds that file continues from 
 
 When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
 the numbers of a run never depend on it (``tests/rl/test_wake_snapshot.py`` kills a wake between episodes and checks
-the resumed one bit for bit against one that was never stopped). The file is removed when the wake ends. A wake
-shaped by a continual method's wake hooks (EWC, A-GEM, DER, CLEAR, LwF, M2Distill, PCGrad, Nash-MTL) is not
-snapshotted: the hooks keep state of their own, so such a wake, killed, starts again from its start.
+the resumed one bit for bit against one that was never stopped). The file is removed when the wake ends. A continual
+method's wake hooks travel with the snapshot where they carry nothing between updates but their generator and
+counters (``ContinualMethod.stateless_wake_hooks``: EWC, DER, CLEAR); a wake shaped by hooks that keep state of their
+own (A-GEM's reference gradient, PCGrad's and Nash-MTL's solvers) is not snapshotted: killed, it starts again.
 """
 
 from __future__ import annotations
@@ -33,11 +34,13 @@ import torch
 
 from sr_imitation.infra.snapshot import (
     global_rng_state,
+    hooks_state,
     load_snapshot,
     load_weights,
     optimizer_tensors,
     prefixed,
     restore_global_rng,
+    restore_hooks,
     restore_optimizer,
 )
 from sr_imitation.io import save_checked_safetensors
@@ -84,9 +87,12 @@ class WakeLoop:
 
 
 def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, env: SeededEnv,
-         replay: ReplayBuffer, holdout: ReplayBuffer, rng: np.random.Generator) -> None:
-    """Write the snapshot of a wake between two episodes (atomically; checked on load)."""
+         replay: ReplayBuffer, holdout: ReplayBuffer, rng: np.random.Generator, hooks: Any = None) -> None:
+    """Write the snapshot of a wake between two episodes (atomically; checked on load); ``hooks``: the method's
+    resumable wake hooks, if any."""
     tensors, rng_header = global_rng_state()
+    hook_tensors, hook_header = hooks_state(hooks)
+    tensors.update(hook_tensors)
     tensors.update({f"agent.{n}": t for n, t in agent.state_dict().items()})
     for name in _OPTIMIZERS:  # 0-d tensors (alpha, Adam's steps) keep their shape: checked files store them as is
         tensors.update(optimizer_tensors(name, getattr(agent, name)))
@@ -97,7 +103,7 @@ def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, 
     tensors["loop.episode_successes"] = torch.tensor(loop.episode_successes, dtype=torch.bool)
     tensors["loop.episode_starts"] = torch.tensor(loop.episode_starts, dtype=torch.int64)
     header = {
-        "format": FORMAT, "version": VERSION, **identity, **rng_header,
+        "format": FORMAT, "version": VERSION, **identity, **rng_header, **hook_header,
         "replay_total": replay.total, "holdout_total": holdout.total,
         "rng": rng.bit_generator.state, "env_rng": env.rng_state(),
         "env_steps": loop.env_steps, "updates": loop.updates, "update_credit": loop.update_credit,
@@ -107,7 +113,7 @@ def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, 
 
 
 def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, replay: ReplayBuffer,
-         holdout: ReplayBuffer, rng: np.random.Generator) -> WakeLoop:
+         holdout: ReplayBuffer, rng: np.random.Generator, hooks: Any = None) -> WakeLoop:
     """Restore a wake from its snapshot into freshly built ``agent``, ``env``, buffers and ``rng``; returns the
     loop's record. A snapshot of another wake, format or agent is a :class:`CorruptFileError` naming the file."""
     tensors, header = load_snapshot(path, {"format": FORMAT, "version": VERSION, **identity})
@@ -123,6 +129,7 @@ def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, 
     rng.bit_generator.state = header["rng"]
     env.set_rng_state(header["env_rng"])
     restore_global_rng(tensors, header)
+    restore_hooks(hooks, tensors, header)
     info = header["info"]
     return WakeLoop(
         episode_rewards=tensors["loop.episode_rewards"].tolist(),

@@ -27,25 +27,29 @@ class Killed(BaseException):
     """Stands for kill -9 (not an Exception: nothing may catch it)."""
 
 
-def _config(datasets: Path, out: Path, skills: list[str]):
+def _config(datasets: Path, out: Path, skills: list[str], method: str = "sr"):
     cfg = tiny_stream_config(datasets, out, skills, use_images=False, dropout=0.1, use_vae=True)
     cfg.wake.max_epochs = cfg.wake.min_epochs = EPOCHS
     cfg.wake.restore = "best"
+    cfg.method = method
     return cfg
 
 
 def _kill_at_update(monkeypatch, n: int) -> None:
-    """The n-th optimizer update of the process (1-based) raises :class:`Killed` before it changes anything."""
+    """The n-th optimizer update of the process (1-based) raises :class:`Killed` before it changes anything (LeRobot's
+    ``update_policy`` or, with a method's hooks, ``hooked_update``)."""
     calls = {"n": 0}
-    update = wake.update_policy
 
-    def counting(*args, **kwargs):
-        calls["n"] += 1
-        if calls["n"] == n:
-            raise Killed
-        return update(*args, **kwargs)
+    def counting(update):
+        def wrapped(*args, **kwargs):
+            calls["n"] += 1
+            if calls["n"] == n:
+                raise Killed
+            return update(*args, **kwargs)
+        return wrapped
 
-    monkeypatch.setattr(wake, "update_policy", counting)
+    for name in ("update_policy", "hooked_update"):
+        monkeypatch.setattr(wake, name, counting(getattr(wake, name)))
 
 
 def _weights(folder: Path) -> dict[str, torch.Tensor]:
@@ -104,6 +108,28 @@ def test_a_stream_wake_killed_inside_an_epoch_resumes_bit_for_bit(never_stopped,
     _same_weights(out / "skill_2_place" / "sleep", reference / "skill_2_place" / "sleep")
 
 
+def test_a_replay_wake_killed_inside_resumes_bit_for_bit_with_its_hooks(state_datasets, tmp_path, monkeypatch):
+    """Experience replay's wake hooks draw the replayed frames from their own generator at every update: it travels
+    with the snapshot (``stateless_wake_hooks``), so the resumed wake replays the same frames."""
+    with monkeypatch.context() as m:
+        m.setattr(wake_snapshot, "EVERY_S", float("inf"))
+        expected = train_stream(_config(state_datasets, tmp_path / "whole", SKILLS[:2], "replay"), fake_env_factory)
+    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    out = tmp_path / "killed"
+    with monkeypatch.context() as m:
+        _kill_at_update(m, EPOCHS * STEPS + 2 * STEPS + 1)  # the second wake's third epoch
+        with pytest.raises(Killed):
+            train_stream(_config(state_datasets, out, SKILLS[:2], "replay"), fake_env_factory)
+    tensors, header = load_checked_safetensors(out / "skill_2_place" / WAKE_SNAPSHOT)
+    assert header["method_hooks"] == "replay" and header["hooks"]["updates"] == 2 * STEPS
+    assert "hooks.generator" in tensors
+    cfg = _config(state_datasets, out, SKILLS[:2], "replay")
+    cfg.resume = True
+    results = train_stream(cfg, fake_env_factory)
+    assert results["success_matrix_per_unit"] == expected["success_matrix_per_unit"]
+    _same_weights(out / "skill_2_place" / "wake", tmp_path / "whole" / "skill_2_place" / "wake")
+
+
 def test_the_oracles_training_killed_inside_resumes_bit_for_bit(state_datasets, tmp_path, monkeypatch):
     with monkeypatch.context() as m:
         m.setattr(wake_snapshot, "EVERY_S", float("inf"))
@@ -133,7 +159,8 @@ def test_a_snapshot_of_another_wake_or_a_damaged_one_is_refused_naming_the_file(
             train_stream(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
     snapshot = out / "skill_1_approach" / WAKE_SNAPSHOT
     _, header = load_checked_safetensors(snapshot)
-    identity = {k: header[k] for k in ("skill", "seed", "train_frames", "steps_per_epoch", "max_epochs")}
+    identity = {k: header[k] for k in ("skill", "seed", "train_frames", "steps_per_epoch", "max_epochs",
+                                       "method_hooks")}
     cfg = _config(state_datasets, out, SKILLS[:2])
     generators = wake_snapshot.WakeGenerators(torch.Generator(), torch.Generator(), None)
     policy = torch.nn.Linear(2, 2)

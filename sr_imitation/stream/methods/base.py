@@ -95,6 +95,20 @@ class WakeHooks:
             self.sums[key] = self.sums.get(key, 0.0) + float(value)
         self.updates += 1
 
+    @property
+    def resumable(self) -> bool:
+        """Whether a mid-wake snapshot can carry these hooks (:attr:`ContinualMethod.stateless_wake_hooks`)."""
+        return self.method.stateless_wake_hooks
+
+    def state(self) -> tuple[Tensor, dict[str, Any]]:
+        """What the hooks carry between updates: the generator's state, and the update count and sums."""
+        return self.generator.get_state(), {"updates": self.updates, "sums": dict(self.sums)}
+
+    def load_state(self, generator: Tensor, record: Mapping[str, Any]) -> None:
+        """Restore what :meth:`state` returned."""
+        self.generator.set_state(generator)
+        self.updates, self.sums = int(record["updates"]), dict(record["sums"])
+
     def summary(self) -> dict[str, float]:
         """The mean over updates of every number :meth:`~ContinualMethod.adjust_gradients` returned."""
         return {key: value / max(1, self.updates) for key, value in sorted(self.sums.items())}
@@ -131,6 +145,11 @@ class ContinualMethod:
     stores_memories: ClassVar[bool] = False
     memory_name: ClassVar[str] = "memory"
     """The file name a method's own memory kind is saved under (``memory``: the substrate's, SR's M_k)."""
+    stateless_wake_hooks: ClassVar[bool] = False
+    """True when the wake hooks carry nothing from one update to the next (what they sample comes from
+    :attr:`WakeStep.generator`; what they hold is fixed in :meth:`begin_wake`): a mid-wake snapshot then keeps
+    :class:`WakeHooks`' own state and a killed wake continues from it. False (the default, and the right answer for a
+    method that keeps e.g. a reference gradient or a solver's warm start): such a wake, killed, starts again."""
 
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
