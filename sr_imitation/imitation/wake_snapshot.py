@@ -49,7 +49,9 @@ FORMAT = "sr_imitation.imitation.wake_snapshot"
 VERSION = 1
 EVERY_S = 300.0
 """Seconds of wall time between two snapshots of one wake (our choice: a kill loses at most about five minutes and
-one epoch; a snapshot of the CPU presets' policy with its AdamW state is a few MB)."""
+one epoch). Measured on the state-only Meta-World preset (AMD EPYC, one core): 8 MB written in 0.05 s at its
+default width (0.68 M parameters, weights and AdamW's two moments), 32 MB in 0.2 s at the test preset's
+``--policy.dim_model=256`` (2.7 M); ``--wake.restore=best`` adds the best weights (a third more)."""
 
 
 @dataclass
