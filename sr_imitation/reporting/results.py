@@ -416,7 +416,11 @@ def read_results_file(path: Path) -> tuple[dict[str, Any], bool]:
 
 def unsealed_problem(data: Mapping[str, Any]) -> str | None:
     """Why an unsealed results dictionary is not what its schema wrote (``None`` if it is): every recorded AFSR
-    (per stage and final) must be the mean of the success matrix's row up to the diagonal (Eq. 4), to 1e-6."""
+    (per stage and final) must be the mean of the success matrix's row up to the diagonal (Eq. 4), and every recorded
+    BWT and BWT_wake (per stage where the schema kept the curve, and final) what the success matrix and the success
+    after each own wake give (Eq. 6, linear in the matrix, so the mean over evaluation units is the matrix's), to
+    1e-6. PRS and SPI are not recomputable from the mean matrix (PRS is taken per evaluation unit; SPI from
+    trajectories), so they go unchecked in an unsealed file."""
     try:
         results = upgrade_results(data)
     except (ValueError, KeyError, TypeError, IndexError) as exc:
@@ -426,7 +430,8 @@ def unsealed_problem(data: Mapping[str, Any]) -> str | None:
     if not isinstance(matrix, list) or afsr.get("final") is None:
         return None  # nothing measured (no evaluation): no AFSR to check
     try:
-        rows = [[np.nan if x is None else float(x) for x in row[: k + 1]] for k, row in enumerate(matrix)]
+        full = np.array([[np.nan if x is None else float(x) for x in row] for row in matrix], dtype=float)
+        rows = [row[: k + 1] for k, row in enumerate(full)]
         expected = [float(np.nanmean(row)) if not all(np.isnan(row)) else None for row in rows]
     except (TypeError, ValueError):
         return "holds a success matrix that is not numbers"
@@ -437,6 +442,30 @@ def unsealed_problem(data: Mapping[str, Any]) -> str | None:
                 return f"its AFSR after stage {k + 1} ({a}) is not its success matrix's ({b:.6f})"
     if expected and expected[-1] is not None and abs(float(afsr["final"]) - expected[-1]) > 1e-6:
         return f"its final AFSR ({afsr['final']}) is not its success matrix's ({expected[-1]:.6f})"
+    return _bwt_problem(results, full)
+
+
+def _bwt_problem(results: Mapping[str, Any], matrix: np.ndarray) -> str | None:
+    """Where an unsealed file's recorded BWT / BWT_wake differ from its success matrix's (see
+    :func:`unsealed_problem`); references with a missing entry are not checked."""
+    after_wake = results.get("success_after_own_wake")
+    for name, reference in (("bwt", None), ("bwt_wake", after_wake)):
+        recorded = (results.get("metrics") or {}).get(name) or {}
+        if recorded.get("final") is None or (name == "bwt_wake" and (
+                not isinstance(reference, list) or any(x is None for x in reference[:-1]))):
+            continue
+        try:
+            ref = None if reference is None else [np.nan if x is None else float(x) for x in reference]
+            expected = bwt_curve(matrix, ref)
+        except (TypeError, ValueError):
+            return f"its {name} cannot be recomputed from its success matrix"
+        curve = list(recorded.get("curve") or [])
+        pairs = list(zip(curve, expected, strict=True)) if len(curve) == len(expected) else []
+        for k, (a, b) in enumerate(pairs):
+            if a is not None and not np.isnan(b) and abs(float(a) - b) > 1e-6:
+                return f"its {name} after stage {k + 1} ({a}) is not its success matrix's ({b:.6f})"
+        if abs(float(recorded["final"]) - expected[-1]) > 1e-6:
+            return f"its final {name} ({recorded['final']}) is not its success matrix's ({expected[-1]:.6f})"
     return None
 
 

@@ -195,9 +195,9 @@ def test_summary_reports_each_runs_phase_time(tmp_path):
 
 
 def test_a_results_file_without_its_seal_is_refused_unless_its_schema_predates_seals(tmp_path):
-    """A file whose ``sha256`` key is renamed and whose AFSR is edited is not read as the run's result. Whether a
-    file may lack its seal is decided by its recorded schema version, never by the missing key; such runs are marked
-    unsealed."""
+    """A file whose ``sha256`` key is renamed and whose AFSR (or BWT, either reference) is edited is not read as the
+    run's result. Whether a file may lack its seal is decided by its recorded schema version, never by the missing
+    key; such runs are marked unsealed."""
     run = _write_run(tmp_path, "run", _results())
     data = json.loads((run / "results.json").read_text())
     assert data["results_version"] == RESULTS_VERSION >= SEALED_SINCE and not load_results(run)["unsealed"]
@@ -213,6 +213,17 @@ def test_a_results_file_without_its_seal_is_refused_unless_its_schema_predates_s
     with pytest.raises(CorruptFileError, match=r"results.json: unsealed \(results_version 4\) and its final AFSR"):
         load_results(run)
     old["metrics"]["afsr"]["final"] = _results()["metrics"]["afsr"]["final"]  # as written before seals
+    for name, edit in (("bwt", ("final",)), ("bwt_wake", ("curve", 1))):  # an edited BWT is refused too
+        edited = json.loads(json.dumps(old))
+        target = edited["metrics"][name]
+        if edit[0] == "final":
+            target["final"] += 0.01
+        else:
+            target["curve"][edit[1]] += 0.01
+        (run / "results.json").write_text(json.dumps(edited))
+        where = "final " + name if edit[0] == "final" else f"{name} after stage 2"
+        with pytest.raises(CorruptFileError, match=rf"unsealed \(results_version 4\) and its {where}"):
+            load_results(run)
     (run / "results.json").write_text(json.dumps(old))
     assert load_results(run)["unsealed"]
     summary = summarize(load_groups({"sr": {"0": run}}))
