@@ -1,0 +1,251 @@
+"""Kill -9 at evenly spaced moments, resume, compare: does a resumed run end exactly where an uninterrupted one does?
+
+    python -m sr_imitation.experiments.kill_resume --moments=21 --output_root=outputs/kill_resume -- \\
+        sr-train --config_path=configs/needle_cpu_m16.json --stream.skills=[approach,place] ...
+
+The command after ``--`` is any run command that takes ``--output_dir`` and ``--resume=true`` (``sr-train``,
+``sr-rl-train``, ``python -m sr_imitation.imitation.mt_joint``; a console script is looked up beside this Python
+first). The experiment:
+
+1. the reference: the command with ``--output_dir=<output_root>/reference``, run to its end; its wall time T (from the
+   process's start, imports included);
+2. for each moment i = 1..N: the command with ``--output_dir=<output_root>/moment_<i>``, its whole process group
+   killed with SIGKILL (nothing runs after it: no handler, no ``finally``) i T / (N + 1) seconds after its start, then
+   the same command with ``--resume=true`` (or, where the kill came before the run wrote anything that names it a
+   run, without it), run to its end;
+3. each resumed run compared with the reference: every number either measured
+   (:func:`~sr_imitation.reporting.compare.compare_runs`, tolerance 0) and every tensor of every safetensors file
+   both hold (checkpoints, memories, trajectories; bit for bit), and which such files only one holds (a mid-wake
+   snapshot left behind counts).
+
+Each moment's row says what the kill interrupted (the phases recorded by then, a wake snapshot present), the resume's
+exit status (with its last log line when it failed) and the verdict. Writes ``kill_resume.json`` and
+``kill_resume.md`` to ``output_root`` (atomically, checked JSON) and each process's log to ``logs/``; exit 0 when every
+moment agrees, 1 otherwise. The moments depend on the machine's speed: the claim is "at these N moments", with the CPU
+named (bit-identity across CPU types is not claimed here: one machine runs all of it).
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+from safetensors.torch import load_file
+
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.io import atomic_write_bytes, write_checked_json
+from sr_imitation.progress import format_duration
+from sr_imitation.reporting.compare import compare_runs
+from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory, read_progress
+
+logger = logging.getLogger(__name__)
+
+SNAPSHOTS = ("wake_snapshot.safetensors", "train_snapshot.safetensors")
+"""Mid-wake snapshots: a run's working files, removed when their wake ends (one left behind is a difference)."""
+
+
+@dataclass
+class Moment:
+    """One kill and its resume."""
+
+    index: int
+    kill_at_s: float
+    killed: bool = False
+    """False when the run ended before the kill came (a moment past the run's end)."""
+    completed_at_kill: list[str] = field(default_factory=list)
+    snapshot_at_kill: list[str] = field(default_factory=list)
+    resume_rc: int | None = None
+    resume_tail: str = ""
+    numbers_compared: int = 0
+    number_differences: list[str] = field(default_factory=list)
+    tensors_compared: int = 0
+    tensor_differences: list[str] = field(default_factory=list)
+
+    @property
+    def agrees(self) -> bool:
+        return (self.resume_rc == 0 and self.numbers_compared > 0 and not self.number_differences
+                and not self.tensor_differences)
+
+
+def resolve(command: list[str]) -> list[str]:
+    """The command with a console script of this environment (``sr-train``) found beside this Python first."""
+    if not command:
+        raise ValueError("give the run command after --, e.g. -- sr-train --config_path=...")
+    local = Path(sys.executable).parent / command[0]
+    if local.is_file():
+        return [str(local), *command[1:]]
+    found = shutil.which(command[0])
+    if found is None:
+        raise ValueError(f"command not found: {command[0]!r}")
+    return [found, *command[1:]]
+
+
+def start(command: list[str], out: Path, log: Path, resume: bool) -> subprocess.Popen:
+    """The run command on ``out`` in a process group of its own, its output to ``log``."""
+    args = [*command, f"--output_dir={out}", *(["--resume=true"] if resume else [])]
+    log.parent.mkdir(parents=True, exist_ok=True)
+    with log.open("ab") as sink:
+        sink.write(("$ " + " ".join(args) + "\n").encode())
+        sink.flush()
+        return subprocess.Popen(args, stdout=sink, stderr=subprocess.STDOUT, start_new_session=True)
+
+
+def run_to_end(command: list[str], out: Path, log: Path, resume: bool) -> tuple[int, float]:
+    t0 = time.perf_counter()
+    process = start(command, out, log, resume)
+    return process.wait(), time.perf_counter() - t0
+
+
+def kill_at(command: list[str], out: Path, log: Path, seconds: float) -> bool:
+    """Start the command and SIGKILL its process group ``seconds`` after the start; False if it ended first."""
+    process = start(command, out, log, resume=False)
+    try:
+        process.wait(timeout=seconds)
+        return False
+    except subprocess.TimeoutExpired:
+        os.killpg(process.pid, signal.SIGKILL)
+        process.wait()
+        return True
+
+
+def tensor_files(run: Path) -> dict[str, Path]:
+    return {str(p.relative_to(run)): p for p in sorted(run.rglob("*.safetensors")) if ".cache" not in p.parts}
+
+
+def compare_tensors(reference: Path, resumed: Path) -> tuple[int, list[str]]:
+    """Tensors compared, and every difference: a file only one run holds, a tensor missing or unequal."""
+    import torch  # noqa: PLC0415 - only here
+
+    a, b = tensor_files(reference), tensor_files(resumed)
+    differences = [f"only in the reference: {name}" for name in sorted(a.keys() - b.keys())]
+    differences += [f"only in the resumed run: {name}" for name in sorted(b.keys() - a.keys())]
+    compared = 0
+    for name in sorted(a.keys() & b.keys()):
+        ta, tb = load_file(a[name]), load_file(b[name])
+        if ta.keys() != tb.keys():
+            differences.append(f"{name}: tensor names differ")
+            continue
+        for key in sorted(ta):
+            compared += 1
+            if ta[key].shape != tb[key].shape or ta[key].dtype != tb[key].dtype or not torch.equal(ta[key], tb[key]):
+                differences.append(f"{name}: {key}")
+    return compared, differences
+
+
+def last_line(log: Path) -> str:
+    lines = [line for line in log.read_text(errors="replace").splitlines() if line.strip()]
+    return lines[-1][:300] if lines else ""
+
+
+def snapshots_in(run: Path) -> list[str]:
+    return sorted(str(p.relative_to(run)) for name in SNAPSHOTS for p in run.rglob(name))
+
+
+def run_moment(command: list[str], root: Path, reference: Path, index: int, seconds: float) -> Moment:
+    out, log = root / f"moment_{index:02d}", root / "logs" / f"moment_{index:02d}.log"
+    moment = Moment(index, round(seconds, 2))
+    moment.killed = kill_at(command, out, log, seconds)
+    if out.is_dir():
+        progress = out / PROGRESS_FILE
+        moment.completed_at_kill = list(read_progress(progress)["completed"]) if progress.is_file() else []
+        moment.snapshot_at_kill = snapshots_in(out)
+    # a kill before the run wrote its settings leaves nothing to resume: the command starts it again
+    resumable = RunDirectory.occupied(out)
+    moment.resume_rc, _ = run_to_end(command, out, log, resume=resumable)
+    if moment.resume_rc != 0:
+        moment.resume_tail = last_line(log)
+        return moment
+    report = compare_runs(reference, out, 0.0)
+    moment.numbers_compared = report["compared"]
+    moment.number_differences = [f"{p}: {a!r} != {b!r}" for p, a, b, _ in report["differences"]]
+    moment.number_differences += [f"only in the reference: {p}" for p in report["only_a"]]
+    moment.number_differences += [f"only in the resumed run: {p}" for p in report["only_b"]]
+    moment.tensors_compared, moment.tensor_differences = compare_tensors(reference, out)
+    return moment
+
+
+def render(command: list[str], reference_s: float, moments: list[Moment], cpu: str) -> str:
+    agree = sum(m.agrees for m in moments)
+    lines = [f"# Kill -9 and resume at {len(moments)} moments", "",
+             f"Command: `{' '.join(command)}`; machine: {cpu}; reference run {format_duration(reference_s)}.", "",
+             f"**{agree} of {len(moments)} moments agree** with the uninterrupted run (every measured number and every "
+             "checkpoint, memory and trajectory tensor, bit for bit).", "",
+             "| moment | kill at (s) | phases recorded at the kill | wake snapshot | resume | numbers | tensors | "
+             "verdict |", "|---|---|---|---|---|---|---|---|"]
+    for m in moments:
+        done = (m.completed_at_kill[-1] + f" ({len(m.completed_at_kill)})") if m.completed_at_kill else "none"
+        if not m.killed:
+            done = "ended before the kill"
+        verdict = "agrees" if m.agrees else "DIFFERS"
+        resume = "ok" if m.resume_rc == 0 else f"exit {m.resume_rc}: {m.resume_tail}"
+        lines.append(f"| {m.index} | {m.kill_at_s} | {done} | {', '.join(m.snapshot_at_kill) or '-'} | {resume} | "
+                     f"{m.numbers_compared} ({len(m.number_differences)} differ) | {m.tensors_compared} "
+                     f"({len(m.tensor_differences)} differ) | {verdict} |")
+    for m in moments:
+        if not m.agrees and (m.number_differences or m.tensor_differences):
+            lines += ["", f"Moment {m.index}: " + "; ".join((m.number_differences + m.tensor_differences)[:10])]
+    return "\n".join(lines) + "\n"
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip() + f", {os.cpu_count()} cores"
+    except OSError:
+        pass
+    return "unknown CPU"
+
+
+def main(args: list[str] | None = None) -> int:
+    setup_logging()
+    args = sys.argv[1:] if args is None else args
+    split = args.index("--") if "--" in args else len(args)
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--moments", type=int, default=21, help="kills, evenly spaced over the reference's time")
+    parser.add_argument("--output_root", type=Path, required=True, help="a new folder for every run and the report")
+    ns = parser.parse_args(args[:split])
+    if ns.moments < 1:
+        raise ValueError(f"--moments must be >= 1, got {ns.moments}")
+    command = resolve(args[split + 1:])
+    root: Path = ns.output_root
+    if root.exists() and any(root.iterdir()):
+        raise FileExistsError(f"{root} is not empty; choose a new --output_root")
+    reference = root / "reference"
+    logger.info("reference run: %s", " ".join(command))
+    rc, reference_s = run_to_end(command, reference, root / "logs" / "reference.log", resume=False)
+    if rc != 0:
+        raise RuntimeError(f"the reference run failed (exit {rc}): {last_line(root / 'logs' / 'reference.log')}")
+    logger.info("reference run: %s; now %d kills", format_duration(reference_s), ns.moments)
+    moments = []
+    for i in range(1, ns.moments + 1):
+        seconds = reference_s * i / (ns.moments + 1)
+        moment = run_moment(command, root, reference, i, seconds)
+        moments.append(moment)
+        logger.info("moment %d/%d (kill at %.1f s, after %s): %s", i, ns.moments, seconds,
+                    moment.completed_at_kill[-1] if moment.completed_at_kill else "no phase",
+                    "agrees" if moment.agrees else "DIFFERS")
+    cpu = cpu_name()
+    write_checked_json(root / "kill_resume.json", {
+        "command": command, "cpu": cpu, "reference_seconds": reference_s,
+        "moments": [asdict(m) | {"agrees": m.agrees} for m in moments]})
+    atomic_write_bytes(root / "kill_resume.md", render(command, reference_s, moments, cpu).encode())
+    agree = sum(m.agrees for m in moments)
+    logger.info("%d of %d moments agree: %s", agree, len(moments), root / "kill_resume.md")
+    return 0 if agree == len(moments) else 1
+
+
+def entry() -> None:
+    sys.exit(run_cli("sr_imitation.experiments.kill_resume", main))
+
+
+if __name__ == "__main__":
+    entry()

@@ -1,0 +1,49 @@
+"""The kill -9 experiment (sr_imitation.experiments.kill_resume): real SIGKILLs of a real ``sr-train`` process (the
+toy substrate, so that it takes seconds), resumed and compared with the uninterrupted run; and the comparison finds a
+changed tensor and a file only one run holds."""
+
+from __future__ import annotations
+
+import pytest
+import torch
+from safetensors.torch import save_file
+
+from sr_imitation.experiments import kill_resume
+from sr_imitation.io import read_checked_json
+
+# sr-train with the toy substrate registered (the recipe's one line in SUBSTRATE_COMMANDS), as a process of its own
+TOY_TRAIN = ["python", "-c", "from sr_imitation import cli; "
+             "cli.SUBSTRATE_COMMANDS['toy'] = ('tests.stream.toy', 'parse', 'main'); cli.train_entry()",
+             "--substrate=toy", "--stream.skills=[a,b,c]", "--progress=false", "--wake_steps=1000"]
+
+
+def test_runs_killed_with_sigkill_and_resumed_agree_with_the_uninterrupted_one(tmp_path):
+    root = tmp_path / "kill"
+    assert kill_resume.main(["--moments=2", f"--output_root={root}", "--", *TOY_TRAIN]) == 0
+    report = read_checked_json(root / "kill_resume.json")
+    moments = report["moments"]
+    assert len(moments) == 2 and all(m["agrees"] and m["resume_rc"] == 0 for m in moments)
+    assert any(m["killed"] for m in moments)  # at least one kill came while the run was running
+    assert all(m["numbers_compared"] > 0 and m["tensors_compared"] > 0 for m in moments)
+    md = (root / "kill_resume.md").read_text()
+    assert "**2 of 2 moments agree**" in md and report["cpu"] in md
+    with pytest.raises(FileExistsError, match="not empty"):  # nothing already written is touched
+        kill_resume.main(["--moments=1", f"--output_root={root}", "--", *TOY_TRAIN])
+
+
+def test_the_tensor_comparison_names_a_changed_tensor_and_a_file_only_one_run_holds(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for run, value in ((a, 1.0), (b, 2.0)):
+        (run / "stage").mkdir(parents=True)
+        save_file({"w": torch.tensor([value]), "same": torch.zeros(2)}, run / "stage" / "model.safetensors")
+    save_file({"x": torch.zeros(1)}, b / "stage" / "wake_snapshot.safetensors")  # a snapshot left behind
+    compared, differences = kill_resume.compare_tensors(a, b)
+    assert compared == 2
+    assert differences == ["only in the resumed run: stage/wake_snapshot.safetensors", "stage/model.safetensors: w"]
+
+
+def test_the_command_is_required_and_must_exist(tmp_path):
+    with pytest.raises(ValueError, match="give the run command after --"):
+        kill_resume.main([f"--output_root={tmp_path / 'k'}"])
+    with pytest.raises(ValueError, match="command not found: 'no-such-command'"):
+        kill_resume.main([f"--output_root={tmp_path / 'k'}", "--", "no-such-command"])
