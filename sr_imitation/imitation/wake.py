@@ -30,6 +30,7 @@ from torch.utils.data import DataLoader, Subset
 from sr_imitation.imitation import wake_snapshot
 from sr_imitation.imitation.data import SkillData
 from sr_imitation.infra.distributed import Processes, average_gradients, average_scalars, current, shard
+from sr_imitation.infra.snapshot import EVERY_S
 from sr_imitation.progress import Progress
 
 logger = logging.getLogger(__name__)
@@ -65,6 +66,10 @@ class WakeConfig:
     """Gradient clipping, as in lerobot-train."""
     num_workers: int = 0
     """DataLoader workers (0-1 on a 2-core CPU; do not change results)."""
+    snapshot_every_s: float = EVERY_S
+    """Seconds of wall time between two mid-wake snapshots (:mod:`sr_imitation.imitation.wake_snapshot`, written at an
+    epoch's end: a wake killed inside continues from the last one); 0 - at every epoch's end; negative - never. Does
+    not change results (a resume may change it)."""
     restore: str = "best"
     """Weights kept at the end of the wake - best (the epoch with the lowest validation l1, the paper's early
     stopping) or last. The validation l1 is dominated by the expert's +-0.2 action noise and stops tracking
@@ -86,6 +91,8 @@ class WakeConfig:
             raise ValueError(f"restore must be one of {RESTORE_CHOICES}, got {self.restore!r}")
         if self.max_steps_per_epoch is not None and self.max_steps_per_epoch < 1:
             raise ValueError(f"max_steps_per_epoch must be >= 1 or null, got {self.max_steps_per_epoch}")
+        if math.isnan(self.snapshot_every_s):
+            raise ValueError("wake.snapshot_every_s must be a number of seconds (negative: no snapshots), got nan")
 
 
 @dataclass
@@ -200,12 +207,11 @@ def wake_train(
     on_epoch: Callable[[int, dict[str, float]], None] | None = None,
     hooks: Any = None,
     snapshot: Path | None = None,
-    snapshot_every_s: float | None = None,
 ) -> WakeResult:
     """Train ``policy`` in place on one skill; returns the history and the restored best epoch.
 
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.imitation.wake_snapshot`), written at the end
-    of an epoch every ``snapshot_every_s`` seconds (default :data:`~sr_imitation.imitation.wake_snapshot.EVERY_S`); a
+    of an epoch every ``cfg.snapshot_every_s`` seconds (never if negative); a
     wake that finds one continues from it, and removes it when it ends. Ignored with ``hooks`` that keep state of
     their own (``not hooks.resumable``: such a wake, killed, starts again)."""
     device = policy.config.device
@@ -239,7 +245,7 @@ def wake_train(
                             record.history)
         logger.info("wake %s: resumed from %s after %d epochs (%d steps)", data.skill, snapshot, result.epochs,
                     result.steps)
-    every_s = wake_snapshot.EVERY_S if snapshot_every_s is None else snapshot_every_s
+    every_s = cfg.snapshot_every_s  # negative: none written (one found is still continued from, then removed)
     last_snapshot = time.perf_counter()
     bar = Progress(cfg.max_epochs * steps_per_epoch, f"wake {data.skill}", logger, enabled=progress,
                    initial=result.steps)
@@ -279,7 +285,7 @@ def wake_train(
             logger.info("wake %s: l1 plateau, stopping after epoch %d (best %d)", data.skill, epoch,
                         result.best_epoch)
             break
-        if (snapshot is not None and processes.is_main and epoch + 1 < cfg.max_epochs
+        if (snapshot is not None and processes.is_main and epoch + 1 < cfg.max_epochs and every_s >= 0
                 and time.perf_counter() - last_snapshot >= every_s):
             record = wake_snapshot.WakeRecord(result.epochs, result.best_epoch, result.best_val_l1, result.steps,
                                               result.history)

@@ -4,8 +4,8 @@ results.
 A wake is one phase of the stream engine (and the MT-Joint oracle's one training phase), and a phase killed inside
 used to be redone from its start: same numbers, all its time again (5-30 min on a CPU preset, hours at the paper's
 budgets on a GPU). So :func:`~sr_imitation.imitation.wake.wake_train` writes, at the end of an epoch every
-:data:`EVERY_S` seconds of wall time (our choice), everything the rest of the wake depends on to one checked
-safetensors file, and a wake that finds that file continues from it with the next epoch:
+``--wake.snapshot_every_s`` seconds of wall time (default 300, our choice), everything the rest of the wake depends
+on to one checked safetensors file, and a wake that finds that file continues from it with the next epoch:
 
 - the policy's whole state (the training-only VAE encoder included) and the optimizer's state;
 - the weights of the best epoch so far, when the wake restores them at its end (``--wake.restore=best``);
@@ -22,6 +22,10 @@ checks the resumed ones bit for bit against wakes that were never stopped). The 
 Only the main process writes (the processes of a launched run hold the same state); every process reads it. A wake
 shaped by hooks that keep state of their own (``stateless_wake_hooks`` False) is not snapshotted: such a wake,
 killed, starts again from its start. The SAC wake's counterpart is :mod:`sr_imitation.rl.wake_snapshot`.
+
+Size, measured on the state-only Meta-World preset (AMD EPYC, one core): 8 MB written in 0.05 s at its default width
+(0.68 M parameters: weights and AdamW's two moments), 32 MB in 0.2 s at the test preset's ``--policy.dim_model=256``
+(2.7 M); ``--wake.restore=best`` adds the best weights (a third more).
 """
 
 from __future__ import annotations
@@ -47,11 +51,6 @@ from sr_imitation.io import save_checked_safetensors
 
 FORMAT = "sr_imitation.imitation.wake_snapshot"
 VERSION = 1
-EVERY_S = 300.0
-"""Seconds of wall time between two snapshots of one wake (our choice: a kill loses at most about five minutes and
-one epoch). Measured on the state-only Meta-World preset (AMD EPYC, one core): 8 MB written in 0.05 s at its
-default width (0.68 M parameters, weights and AdamW's two moments), 32 MB in 0.2 s at the test preset's
-``--policy.dim_model=256`` (2.7 M); ``--wake.restore=best`` adds the best weights (a third more)."""
 
 
 @dataclass

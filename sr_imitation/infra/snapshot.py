@@ -18,6 +18,10 @@ import torch
 
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 
+EVERY_S = 300.0
+"""The default seconds of wall time between two snapshots of one wake (``--wake.snapshot_every_s`` of both
+substrates; our choice: a kill loses at most about five minutes of a wake)."""
+
 
 def load_snapshot(path: Path, identity: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """Read a checked snapshot and check that its header holds ``identity`` (format, version and what names the

@@ -23,6 +23,7 @@ from sr_imitation.infra.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
+from sr_imitation.infra.snapshot import EVERY_S
 from sr_imitation.stream.config import RunConfig, StreamSettings, StreamSleepConfig, check_shared_settings
 
 
@@ -137,10 +138,16 @@ class WakeConfig:
     """Per-skill budgets {skill - {max_episodes, min_episodes, patience}} (default - the paper's table)."""
     default_budget: SkillBudget = field(default_factory=lambda: SkillBudget(2500, 800, 800))
     """Budget for skills without a table row (the MT8 extension; our choice: the table's median row)."""
+    snapshot_every_s: float = EVERY_S
+    """Seconds of wall time between two mid-wake snapshots (:mod:`sr_imitation.rl.wake_snapshot`, written between
+    episodes: a wake killed inside continues from the last one); 0 - after every episode; negative - never. Does not
+    change results (a resume may change it)."""
 
     def __post_init__(self) -> None:
         if self.budget_scale <= 0:
             raise ValueError(f"wake.budget_scale must be > 0, got {self.budget_scale}")
+        if math.isnan(self.snapshot_every_s):
+            raise ValueError("wake.snapshot_every_s must be a number of seconds (negative: no snapshots), got nan")
         if self.rolling_window < 1 or self.improvement < 0:
             raise ValueError("wake.rolling_window must be >= 1 and wake.improvement >= 0")
         for name, b in {**self.budgets, "default": self.default_budget}.items():
@@ -337,6 +344,8 @@ RESUME_ALLOW_LIST: dict[str, str] = {
     "eval.video_height": "video frame size only (see eval.videos_per_skill)",
     "eval.video_width": "video frame size only (see eval.videos_per_skill)",
     "eval.video_camera": "video camera only (see eval.videos_per_skill)",
+    "wake.snapshot_every_s": "when a wake writes its snapshot: writing one reads the state and draws nothing, and a "
+                             "resumed wake continues bit for bit (tests/rl/test_wake_snapshot.py)",
 }
 """Settings of ``sr-rl-train`` that may differ on ``--resume`` (fnmatch patterns, each covering the keys below it),
 with the reason each cannot change results. Every other setting of :class:`RLTrainConfig` is fingerprinted at the

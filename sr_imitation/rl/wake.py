@@ -87,7 +87,6 @@ def train_skill(
     progress: bool = True,
     method: ContinualMethod | None = None,
     snapshot: Path | None = None,
-    snapshot_every_s: float | None = None,
 ) -> tuple[WakeResult, CriticMemory]:
     """Train ``agent`` on one skill and freeze its critic memory.
 
@@ -99,7 +98,7 @@ def train_skill(
     are ``result.method``.
 
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.rl.wake_snapshot`), written at an episode
-    boundary every ``snapshot_every_s`` seconds (default :data:`~sr_imitation.rl.wake_snapshot.EVERY_S`); a wake
+    boundary every ``wake_cfg.snapshot_every_s`` seconds (never if negative); a wake
     that finds one continues from it with identical results, and removes it when it ends. Not used with wake hooks
     that keep state of their own (``not hooks.resumable``).
     """
@@ -123,7 +122,7 @@ def train_skill(
                           quiet=lambda: activity_recording_off(agent.actor))
         if not hooks.resumable:
             snapshot = None  # the hooks keep state of their own: such a wake, killed, starts again
-    every_s = wake_snapshot.EVERY_S if snapshot_every_s is None else snapshot_every_s
+    every_s = wake_cfg.snapshot_every_s  # negative: none written (one found is still continued from, then removed)
     identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63),
                 "method_hooks": None if hooks is None else hooks.method.name}
     if snapshot is not None and snapshot.is_file():
@@ -152,7 +151,7 @@ def train_skill(
                                                          wake_cfg.improvement):
             result.stop_reason = "early_stopping"
             break
-        if snapshot is not None and time.perf_counter() - last_snapshot >= every_s:
+        if snapshot is not None and every_s >= 0 and time.perf_counter() - last_snapshot >= every_s:
             loop = wake_snapshot.WakeLoop(result.episode_rewards, result.episode_successes, episode_starts,
                                           result.env_steps, result.updates, update_credit, info,
                                           time.perf_counter() - t0)

@@ -3,8 +3,9 @@
 A wake is one phase of the stream engine, and a phase killed inside used to be redone from its start (same numbers,
 all its time again): at the gate preset's budgets (``configs/sac_mt5_gate.json``) one wake, or the MT-Joint oracle's
 one training phase, is up to two hours on one core. So :func:`~sr_imitation.rl.wake.train_skill` writes, at an
-episode boundary every :data:`EVERY_S` seconds of wall time (our choice), everything the rest of the wake depends on
-to one checked safetensors file, and a wake that finds that file continues from it:
+episode boundary every ``--wake.snapshot_every_s`` seconds of wall time (default 300, our choice; a snapshot of a
+full 160k-transition replay is about 55 MB, written in well under a second), everything the rest of the wake
+depends on to one checked safetensors file, and a wake that finds that file continues from it:
 
 - the agent's whole state (actor with its excitability, twin critic and its target, alpha, the observation
   normalizer) and its three Adam states;
@@ -50,10 +51,6 @@ logger = logging.getLogger(__name__)
 
 FORMAT = "sr_imitation.rl.wake_snapshot"
 VERSION = 2
-EVERY_S = 300.0
-"""Seconds of wall time between two snapshots of one wake (our choice: a kill loses at most about five minutes; a
-snapshot of a full 160k-transition replay is about 55 MB, written in well under a second)."""
-
 _BUFFER_FIELDS = ("obs", "next_obs", "actions", "rewards", "terminated")
 _OPTIMIZERS = ("actor_optimizer", "critic_optimizer", "alpha_optimizer")
 

@@ -120,6 +120,7 @@ ALLOWED_CHANGES: dict[str, Any] = {
     "eval.video_height": 64,
     "eval.video_width": 96,
     "wake.num_workers": 1,
+    "wake.snapshot_every_s": 60.0,
     "policy.input_features": {"observation.state": {"type": "STATE", "shape": [6]}},
     "policy.output_features": {"action": {"type": "ACTION", "shape": [7]}},
     "policy.sleep": True,  # another name of sleep.enabled (true in the stored run): folded into it

@@ -16,6 +16,7 @@ from sr_imitation.imitation import wake, wake_snapshot
 from sr_imitation.imitation.mt_joint import run_mt_joint
 from sr_imitation.imitation.substrate import WAKE_SNAPSHOT
 from sr_imitation.imitation.trainer import train_stream
+from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
@@ -27,9 +28,11 @@ class Killed(BaseException):
     """Stands for kill -9 (not an Exception: nothing may catch it)."""
 
 
-def _config(datasets: Path, out: Path, skills: list[str], method: str = "sr"):
+def _config(datasets: Path, out: Path, skills: list[str], method: str = "sr", every_s: float = 0.0):
+    """Snapshots at every epoch's end (``every_s`` 0) or never (negative)."""
     cfg = tiny_stream_config(datasets, out, skills, use_images=False, dropout=0.1, use_vae=True)
     cfg.wake.max_epochs = cfg.wake.min_epochs = EPOCHS
+    cfg.wake.snapshot_every_s = every_s
     cfg.wake.restore = "best"
     cfg.method = method
     return cfg
@@ -65,9 +68,7 @@ def _same_weights(a: Path, b: Path) -> None:
 @pytest.fixture(scope="module")
 def never_stopped(state_datasets, tmp_path_factory):
     out = tmp_path_factory.mktemp("never_stopped") / "stream"
-    with pytest.MonkeyPatch.context() as m:
-        m.setattr(wake_snapshot, "EVERY_S", float("inf"))  # no snapshot at all
-        results = train_stream(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
+    results = train_stream(_config(state_datasets, out, SKILLS[:2], every_s=-1.0), fake_env_factory)  # none at all
     return out, results
 
 
@@ -83,7 +84,6 @@ def test_a_stream_wake_killed_inside_an_epoch_resumes_bit_for_bit(never_stopped,
     reference, expected = never_stopped
     out = tmp_path / "stream"
     stage = "skill_2_place" if kill_at > EPOCHS * STEPS else "skill_1_approach"
-    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)  # a snapshot at every epoch's end
     with monkeypatch.context() as m:
         _kill_at_update(m, kill_at)
         with pytest.raises(Killed):
@@ -95,7 +95,7 @@ def test_a_stream_wake_killed_inside_an_epoch_resumes_bit_for_bit(never_stopped,
         _, header = load_checked_safetensors(snapshot)
         assert header["epochs"] == epochs_in_snapshot and header["steps"] == epochs_in_snapshot * STEPS
         assert header["best_state"] is True  # --wake.restore=best: the best epoch's weights travel with it
-    cfg = _config(state_datasets, out, SKILLS[:2])
+    cfg = _config(state_datasets, out, SKILLS[:2], every_s=-1.0)  # may change on resume: a found one is still used
     cfg.resume = True
     results = train_stream(cfg, fake_env_factory)
     assert not snapshot.exists()  # removed when the wake ends
@@ -111,10 +111,8 @@ def test_a_stream_wake_killed_inside_an_epoch_resumes_bit_for_bit(never_stopped,
 def test_a_replay_wake_killed_inside_resumes_bit_for_bit_with_its_hooks(state_datasets, tmp_path, monkeypatch):
     """Experience replay's wake hooks draw the replayed frames from their own generator at every update: it travels
     with the snapshot (``stateless_wake_hooks``), so the resumed wake replays the same frames."""
-    with monkeypatch.context() as m:
-        m.setattr(wake_snapshot, "EVERY_S", float("inf"))
-        expected = train_stream(_config(state_datasets, tmp_path / "whole", SKILLS[:2], "replay"), fake_env_factory)
-    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    expected = train_stream(_config(state_datasets, tmp_path / "whole", SKILLS[:2], "replay", every_s=-1.0),
+                            fake_env_factory)
     out = tmp_path / "killed"
     with monkeypatch.context() as m:
         _kill_at_update(m, EPOCHS * STEPS + 2 * STEPS + 1)  # the second wake's third epoch
@@ -131,10 +129,7 @@ def test_a_replay_wake_killed_inside_resumes_bit_for_bit_with_its_hooks(state_da
 
 
 def test_the_oracles_training_killed_inside_resumes_bit_for_bit(state_datasets, tmp_path, monkeypatch):
-    with monkeypatch.context() as m:
-        m.setattr(wake_snapshot, "EVERY_S", float("inf"))
-        expected = run_mt_joint(_config(state_datasets, tmp_path / "whole", SKILLS[:2]), fake_env_factory)
-    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
+    expected = run_mt_joint(_config(state_datasets, tmp_path / "whole", SKILLS[:2], every_s=-1.0), fake_env_factory)
     out = tmp_path / "killed"
     with monkeypatch.context() as m:
         _kill_at_update(m, 2 * STEPS * 2 + 1)  # the union's epochs are 2 x 2 updates: inside the third epoch
@@ -152,7 +147,6 @@ def test_the_oracles_training_killed_inside_resumes_bit_for_bit(state_datasets, 
 def test_a_snapshot_of_another_wake_or_a_damaged_one_is_refused_naming_the_file(state_datasets, tmp_path,
                                                                                  monkeypatch):
     out = tmp_path / "stream"
-    monkeypatch.setattr(wake_snapshot, "EVERY_S", 0.0)
     with monkeypatch.context() as m:
         _kill_at_update(m, 5)
         with pytest.raises(Killed):
@@ -175,3 +169,14 @@ def test_a_snapshot_of_another_wake_or_a_damaged_one_is_refused_naming_the_file(
     cfg.resume = True
     with pytest.raises(CorruptFileError, match="wake_snapshot.safetensors"):
         train_stream(cfg, fake_env_factory)
+
+
+def test_no_snapshot_is_written_with_a_negative_interval(state_datasets, tmp_path, monkeypatch):
+    out = tmp_path / "stream"
+    with monkeypatch.context() as m:
+        _kill_at_update(m, 7)  # after three epochs of the first wake
+        with pytest.raises(Killed):
+            train_stream(_config(state_datasets, out, SKILLS[:2], every_s=-1.0), fake_env_factory)
+    assert (out / "settings_fingerprint.json").is_file() and not list(out.rglob(WAKE_SNAPSHOT))  # it had started
+    with pytest.raises(ValueError, match="wake.snapshot_every_s must be a number"):
+        WakeConfig(snapshot_every_s=float("nan"))
