@@ -211,9 +211,9 @@ def wake_train(
     """Train ``policy`` in place on one skill; returns the history and the restored best epoch.
 
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.imitation.wake_snapshot`), written at the end
-    of an epoch every ``cfg.snapshot_every_s`` seconds (never if negative); a
-    wake that finds one continues from it, and removes it when it ends. Ignored with ``hooks`` that keep state of
-    their own (``not hooks.resumable``: such a wake, killed, starts again)."""
+    of an epoch every ``cfg.snapshot_every_s`` seconds (never if negative); a wake that finds one continues from it,
+    and removes it when it ends. Ignored with ``hooks`` that keep state of their own (``not hooks.resumable``: such a
+    wake, killed, starts again)."""
     device = policy.config.device
     accelerator = Accelerator(cpu=device == "cpu")
     processes = current()
@@ -240,9 +240,8 @@ def wake_train(
                 "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs,
                 "method_hooks": None if hooks is None else hooks.method.name}
     if snapshot is not None and snapshot.is_file():
-        record, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators, hooks)
-        result = WakeResult(data.skill, record.epochs, record.best_epoch, record.best_val_l1, record.steps,
-                            record.history)
+        loop, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators, hooks)
+        result = WakeResult(data.skill, loop.epochs, loop.best_epoch, loop.best_val_l1, loop.steps, loop.history)
         logger.info("wake %s: resumed from %s after %d epochs (%d steps)", data.skill, snapshot, result.epochs,
                     result.steps)
     every_s = cfg.snapshot_every_s  # negative: none written (one found is still continued from, then removed)
@@ -287,9 +286,9 @@ def wake_train(
             break
         if (snapshot is not None and processes.is_main and epoch + 1 < cfg.max_epochs and every_s >= 0
                 and time.perf_counter() - last_snapshot >= every_s):
-            record = wake_snapshot.WakeRecord(result.epochs, result.best_epoch, result.best_val_l1, result.steps,
-                                              result.history)
-            wake_snapshot.save(snapshot, identity, record, policy, optimizer, best_state, generators, hooks)
+            loop = wake_snapshot.WakeRecord(result.epochs, result.best_epoch, result.best_val_l1, result.steps,
+                                            result.history)
+            wake_snapshot.save(snapshot, identity, loop, policy, optimizer, best_state, generators, hooks)
             last_snapshot = time.perf_counter()
     bar.close()
     if snapshot is not None and processes.is_main:
