@@ -3,9 +3,12 @@
     python -m sr_imitation.experiments.kill_resume --moments=21 --output_root=outputs/kill_resume -- \\
         sr-train --config_path=configs/needle_cpu_m16.json --stream.skills=[approach,place] ...
 
-The command after ``--`` is any run command that takes ``--output_dir`` and ``--resume=true`` (``sr-train``,
-``sr-rl-train``, ``python -m sr_imitation.imitation.mt_joint``; a console script is looked up beside this Python
-first). The experiment:
+The command after ``--`` is any run command that takes an output folder and a resume flag (``--output_flag``, default
+``--output_dir``; ``--resume_flag``, default ``--resume=true``: ``sr-train``, ``sr-rl-train``, ``python -m
+sr_imitation.imitation.mt_joint``; ``sr-main`` with ``--output_flag=--train.output_dir
+--resume_flag=--train.resume=true``); ``{run}`` in any of its arguments becomes the run's folder (e.g.
+``--record.root={run}_data``: each run records its own datasets). A console script is looked up beside this Python
+first. The experiment:
 
 1. the reference: the command with ``--output_dir=<output_root>/reference``, run to its end; its wall time T (from the
    process's start, imports included);
@@ -88,9 +91,22 @@ def resolve(command: list[str]) -> list[str]:
     return [found, *command[1:]]
 
 
-def start(command: list[str], out: Path, log: Path, resume: bool) -> subprocess.Popen:
+@dataclass(frozen=True)
+class Command:
+    """How to start the run command on a folder, and how to resume it."""
+
+    args: list[str]
+    output_flag: str = "--output_dir"
+    resume_flag: str = "--resume=true"
+
+    def on(self, out: Path, resume: bool) -> list[str]:
+        args = [a.replace("{run}", str(out)) for a in self.args]
+        return [*args, f"{self.output_flag}={out}", *([self.resume_flag] if resume else [])]
+
+
+def start(command: Command, out: Path, log: Path, resume: bool) -> subprocess.Popen:
     """The run command on ``out`` in a process group of its own, its output to ``log``."""
-    args = [*command, f"--output_dir={out}", *(["--resume=true"] if resume else [])]
+    args = command.on(out, resume)
     log.parent.mkdir(parents=True, exist_ok=True)
     with log.open("ab") as sink:
         sink.write(("$ " + " ".join(args) + "\n").encode())
@@ -98,13 +114,13 @@ def start(command: list[str], out: Path, log: Path, resume: bool) -> subprocess.
         return subprocess.Popen(args, stdout=sink, stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def run_to_end(command: list[str], out: Path, log: Path, resume: bool) -> tuple[int, float]:
+def run_to_end(command: Command, out: Path, log: Path, resume: bool) -> tuple[int, float]:
     t0 = time.perf_counter()
     process = start(command, out, log, resume)
     return process.wait(), time.perf_counter() - t0
 
 
-def kill_at(command: list[str], out: Path, log: Path, seconds: float) -> bool:
+def kill_at(command: Command, out: Path, log: Path, seconds: float) -> bool:
     """Start the command and SIGKILL its process group ``seconds`` after the start; False if it ended first."""
     process = start(command, out, log, resume=False)
     try:
@@ -149,7 +165,7 @@ def snapshots_in(run: Path) -> list[str]:
     return sorted(str(p.relative_to(run)) for name in SNAPSHOTS for p in run.rglob(name))
 
 
-def run_moment(command: list[str], root: Path, reference: Path, index: int, seconds: float) -> Moment:
+def run_moment(command: Command, root: Path, reference: Path, index: int, seconds: float) -> Moment:
     out, log = root / f"moment_{index:02d}", root / "logs" / f"moment_{index:02d}.log"
     moment = Moment(index, round(seconds, 2))
     moment.killed = kill_at(command, out, log, seconds)
@@ -172,10 +188,11 @@ def run_moment(command: list[str], root: Path, reference: Path, index: int, seco
     return moment
 
 
-def render(command: list[str], reference_s: float, moments: list[Moment], cpu: str) -> str:
+def render(command: Command, reference_s: float, moments: list[Moment], cpu: str) -> str:
     agree = sum(m.agrees for m in moments)
     lines = [f"# Kill -9 and resume at {len(moments)} moments", "",
-             f"Command: `{' '.join(command)}`; machine: {cpu}; reference run {format_duration(reference_s)}.", "",
+             f"Command: `{' '.join(command.on(Path('<run>'), resume=False))}` (resumed with `{command.resume_flag}`); "
+             f"machine: {cpu}; reference run {format_duration(reference_s)}.", "",
              f"**{agree} of {len(moments)} moments agree** with the uninterrupted run (every measured number and every "
              "checkpoint, memory and trajectory tensor, bit for bit).", "",
              "| moment | kill at (s) | phases recorded at the kill | wake snapshot | resume | numbers | tensors | "
@@ -212,15 +229,17 @@ def main(args: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--moments", type=int, default=21, help="kills, evenly spaced over the reference's time")
     parser.add_argument("--output_root", type=Path, required=True, help="a new folder for every run and the report")
+    parser.add_argument("--output_flag", default="--output_dir", help="the command's flag naming its run folder")
+    parser.add_argument("--resume_flag", default="--resume=true", help="the command's flag that resumes a run")
     ns = parser.parse_args(args[:split])
     if ns.moments < 1:
         raise ValueError(f"--moments must be >= 1, got {ns.moments}")
-    command = resolve(args[split + 1:])
+    command = Command(resolve(args[split + 1:]), ns.output_flag, ns.resume_flag)
     root: Path = ns.output_root
     if root.exists() and any(root.iterdir()):
         raise FileExistsError(f"{root} is not empty; choose a new --output_root")
     reference = root / "reference"
-    logger.info("reference run: %s", " ".join(command))
+    logger.info("reference run: %s", " ".join(command.on(reference, resume=False)))
     rc, reference_s = run_to_end(command, reference, root / "logs" / "reference.log", resume=False)
     if rc != 0:
         raise RuntimeError(f"the reference run failed (exit {rc}): {last_line(root / 'logs' / 'reference.log')}")
@@ -235,7 +254,7 @@ def main(args: list[str] | None = None) -> int:
                     "agrees" if moment.agrees else "DIFFERS")
     cpu = cpu_name()
     write_checked_json(root / "kill_resume.json", {
-        "command": command, "cpu": cpu, "reference_seconds": reference_s,
+        "command": asdict(command), "cpu": cpu, "reference_seconds": reference_s,
         "moments": [asdict(m) | {"agrees": m.agrees} for m in moments]})
     atomic_write_bytes(root / "kill_resume.md", render(command, reference_s, moments, cpu).encode())
     agree = sum(m.agrees for m in moments)

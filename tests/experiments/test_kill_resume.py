@@ -47,3 +47,11 @@ def test_the_command_is_required_and_must_exist(tmp_path):
         kill_resume.main([f"--output_root={tmp_path / 'k'}"])
     with pytest.raises(ValueError, match="command not found: 'no-such-command'"):
         kill_resume.main([f"--output_root={tmp_path / 'k'}", "--", "no-such-command"])
+
+
+def test_the_command_names_its_folder_where_it_asks_and_resumes_with_its_own_flag(tmp_path):
+    command = kill_resume.Command(["sr-main", "--record.root={run}_data"], "--train.output_dir",
+                                  "--train.resume=true")
+    assert command.on(tmp_path / "m1", resume=False) == [
+        "sr-main", f"--record.root={tmp_path}/m1_data", f"--train.output_dir={tmp_path}/m1"]
+    assert command.on(tmp_path / "m1", resume=True)[-1] == "--train.resume=true"
