@@ -22,11 +22,12 @@ def test_runs_killed_with_sigkill_and_resumed_agree_with_the_uninterrupted_one(t
     assert kill_resume.main(["--moments=2", f"--output_root={root}", "--", *TOY_TRAIN]) == 0
     report = read_checked_json(root / "kill_resume.json")
     moments = report["moments"]
-    assert len(moments) == 2 and all(m["agrees"] and m["resume_rc"] == 0 for m in moments)
-    assert any(m["killed"] for m in moments)  # at least one kill came while the run was running
-    assert all(m["numbers_compared"] > 0 and m["tensors_compared"] > 0 for m in moments)
+    killed = [m for m in moments if m["killed"]]
+    assert len(moments) == 2 and killed  # at least one kill came while the run was running
+    assert all(m["agrees"] and m["resume_rc"] == 0 for m in killed)
+    assert all(m["numbers_compared"] > 0 and m["tensors_compared"] > 0 for m in killed)
     md = (root / "kill_resume.md").read_text()
-    assert "**2 of 2 moments agree**" in md and report["cpu"] in md
+    assert f"**{len(killed)} of {len(killed)} killed runs agree**" in md and report["cpu"] in md
     with pytest.raises(FileExistsError, match="not empty"):  # nothing already written is touched
         kill_resume.main(["--moments=1", f"--output_root={root}", "--", *TOY_TRAIN])
 
