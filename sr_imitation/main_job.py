@@ -60,8 +60,9 @@ def main(args: list[str] | None = None) -> None:
     out = Path(cfg.train.output_dir)
     m = results["metrics"]
     print(f"datasets: {cfg.record.root.resolve()}")  # noqa: T201
-    print(f"results:  {(out / 'results.json').resolve()}  (table: results.md; plots: metrics.png, "  # noqa: T201
-          "success_matrix.png; videos: videos/, expert_suture.mp4)")
+    written = [name for name in ("results.md", "metrics.png", "success_matrix.png", "videos/", "expert_suture.mp4")
+               if (out / name).exists()]  # what this run wrote beside results.json (plots and videos may be off)
+    print(f"results:  {(out / 'results.json').resolve()}  (also: {', '.join(written) or 'nothing else'})")  # noqa: T201
     print("final " + ", ".join(  # noqa: T201
         f"{k.upper()}={m[k]['final']:.3f}" for k in ("afsr", "prs", "bwt", "bwt_wake", "spi")
         if k in m and m[k]["final"] is not None
