@@ -10,12 +10,16 @@ sr_imitation.imitation.mt_joint``; ``sr-main`` with ``--output_flag=--train.outp
 ``--record.root={run}_data``: each run records its own datasets). A console script is looked up beside this Python
 first. The experiment:
 
-1. the reference: the command with ``--output_dir=<output_root>/reference``, run to its end; its wall time T (from the
-   process's start, imports included);
-2. for each moment i = 1..N: the command with ``--output_dir=<output_root>/moment_<i>``, its whole process group
-   killed with SIGKILL (nothing runs after it: no handler, no ``finally``) i T / (N + 1) seconds after its start, then
-   the same command with ``--resume=true`` (or, where the kill came before the run wrote anything that names it a
-   run, without it), run to its end;
+1. the reference: the command with ``--output_dir=<output_root>/reference``, run to its end; its timeline: when
+   ``progress.json`` recorded each phase (polled every 50 ms) and when the process ended, from its start (imports
+   included);
+2. for each moment i = 1..N, the reference time t_i = i T / (N + 1) (T: the reference's end), placed on its timeline as
+   "after its first j phases, plus d seconds": the command with ``--output_dir=<output_root>/moment_<i>``, its whole
+   process group killed with SIGKILL (nothing runs after it: no handler, no ``finally``) d seconds, scaled by this
+   run's pace against the reference's, after its own j-th phase was recorded (from its start for j = 0). So the kills
+   fall in the same parts of the run (recording, a wake, a sleep, an evaluation, the final writes) however the
+   machine's load changes between runs; then the same command with ``--resume=true`` (or, where the kill came before
+   the run wrote anything that names it a run, without it), run to its end;
 3. each resumed run compared with the reference: every number either measured
    (:func:`~sr_imitation.reporting.compare.compare_runs`, tolerance 0) and every tensor of every safetensors file
    both hold (checkpoints, memories, trajectories; bit for bit), and which such files only one holds (a mid-wake
@@ -24,15 +28,15 @@ first. The experiment:
 Each moment's row says what the kill interrupted (the phases recorded by then, a wake snapshot present), the resume's
 exit status (with its last log line when it failed) and the verdict. Writes ``kill_resume.json`` and
 ``kill_resume.md`` to ``output_root`` (atomically, checked JSON) and each process's log to ``logs/``; exit 0 when every
-killed run agrees, 1 otherwise. A run that ends before its kill (the machine got faster than during the reference) is
-tried once more with the kills spaced over the shortest run seen, and reported as not killed if it ends first again.
-The moments depend on the machine's speed: the claim is "at these N moments", with the CPU named (bit-identity across
-CPU types is not claimed here: one machine runs all of it).
+killed run agrees, 1 otherwise. A run that ends before its kill is tried once more with half the delay, and reported
+as not killed if it ends first again. The claim is "at these N moments", with the CPU named (bit-identity across CPU
+types is not claimed here: one machine runs all of it).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import logging
 import os
 import shutil
@@ -54,6 +58,8 @@ from sr_imitation.stream.substrate import PHASE_IDS
 
 logger = logging.getLogger(__name__)
 
+POLL_S = 0.05
+"""Seconds between two looks at a run's ``progress.json``."""
 SNAPSHOTS = ("wake_snapshot.safetensors", "train_snapshot.safetensors")
 """Mid-wake snapshots: a run's working files, removed when their wake ends (one left behind is a difference)."""
 
@@ -64,10 +70,11 @@ class Moment:
 
     index: int
     kill_at_s: float
+    """Seconds from the run's start to the kill (to its end when it ended first)."""
+    anchor: str = ""
+    """Where the kill was placed: after the run's first j phases, plus a delay."""
     killed: bool = False
     """False when the run ended before the kill came (the machine got faster than during the reference)."""
-    ran_s: float = 0.0
-    """Seconds from the start to the kill, or to the run's end when it ended first."""
     completed_at_kill: list[str] = field(default_factory=list)
     snapshot_at_kill: list[str] = field(default_factory=list)
     resume_rc: int | None = None
@@ -119,19 +126,54 @@ def start(command: Command, out: Path, log: Path, resume: bool) -> subprocess.Po
         return subprocess.Popen(args, stdout=sink, stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def run_to_end(command: Command, out: Path, log: Path, resume: bool) -> tuple[int, float]:
+def phases_recorded(run: Path) -> int:
+    """How many phases the run's ``progress.json`` records (0 before it exists; it is replaced atomically)."""
+    try:
+        return len(json.loads((run / PROGRESS_FILE).read_text())["completed"])
+    except (OSError, ValueError, KeyError, TypeError):
+        return 0
+
+
+@dataclass(frozen=True)
+class Timeline:
+    """When the reference recorded each of its phases and when it ended, in seconds from its start."""
+
+    phases: tuple[float, ...]
+    end: float
+
+    def place(self, t: float) -> tuple[int, float, float]:
+        """Reference time ``t`` as (phases recorded by then, when the last of them was (0 for none), the rest)."""
+        j = sum(p <= t for p in self.phases)
+        base = self.phases[j - 1] if j else 0.0
+        return j, base, t - base
+
+
+def run_to_end(command: Command, out: Path, log: Path, resume: bool) -> tuple[int, Timeline]:
+    """Run the command to its end; its exit status and timeline."""
     t0 = time.perf_counter()
     process = start(command, out, log, resume)
-    return process.wait(), time.perf_counter() - t0
+    times: list[float] = []
+    while process.poll() is None:
+        times += [time.perf_counter() - t0] * (phases_recorded(out) - len(times))
+        time.sleep(POLL_S)
+    end = time.perf_counter() - t0
+    times += [end] * (phases_recorded(out) - len(times))
+    return process.returncode, Timeline(tuple(times), end)
 
 
-def kill_at(command: Command, out: Path, log: Path, seconds: float) -> tuple[bool, float]:
-    """Start the command and SIGKILL its process group ``seconds`` after the start; whether it was killed (False: it
-    ended first) and the seconds it ran."""
+def kill_at(command: Command, out: Path, log: Path, after_phases: int, base: float, delay: float
+            ) -> tuple[bool, float]:
+    """Start the command and SIGKILL its process group ``delay`` seconds (scaled by its pace: the time it took to
+    record ``after_phases`` phases over the reference's ``base``) after it recorded its first ``after_phases``
+    phases; whether it was killed (False: it ended first) and the seconds from its start."""
     t0 = time.perf_counter()
     process = start(command, out, log, resume=False)
+    while phases_recorded(out) < after_phases and process.poll() is None:
+        time.sleep(POLL_S)
+    reached = time.perf_counter() - t0
+    pace = reached / base if after_phases and base > 0 else 1.0
     try:
-        process.wait(timeout=seconds)
+        process.wait(timeout=max(0.0, pace * delay))
         return False, time.perf_counter() - t0
     except subprocess.TimeoutExpired:
         os.killpg(process.pid, signal.SIGKILL)
@@ -180,11 +222,14 @@ def in_order(completed: list[str]) -> list[str]:
     return sorted(completed, key=key)
 
 
-def run_moment(command: Command, root: Path, reference: Path, index: int, seconds: float, name: str) -> Moment:
+def run_moment(command: Command, root: Path, reference: Path, index: int, place: tuple[int, float, float],
+               name: str) -> Moment:
     out, log = root / name, root / "logs" / f"{name}.log"
-    moment = Moment(index, round(seconds, 2))
-    moment.killed, moment.ran_s = kill_at(command, out, log, seconds)
-    if not moment.killed:  # it ended first: this machine got faster than during the reference; that run is done
+    after, base, delay = place
+    moment = Moment(index, 0.0, f"after {after} phase(s) + {delay:.1f} s")
+    moment.killed, seconds = kill_at(command, out, log, after, base, delay)
+    moment.kill_at_s = round(seconds, 2)
+    if not moment.killed:  # it ended first; that run is done
         return moment
     if out.is_dir():
         progress = out / PROGRESS_FILE
@@ -215,17 +260,18 @@ def render(command: Command, reference_s: float, moments: list[Moment], cpu: str
              f"machine: {cpu}; reference run {format_duration(reference_s)}.", "",
              f"**{agree} of {len(killed)} killed runs agree** with the uninterrupted run after their resume (every "
              "measured number and every checkpoint, memory and trajectory tensor, bit for bit)"
-             + (f"; {late} moment(s) came after the run had ended (tried twice, the second time within the shortest "
-                "run seen)" if late else "") + ".", "",
-             "| moment | kill at (s) | phases recorded at the kill | wake snapshot | resume | numbers | tensors | "
-             "verdict |", "|---|---|---|---|---|---|---|---|"]
+             + (f"; {late} moment(s) came after the run had ended (tried twice, the second time with half the delay)"
+                if late else "") + ".", "",
+             "| moment | placed | kill at (s) | phases recorded at the kill | wake snapshot | resume | numbers | "
+             "tensors | verdict |", "|---|---|---|---|---|---|---|---|---|"]
     for m in moments:
         done = (m.completed_at_kill[-1] + f" ({len(m.completed_at_kill)})") if m.completed_at_kill else "none"
         if not m.killed:
-            done = f"ended first ({m.ran_s:.1f} s)"
+            done = f"ended first ({m.kill_at_s:.1f} s)"
         verdict = "not killed" if not m.killed else "agrees" if m.agrees else "DIFFERS"
         resume = "-" if not m.killed else "ok" if m.resume_rc == 0 else f"exit {m.resume_rc}: {m.resume_tail}"
-        lines.append(f"| {m.index} | {m.kill_at_s} | {done} | {', '.join(m.snapshot_at_kill) or '-'} | {resume} | "
+        snapshot = ", ".join(m.snapshot_at_kill) or "-"
+        lines.append(f"| {m.index} | {m.anchor} | {m.kill_at_s} | {done} | {snapshot} | {resume} | "
                      f"{m.numbers_compared} ({len(m.number_differences)} differ) | {m.tensors_compared} "
                      f"({len(m.tensor_differences)} differ) | {verdict} |")
     for m in moments:
@@ -262,25 +308,27 @@ def main(args: list[str] | None = None) -> int:
         raise FileExistsError(f"{root} is not empty; choose a new --output_root")
     reference = root / "reference"
     logger.info("reference run: %s", " ".join(command.on(reference, resume=False)))
-    rc, reference_s = run_to_end(command, reference, root / "logs" / "reference.log", resume=False)
+    rc, timeline = run_to_end(command, reference, root / "logs" / "reference.log", resume=False)
     if rc != 0:
         raise RuntimeError(f"the reference run failed (exit {rc}): {last_line(root / 'logs' / 'reference.log')}")
-    logger.info("reference run: %s; now %d kills", format_duration(reference_s), ns.moments)
-    moments, horizon = [], reference_s
+    reference_s = timeline.end
+    logger.info("reference run: %s, %d phases; now %d kills", format_duration(reference_s), len(timeline.phases),
+                ns.moments)
+    moments = []
     for i in range(1, ns.moments + 1):
-        for name in (f"moment_{i:02d}", f"moment_{i:02d}_again"):
-            seconds = horizon * i / (ns.moments + 1)
-            moment = run_moment(command, root, reference, i, seconds, name)
+        after, base, delay = timeline.place(reference_s * i / (ns.moments + 1))
+        for name, d in ((f"moment_{i:02d}", delay), (f"moment_{i:02d}_again", delay / 2)):
+            moment = run_moment(command, root, reference, i, (after, base, d), name)
             if moment.killed:
                 break
-            horizon = min(horizon, moment.ran_s)  # it ended first: space the kills over the shortest run seen
         moments.append(moment)
-        logger.info("moment %d/%d (kill at %.1f s, after %s): %s", i, ns.moments, seconds,
+        logger.info("moment %d/%d (%s: at %.1f s, after %s): %s", i, ns.moments, moment.anchor, moment.kill_at_s,
                     moment.completed_at_kill[-1] if moment.completed_at_kill else "no phase",
                     "not killed" if not moment.killed else "agrees" if moment.agrees else "DIFFERS")
     cpu = cpu_name()
     write_checked_json(root / "kill_resume.json", {
         "command": asdict(command), "cpu": cpu, "reference_seconds": reference_s,
+        "reference_phases_at": list(timeline.phases),
         "moments": [asdict(m) | {"agrees": m.agrees} for m in moments]})
     atomic_write_bytes(root / "kill_resume.md", render(command, reference_s, moments, cpu).encode())
     killed = [m for m in moments if m.killed]

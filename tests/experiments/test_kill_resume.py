@@ -24,6 +24,10 @@ def test_runs_killed_with_sigkill_and_resumed_agree_with_the_uninterrupted_one(t
     moments = report["moments"]
     killed = [m for m in moments if m["killed"]]
     assert len(moments) == 2 and killed  # at least one kill came while the run was running
+    # placed on the reference's phase timeline: the later kill waited for the phases the reference had by then
+    after = sum(p <= report["reference_seconds"] * 2 / 3 for p in report["reference_phases_at"])
+    assert after > 0 and moments[1]["anchor"].startswith(f"after {after} phase(s)")
+    assert not moments[1]["killed"] or len(moments[1]["completed_at_kill"]) >= after
     assert all(m["agrees"] and m["resume_rc"] == 0 for m in killed)
     assert all(m["numbers_compared"] > 0 and m["tensors_compared"] > 0 for m in killed)
     md = (root / "kill_resume.md").read_text()
@@ -56,3 +60,10 @@ def test_the_command_names_its_folder_where_it_asks_and_resumes_with_its_own_fla
     assert command.on(tmp_path / "m1", resume=False) == [
         "sr-main", f"--record.root={tmp_path}/m1_data", f"--train.output_dir={tmp_path}/m1"]
     assert command.on(tmp_path / "m1", resume=True)[-1] == "--train.resume=true"
+
+
+def test_a_reference_time_is_placed_after_the_phases_recorded_by_then():
+    timeline = kill_resume.Timeline((2.0, 5.0, 5.0, 9.0), 12.0)  # two phases recorded in the same poll at 5 s
+    assert timeline.place(1.0) == (0, 0.0, 1.0)  # before the first phase: from the start
+    assert timeline.place(6.0) == (3, 5.0, 1.0)
+    assert timeline.place(11.0) == (4, 9.0, 2.0)  # after the last phase: the final writes
