@@ -47,6 +47,7 @@ import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
+import torch
 from safetensors.torch import load_file
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
@@ -187,8 +188,6 @@ def tensor_files(run: Path) -> dict[str, Path]:
 
 def compare_tensors(reference: Path, resumed: Path) -> tuple[int, list[str]]:
     """Tensors compared, and every difference: a file only one run holds, a tensor missing or unequal."""
-    import torch  # noqa: PLC0415 - only here
-
     a, b = tensor_files(reference), tensor_files(resumed)
     differences = [f"only in the reference: {name}" for name in sorted(a.keys() - b.keys())]
     differences += [f"only in the resumed run: {name}" for name in sorted(b.keys() - a.keys())]
