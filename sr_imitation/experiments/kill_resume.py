@@ -36,7 +36,6 @@ types is not claimed here: one machine runs all of it).
 from __future__ import annotations
 
 import argparse
-import json
 import logging
 import os
 import shutil
@@ -127,12 +126,10 @@ def start(command: Command, out: Path, log: Path, resume: bool) -> subprocess.Po
         return subprocess.Popen(args, stdout=sink, stderr=subprocess.STDOUT, start_new_session=True)
 
 
-def phases_recorded(run: Path) -> int:
-    """How many phases the run's ``progress.json`` records (0 before it exists; it is replaced atomically)."""
-    try:
-        return len(json.loads((run / PROGRESS_FILE).read_text())["completed"])
-    except (OSError, ValueError, KeyError, TypeError):
-        return 0
+def recorded_phases(run: Path) -> list[str]:
+    """The phases the run's ``progress.json`` records (none before it exists; it is replaced atomically)."""
+    path = run / PROGRESS_FILE
+    return list(read_progress(path)["completed"]) if path.is_file() else []
 
 
 @dataclass(frozen=True)
@@ -155,10 +152,10 @@ def run_to_end(command: Command, out: Path, log: Path, resume: bool) -> tuple[in
     process = start(command, out, log, resume)
     times: list[float] = []
     while process.poll() is None:
-        times += [time.perf_counter() - t0] * (phases_recorded(out) - len(times))
+        times += [time.perf_counter() - t0] * (len(recorded_phases(out)) - len(times))
         time.sleep(POLL_S)
     end = time.perf_counter() - t0
-    times += [end] * (phases_recorded(out) - len(times))
+    times += [end] * (len(recorded_phases(out)) - len(times))
     return process.returncode, Timeline(tuple(times), end)
 
 
@@ -169,7 +166,7 @@ def kill_at(command: Command, out: Path, log: Path, after_phases: int, base: flo
     phases; whether it was killed (False: it ended first) and the seconds from its start."""
     t0 = time.perf_counter()
     process = start(command, out, log, resume=False)
-    while phases_recorded(out) < after_phases and process.poll() is None:
+    while len(recorded_phases(out)) < after_phases and process.poll() is None:
         time.sleep(POLL_S)
     reached = time.perf_counter() - t0
     pace = reached / base if after_phases and base > 0 else 1.0
@@ -231,9 +228,7 @@ def run_moment(command: Command, root: Path, reference: Path, index: int, place:
     if not moment.killed:  # it ended first; that run is done
         return moment
     if out.is_dir():
-        progress = out / PROGRESS_FILE
-        completed = list(read_progress(progress)["completed"]) if progress.is_file() else []
-        moment.completed_at_kill = in_order(completed)
+        moment.completed_at_kill = in_order(recorded_phases(out))
         moment.snapshot_at_kill = snapshots_in(out)
     # a kill before the run wrote its settings leaves nothing to resume: the command starts it again
     resumable = RunDirectory.occupied(out)

@@ -237,8 +237,7 @@ def wake_train(
     generators = wake_snapshot.WakeGenerators(train_loader.generator, val_loader.generator,
                                               getattr(policy, "memory_generator", None))
     identity = {"skill": data.skill, "seed": seed, "train_frames": len(data.train_indices),
-                "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs,
-                "method_hooks": None if hooks is None else hooks.method.name}
+                "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs}
     if snapshot is not None and snapshot.is_file():
         loop, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators, hooks)
         result = WakeResult(data.skill, loop.epochs, loop.best_epoch, loop.best_val_l1, loop.steps, loop.history)

@@ -37,17 +37,13 @@ from typing import Any
 import torch
 
 from sr_imitation.infra.snapshot import (
-    global_rng_state,
-    hooks_state,
-    load_snapshot,
     load_weights,
     optimizer_tensors,
     prefixed,
-    restore_global_rng,
-    restore_hooks,
+    read_snapshot,
     restore_optimizer,
+    write_snapshot,
 )
-from sr_imitation.io import save_checked_safetensors
 
 FORMAT = "sr_imitation.imitation.wake_snapshot"
 VERSION = 1
@@ -83,19 +79,15 @@ def save(path: Path, identity: dict[str, Any], record: WakeRecord, policy: torch
          generators: WakeGenerators, hooks: Any = None) -> None:
     """Write the snapshot of a wake at the end of an epoch (atomically; checked on load); ``hooks``: the method's
     resumable wake hooks, if any."""
-    tensors, rng_header = global_rng_state()
-    hook_tensors, hook_header = hooks_state(hooks)
-    tensors.update(hook_tensors)
-    tensors.update({f"policy.{n}": t for n, t in policy.state_dict().items()})
+    tensors = {f"policy.{n}": t for n, t in policy.state_dict().items()}
     tensors.update(optimizer_tensors("optimizer", optimizer))
     if best_state is not None:
         tensors.update({f"best.{n}": t for n, t in best_state.items()})
     tensors.update({f"rng.{name}": g.get_state() for name, g in generators.named().items()})
     tensors["loop.best_val_l1"] = torch.tensor(record.best_val_l1, dtype=torch.float64)  # inf before a best
-    header = {"format": FORMAT, "version": VERSION, **identity, **rng_header, **hook_header,
-              "epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps,
+    header = {"epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps,
               "history": record.history, "best_state": best_state is not None}
-    save_checked_safetensors(path, tensors, header)
+    write_snapshot(path, {"format": FORMAT, "version": VERSION, **identity}, tensors, header, hooks)
 
 
 def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimizer: torch.optim.Optimizer,
@@ -104,13 +96,11 @@ def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimize
     process's global generators); returns the loop's record and the best epoch's weights (None when the wake keeps
     its last ones). A snapshot of another wake, format or policy is a :class:`~sr_imitation.io.CorruptFileError`
     naming the file."""
-    tensors, header = load_snapshot(path, {"format": FORMAT, "version": VERSION, **identity})
+    tensors, header = read_snapshot(path, {"format": FORMAT, "version": VERSION, **identity}, hooks)
     load_weights(path, policy, prefixed(tensors, "policy."), "policy")
     restore_optimizer("optimizer", optimizer, tensors)
     for name, generator in generators.named().items():
         generator.set_state(tensors[f"rng.{name}"])
-    restore_global_rng(tensors, header)
-    restore_hooks(hooks, tensors, header)
     record = WakeRecord(epochs=int(header["epochs"]), best_epoch=int(header["best_epoch"]),
                         best_val_l1=float(tensors["loop.best_val_l1"]), steps=int(header["steps"]),
                         history=list(header["history"]))

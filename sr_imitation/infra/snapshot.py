@@ -1,10 +1,11 @@
 """What the mid-wake snapshots of both substrates share (:mod:`sr_imitation.imitation.wake_snapshot`,
-:mod:`sr_imitation.rl.wake_snapshot`): the check that a snapshot is the one of this wake, optimizer states as
-tensors, the process's global generators (torch's, CUDA's when initialized, NumPy's, Python's), and the state of a
-continual method's wake hooks where they can carry it (``WakeHooks.state``).
+:mod:`sr_imitation.rl.wake_snapshot`): the snapshot's frame (:func:`write_snapshot` / :func:`read_snapshot`: the
+identity that names the wake, checked before anything is restored; the process's global generators, torch's, CUDA's
+when initialized, NumPy's and Python's; the state of a continual method's wake hooks where they can carry it,
+``WakeHooks.state``, their method's name joining the identity), and optimizer states and weights as tensors.
 
 A snapshot is one checked safetensors file (:func:`~sr_imitation.io.save_checked_safetensors`): tensors plus a JSON
-header; the helpers here fill and read both. 0-d tensors (Adam's step, torch's scalars) are stored as they are.
+header; each substrate adds its own parts to both. 0-d tensors (Adam's step, torch's scalars) are stored as they are.
 """
 
 from __future__ import annotations
@@ -16,21 +17,39 @@ from typing import Any
 import numpy as np
 import torch
 
-from sr_imitation.io import CorruptFileError, load_checked_safetensors
+from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
 
 EVERY_S = 300.0
 """The default seconds of wall time between two snapshots of one wake (``--wake.snapshot_every_s`` of both
 substrates; our choice: a kill loses at most about five minutes of a wake)."""
 
 
-def load_snapshot(path: Path, identity: dict[str, Any]) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """Read a checked snapshot and check that its header holds ``identity`` (format, version and what names the
-    wake); another wake's snapshot is a :class:`CorruptFileError` naming the file and what differs."""
+def write_snapshot(path: Path, identity: dict[str, Any], tensors: dict[str, torch.Tensor], header: dict[str, Any],
+                   hooks: Any = None) -> None:
+    """Write a wake's snapshot atomically: the substrate's ``tensors`` and ``header`` with its ``identity`` (format,
+    version and what names the wake), the process's global generators and the state of ``hooks`` (a resumable
+    ``sr_imitation.stream.methods.base.WakeHooks``, or None)."""
+    rng_tensors, rng_header = _global_rng_state()
+    hook_tensors, hook_header = _hooks_state(hooks)
+    save_checked_safetensors(path, {**tensors, **rng_tensors, **hook_tensors},
+                             {**identity, **_hooks_identity(hooks), **header, **rng_header, **hook_header})
+
+
+def read_snapshot(path: Path, identity: dict[str, Any], hooks: Any = None
+                  ) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """Read a snapshot :func:`write_snapshot` wrote, check that it is the one of this wake (``identity`` and the
+    hooks' method), then restore the process's global generators and ``hooks``; returns its tensors and header for
+    the substrate's own parts. Another wake's snapshot is a :class:`CorruptFileError` naming the file and what
+    differs, raised before anything is restored."""
     tensors, header = load_checked_safetensors(path)
-    got = {k: header.get(k) for k in identity}
-    if got != identity:
-        raise CorruptFileError(path, f"wake snapshot of {got}, expected {identity}; remove it to redo the wake from "
+    want = {**identity, **_hooks_identity(hooks)}
+    got = {k: header.get(k) for k in want}
+    if got != want:
+        raise CorruptFileError(path, f"wake snapshot of {got}, expected {want}; remove it to redo the wake from "
                                      "its start")
+    _restore_global_rng(tensors, header)
+    if hooks is not None:
+        hooks.load_state(tensors["hooks.generator"], header["hooks"])
     return tensors, header
 
 
@@ -63,7 +82,7 @@ def restore_optimizer(name: str, optimizer: torch.optim.Optimizer, tensors: dict
     optimizer.load_state_dict(state)
 
 
-def global_rng_state() -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+def _global_rng_state() -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     """The process's global generators as tensors (``global_rng.*``) and a header entry (``global_rng``)."""
     tensors = {"global_rng.torch": torch.get_rng_state()}
     if torch.cuda.is_available() and torch.cuda.is_initialized():
@@ -77,8 +96,8 @@ def global_rng_state() -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
     return tensors, {"global_rng": header}
 
 
-def restore_global_rng(tensors: dict[str, torch.Tensor], header: dict[str, Any]) -> None:
-    """Set the process's global generators to what :func:`global_rng_state` stored."""
+def _restore_global_rng(tensors: dict[str, torch.Tensor], header: dict[str, Any]) -> None:
+    """Set the process's global generators to what :func:`_global_rng_state` stored."""
     torch.set_rng_state(tensors["global_rng.torch"])
     if "global_rng.cuda" in tensors and torch.cuda.is_available():
         torch.cuda.set_rng_state(tensors["global_rng.cuda"])
@@ -88,16 +107,15 @@ def restore_global_rng(tensors: dict[str, torch.Tensor], header: dict[str, Any])
     random.setstate((p["version"], tuple(tensors["global_rng.python"].tolist()), p["gauss"]))
 
 
-def hooks_state(hooks: Any) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """A wake's method hooks (a resumable ``sr_imitation.stream.methods.base.WakeHooks``, or None) as tensors
-    (``hooks.generator``) and a header entry (``hooks``: their update count and sums, or None)."""
+def _hooks_identity(hooks: Any) -> dict[str, Any]:
+    """The method whose hooks shaped the wake (None: no hooks): part of what names a wake."""
+    return {"method_hooks": None if hooks is None else hooks.method.name}
+
+
+def _hooks_state(hooks: Any) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+    """A wake's method hooks as tensors (``hooks.generator``) and a header entry (``hooks``: their update count and
+    sums, or None)."""
     if hooks is None:
         return {}, {"hooks": None}
     generator, record = hooks.state()
     return {"hooks.generator": generator}, {"hooks": record}
-
-
-def restore_hooks(hooks: Any, tensors: dict[str, torch.Tensor], header: dict[str, Any]) -> None:
-    """Set ``hooks`` to what :func:`hooks_state` stored (nothing for a wake without hooks)."""
-    if hooks is not None:
-        hooks.load_state(tensors["hooks.generator"], header["hooks"])

@@ -123,8 +123,7 @@ def train_skill(
         if not hooks.resumable:
             snapshot = None  # the hooks keep state of their own: such a wake, killed, starts again
     every_s = wake_cfg.snapshot_every_s  # negative: none written (one found is still continued from, then removed)
-    identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63),
-                "method_hooks": None if hooks is None else hooks.method.name}
+    identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63)}
     if snapshot is not None and snapshot.is_file():
         loop = wake_snapshot.load(snapshot, identity, agent, env, replay, holdout, rng, hooks)
         result.episodes, result.env_steps, result.updates = loop.episodes, loop.env_steps, loop.updates

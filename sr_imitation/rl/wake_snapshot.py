@@ -34,17 +34,13 @@ import numpy as np
 import torch
 
 from sr_imitation.infra.snapshot import (
-    global_rng_state,
-    hooks_state,
-    load_snapshot,
     load_weights,
     optimizer_tensors,
     prefixed,
-    restore_global_rng,
-    restore_hooks,
+    read_snapshot,
     restore_optimizer,
+    write_snapshot,
 )
-from sr_imitation.io import save_checked_safetensors
 from sr_imitation.rl.sac import ReplayBuffer, SACAgent, UpdateInfo
 
 logger = logging.getLogger(__name__)
@@ -87,10 +83,7 @@ def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, 
          replay: ReplayBuffer, holdout: ReplayBuffer, rng: np.random.Generator, hooks: Any = None) -> None:
     """Write the snapshot of a wake between two episodes (atomically; checked on load); ``hooks``: the method's
     resumable wake hooks, if any."""
-    tensors, rng_header = global_rng_state()
-    hook_tensors, hook_header = hooks_state(hooks)
-    tensors.update(hook_tensors)
-    tensors.update({f"agent.{n}": t for n, t in agent.state_dict().items()})
+    tensors = {f"agent.{n}": t for n, t in agent.state_dict().items()}
     for name in _OPTIMIZERS:  # 0-d tensors (alpha, Adam's steps) keep their shape: checked files store them as is
         tensors.update(optimizer_tensors(name, getattr(agent, name)))
     for prefix, buffer in (("replay", replay), ("holdout", holdout)):
@@ -100,20 +93,19 @@ def save(path: Path, identity: dict[str, Any], loop: WakeLoop, agent: SACAgent, 
     tensors["loop.episode_successes"] = torch.tensor(loop.episode_successes, dtype=torch.bool)
     tensors["loop.episode_starts"] = torch.tensor(loop.episode_starts, dtype=torch.int64)
     header = {
-        "format": FORMAT, "version": VERSION, **identity, **rng_header, **hook_header,
         "replay_total": replay.total, "holdout_total": holdout.total,
         "rng": rng.bit_generator.state, "env_rng": env.rng_state(),
         "env_steps": loop.env_steps, "updates": loop.updates, "update_credit": loop.update_credit,
         "info": None if loop.info is None else dataclasses.asdict(loop.info), "seconds": loop.seconds,
     }
-    save_checked_safetensors(path, tensors, header)
+    write_snapshot(path, {"format": FORMAT, "version": VERSION, **identity}, tensors, header, hooks)
 
 
 def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, replay: ReplayBuffer,
          holdout: ReplayBuffer, rng: np.random.Generator, hooks: Any = None) -> WakeLoop:
     """Restore a wake from its snapshot into freshly built ``agent``, ``env``, buffers and ``rng``; returns the
     loop's record. A snapshot of another wake, format or agent is a :class:`CorruptFileError` naming the file."""
-    tensors, header = load_snapshot(path, {"format": FORMAT, "version": VERSION, **identity})
+    tensors, header = read_snapshot(path, {"format": FORMAT, "version": VERSION, **identity}, hooks)
     load_weights(path, agent, prefixed(tensors, "agent."), "agent")
     agent.normalizer.refresh_seen()
     for name in _OPTIMIZERS:
@@ -125,8 +117,6 @@ def load(path: Path, identity: dict[str, Any], agent: SACAgent, env: SeededEnv, 
         buffer.total = int(header[f"{prefix}_total"])
     rng.bit_generator.state = header["rng"]
     env.set_rng_state(header["env_rng"])
-    restore_global_rng(tensors, header)
-    restore_hooks(hooks, tensors, header)
     info = header["info"]
     return WakeLoop(
         episode_rewards=tensors["loop.episode_rewards"].tolist(),
