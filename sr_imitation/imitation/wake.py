@@ -212,8 +212,8 @@ def wake_train(
 
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.imitation.wake_snapshot`), written at the end
     of an epoch every ``cfg.snapshot_every_s`` seconds (never if negative); a wake that finds one continues from it,
-    and removes it when it ends. Ignored with ``hooks`` that keep state of their own (``not hooks.resumable``: such a
-    wake, killed, starts again)."""
+    and removes it when it ends. Ignored with ``hooks`` that do not declare their state (``not hooks.resumable``: such
+    a wake, killed, starts again)."""
     device = policy.config.device
     accelerator = Accelerator(cpu=device == "cpu")
     processes = current()
@@ -233,7 +233,7 @@ def wake_train(
     result = WakeResult(data.skill, 0, -1, math.inf, 0)
     best_state: dict[str, torch.Tensor] | None = None
     if hooks is not None and not hooks.resumable:
-        snapshot = None  # hooks that keep state of their own: such a wake, killed, starts again
+        snapshot = None  # hooks that do not declare their state: such a wake, killed, starts again
     generators = wake_snapshot.WakeGenerators(train_loader.generator, val_loader.generator,
                                               getattr(policy, "memory_generator", None))
     identity = {"skill": data.skill, "seed": seed, "train_frames": len(data.train_indices),

@@ -13,15 +13,16 @@ on to one checked safetensors file, and a wake that finds that file continues fr
   process's global ones (torch's, CUDA's on a GPU, numpy's, Python's): dropout, ACT's VAE sampling and the loaders'
   worker seeds draw from them;
 - the loop's record: epochs done, steps, the per-epoch history, the best epoch and its validation l1;
-- a continual method's wake hooks, where they carry nothing between updates but their generator and counters
-  (``ContinualMethod.stateless_wake_hooks``: replay, EWC, LwF, M2Distill).
+- a continual method's wake hooks: their generator and counters and the method's own wake state
+  (``ContinualMethod.wake_state``; every method with wake hooks declares ``resumable_wake_hooks``).
 
 When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
 the numbers of a run never depend on it (``tests/imitation/test_wake_snapshot.py`` kills wakes inside an epoch and
 checks the resumed ones bit for bit against wakes that were never stopped). The file is removed when the wake ends.
 Only the main process writes (the processes of a launched run hold the same state); every process reads it. A wake
-shaped by hooks that keep state of their own (``stateless_wake_hooks`` False) is not snapshotted: such a wake,
-killed, starts again from its start. The SAC wake's counterpart is :mod:`sr_imitation.rl.wake_snapshot`.
+shaped by hooks that do not declare their state (``resumable_wake_hooks`` False, a new method's default) is not
+snapshotted: such a wake, killed, starts again from its start. The SAC wake's counterpart is
+:mod:`sr_imitation.rl.wake_snapshot`.
 
 Size, measured on the state-only Meta-World preset (AMD EPYC, one core): 8 MB written in 0.05 s at its default width
 (0.68 M parameters: weights and AdamW's two moments), 32 MB in 0.2 s at the test preset's ``--policy.dim_model=256``

@@ -49,7 +49,7 @@ def read_snapshot(path: Path, identity: dict[str, Any], hooks: Any = None
                                      "its start")
     _restore_global_rng(tensors, header)
     if hooks is not None:
-        hooks.load_state(tensors["hooks.generator"], header["hooks"])
+        hooks.load_state(prefixed(tensors, "hooks."), header["hooks"])
     return tensors, header
 
 
@@ -113,9 +113,9 @@ def _hooks_identity(hooks: Any) -> dict[str, Any]:
 
 
 def _hooks_state(hooks: Any) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
-    """A wake's method hooks as tensors (``hooks.generator``) and a header entry (``hooks``: their update count and
-    sums, or None)."""
+    """A wake's method hooks as tensors (``hooks.generator``, ``hooks.method.<name>``: the method's own) and a header
+    entry (``hooks``: their update count, sums and the method's record, or None)."""
     if hooks is None:
         return {}, {"hooks": None}
-    generator, record = hooks.state()
-    return {"hooks.generator": generator}, {"hooks": record}
+    tensors, record = hooks.state()
+    return {f"hooks.{n}": t for n, t in tensors.items()}, {"hooks": record}

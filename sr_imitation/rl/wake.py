@@ -100,7 +100,7 @@ def train_skill(
     ``snapshot``: where the wake keeps its snapshot (:mod:`sr_imitation.rl.wake_snapshot`), written at an episode
     boundary every ``wake_cfg.snapshot_every_s`` seconds (never if negative); a wake
     that finds one continues from it with identical results, and removes it when it ends. Not used with wake hooks
-    that keep state of their own (``not hooks.resumable``).
+    that do not declare their state (``not hooks.resumable``).
     """
     t0 = time.perf_counter()
     rng = np.random.default_rng(seed)
@@ -121,7 +121,7 @@ def train_skill(
         hooks = WakeHooks(method, skill_index, agent.actor_parameters(), agent.policy_fn, seed,
                           quiet=lambda: activity_recording_off(agent.actor))
         if not hooks.resumable:
-            snapshot = None  # the hooks keep state of their own: such a wake, killed, starts again
+            snapshot = None  # hooks that do not declare their state: such a wake, killed, starts again
     every_s = wake_cfg.snapshot_every_s  # negative: none written (one found is still continued from, then removed)
     identity = {"skill": env.skill, "skill_index": skill_index, "seed": seed % (2**63)}
     if snapshot is not None and snapshot.is_file():

@@ -110,7 +110,7 @@ def test_a_stream_wake_killed_inside_an_epoch_resumes_bit_for_bit(never_stopped,
 
 def test_a_replay_wake_killed_inside_resumes_bit_for_bit_with_its_hooks(state_datasets, tmp_path, monkeypatch):
     """Experience replay's wake hooks draw the replayed frames from their own generator at every update: it travels
-    with the snapshot (``stateless_wake_hooks``), so the resumed wake replays the same frames."""
+    with the snapshot (``resumable_wake_hooks``), so the resumed wake replays the same frames."""
     expected = train_stream(_config(state_datasets, tmp_path / "whole", SKILLS[:2], "replay", every_s=-1.0),
                             fake_env_factory)
     out = tmp_path / "killed"

@@ -32,6 +32,7 @@ class L2Anchor(ContinualMethod):
     """A quadratic pull toward the previous skill's wake weights in every wake update."""
 
     name = "l2_anchor"
+    resumable_wake_hooks = True  # the anchor is fixed in begin_wake: nothing carried from one update to the next
     config: ClassVar[L2AnchorConfig] = L2AnchorConfig()
 
     def begin_wake(self, k: int, memories: Sequence[Memory], substrate: Substrate) -> None:

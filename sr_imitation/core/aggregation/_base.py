@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -58,6 +58,15 @@ class Aggregator(ABC):
 
     def reset(self) -> None:  # noqa: B027 - optional hook, stateless aggregators need nothing
         """Forget any warm-start state (call between sleep phases of different runs)."""
+
+    def state(self) -> dict[str, Any]:
+        """What the aggregator carries from one call to the next (a warm start, a generator), as JSON values:
+        :meth:`load_state` on an aggregator built with the same settings makes its next calls return what this
+        one's would. Default: nothing (stateless)."""
+        return {}
+
+    def load_state(self, state: dict[str, Any]) -> None:  # noqa: B027 - optional hook, stateless: nothing to load
+        """Restore what :meth:`state` returned."""
 
     def __repr__(self) -> str:
         return f"{type(self).__name__}(eps={self.eps:g})"

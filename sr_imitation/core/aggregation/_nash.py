@@ -60,6 +60,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 from operator import mul
+from typing import Any
 
 import numpy as np
 
@@ -305,6 +306,14 @@ class NashAggregator(Aggregator):
 
     def reset(self) -> None:
         self._alpha_prev = None
+
+    def state(self) -> dict[str, Any]:
+        """The warm start: the previous call's alpha (None before the first call or after :meth:`reset`)."""
+        return {"alpha_prev": None if self._alpha_prev is None else self._alpha_prev.tolist()}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        prev = state["alpha_prev"]
+        self._alpha_prev = None if prev is None else np.asarray(prev, dtype=np.float64)
 
     def _start(self, k: int, active: np.ndarray) -> np.ndarray | None:
         prev = self._alpha_prev

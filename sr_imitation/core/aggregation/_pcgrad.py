@@ -8,6 +8,8 @@ normalized Gram matrix (O(k^3)), as in torchjd's ``PCGradWeighting``.
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from sr_imitation.core.aggregation._base import Aggregation, Aggregator
@@ -41,6 +43,13 @@ class PCGradAggregator(Aggregator):
 
     def reset(self) -> None:
         self._rng = np.random.default_rng(self.seed)
+
+    def state(self) -> dict[str, Any]:
+        """The projection-order generator's state."""
+        return {"rng": self._rng.bit_generator.state}
+
+    def load_state(self, state: dict[str, Any]) -> None:
+        self._rng.bit_generator.state = state["rng"]
 
     def __call__(self, gram: np.ndarray) -> Aggregation:
         gram = as_gram(gram)

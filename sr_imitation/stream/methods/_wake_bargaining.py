@@ -9,8 +9,9 @@ offline sleep; these methods never sleep. ``batch_size`` (64, the sleep's) is ou
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
-from typing import ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -31,6 +32,7 @@ class WakeBargaining(ContinualMethod):
 
     substrates = frozenset({"sac"})  # the MT5 comparison's: the past skills' gradients are of frozen-critic surrogates
     stores_memories = True
+    resumable_wake_hooks = True  # the aggregator's warm start or generator is the wake state (wake_state)
     config: ClassVar[WakeBargainingConfig] = WakeBargainingConfig()
 
     def aggregator(self) -> Aggregator:
@@ -39,6 +41,13 @@ class WakeBargaining(ContinualMethod):
     def begin_wake(self, k, memories, substrate) -> None:  # noqa: ANN001 - the base's signature
         super().begin_wake(k, memories, substrate)
         self._aggregator = self.aggregator()
+
+    def wake_state(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """The aggregator's state (:meth:`~sr_imitation.core.aggregation.Aggregator.state`)."""
+        return {}, {"aggregator": self._aggregator.state()}
+
+    def load_wake_state(self, tensors: Mapping[str, torch.Tensor], record: Mapping[str, Any]) -> None:
+        self._aggregator.load_state(record["aggregator"])
 
     def sleeps_after(self, skill_number: int) -> bool:
         return False

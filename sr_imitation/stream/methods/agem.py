@@ -13,6 +13,7 @@ A non-conflicting gradient is left unchanged. ``batch_size`` (64, the sleep's) i
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -50,11 +51,19 @@ class AGEM(ContinualMethod):
     name = "agem"
     substrates = frozenset({"sac"})  # the MT5 comparison's: its reference gradient is of frozen-critic surrogates
     stores_memories = True
+    resumable_wake_hooks = True  # the reference gradient is the wake state (wake_state)
     config: ClassVar[AGEMConfig] = AGEMConfig()
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
         self._reference: torch.Tensor | None = None
+
+    def wake_state(self) -> tuple[dict[str, torch.Tensor], dict[str, Any]]:
+        """The reference gradient g_ref in use until its next recomputation (none before the first)."""
+        return ({} if self._reference is None else {"reference": self._reference}), {}
+
+    def load_wake_state(self, tensors: Mapping[str, torch.Tensor], record: Mapping[str, Any]) -> None:
+        self._reference = tensors.get("reference")
 
     def adjust_gradients(self, step: WakeStep) -> dict[str, float]:
         if not self.memories:
@@ -63,7 +72,7 @@ class AGEM(ContinualMethod):
             loss = summed_objective(self.memories, step.policy, self.config.batch_size, step.generator)
             self._reference = flat_grad(loss, step.parameters)
         g = current_grad(step.parameters)
-        projected, conflicted = agem_project(g, self._reference)
+        projected, conflicted = agem_project(g, self._reference.to(g.device))  # a snapshot's is on the CPU
         if conflicted:
             set_grad(step.parameters, projected)
         return {"agem_projected": float(conflicted)}

@@ -97,17 +97,23 @@ class WakeHooks:
 
     @property
     def resumable(self) -> bool:
-        """Whether a mid-wake snapshot can carry these hooks (:attr:`ContinualMethod.stateless_wake_hooks`)."""
-        return self.method.stateless_wake_hooks
+        """Whether a mid-wake snapshot can carry these hooks (:attr:`ContinualMethod.resumable_wake_hooks`)."""
+        return self.method.resumable_wake_hooks
 
-    def state(self) -> tuple[Tensor, dict[str, Any]]:
-        """What the hooks carry between updates: the generator's state, and the update count and sums."""
-        return self.generator.get_state(), {"updates": self.updates, "sums": dict(self.sums)}
+    def state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
+        """What the hooks carry between updates, as tensors and a JSON record: the generator's state (tensor
+        ``generator``), the update count and sums, and the method's own :meth:`~ContinualMethod.wake_state`
+        (tensors ``method.<name>``, record ``method``)."""
+        method_tensors, method_record = self.method.wake_state()
+        tensors = {"generator": self.generator.get_state(), **{f"method.{n}": t for n, t in method_tensors.items()}}
+        return tensors, {"updates": self.updates, "sums": dict(self.sums), "method": method_record}
 
-    def load_state(self, generator: Tensor, record: Mapping[str, Any]) -> None:
-        """Restore what :meth:`state` returned."""
-        self.generator.set_state(generator)
+    def load_state(self, tensors: Mapping[str, Tensor], record: Mapping[str, Any]) -> None:
+        """Restore what :meth:`state` returned (after the method's :meth:`~ContinualMethod.begin_wake`)."""
+        self.generator.set_state(tensors["generator"])
         self.updates, self.sums = int(record["updates"]), dict(record["sums"])
+        self.method.load_wake_state({n.removeprefix("method."): t for n, t in tensors.items()
+                                     if n.startswith("method.")}, record.get("method", {}))
 
     def summary(self) -> dict[str, float]:
         """The mean over updates of every number :meth:`~ContinualMethod.adjust_gradients` returned."""
@@ -145,11 +151,12 @@ class ContinualMethod:
     stores_memories: ClassVar[bool] = False
     memory_name: ClassVar[str] = "memory"
     """The file name a method's own memory kind is saved under (``memory``: the substrate's, SR's M_k)."""
-    stateless_wake_hooks: ClassVar[bool] = False
-    """True when the wake hooks carry nothing from one update to the next (what they sample comes from
-    :attr:`WakeStep.generator`; what they hold is fixed in :meth:`begin_wake`): a mid-wake snapshot then keeps
-    :class:`WakeHooks`' own state and a killed wake continues from it. False (the default, and the right answer for a
-    method that keeps e.g. a reference gradient or a solver's warm start): such a wake, killed, starts again."""
+    resumable_wake_hooks: ClassVar[bool] = False
+    """True when everything the wake hooks carry from one update to the next is either :class:`WakeHooks`' own
+    (:attr:`WakeStep.generator`, counters) or in :meth:`wake_state` (A-GEM's reference gradient, a wake solver's warm
+    start or generator); what they hold fixed is set in :meth:`begin_wake`. A mid-wake snapshot then keeps that
+    state and a killed wake continues from it. False (the default, the safe answer for a method whose state is not
+    declared): such a wake, killed, starts again from its start, with the same numbers."""
 
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
@@ -180,6 +187,15 @@ class ContinualMethod:
         """Change ``p.grad`` of ``step.parameters`` after the backward pass, before the optimizer step; returns
         numbers to log. Default: nothing."""
         return {}
+
+    def wake_state(self) -> tuple[dict[str, Tensor], dict[str, Any]]:
+        """What the wake hooks carry from one update to the next beyond :class:`WakeHooks`' generator and counters,
+        as tensors and a JSON record; a mid-wake snapshot stores it (with :attr:`resumable_wake_hooks`). Default:
+        nothing."""
+        return {}, {}
+
+    def load_wake_state(self, tensors: Mapping[str, Tensor], record: Mapping[str, Any]) -> None:
+        """Restore what :meth:`wake_state` returned, after :meth:`begin_wake` of the same stage. Default: nothing."""
 
     WAKE_HOOKS: ClassVar[tuple[str, ...]] = WAKE_HOOKS
 

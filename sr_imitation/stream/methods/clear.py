@@ -68,7 +68,7 @@ class CLEAR(ContinualMethod):
     """Replay of earlier skills' transitions in every update, with behaviour cloning toward the stored policy."""
 
     name = "clear"
-    stateless_wake_hooks = True  # nothing carried from one update to the next
+    resumable_wake_hooks = True  # nothing carried from one update to the next
     requires = (GaussianActor, StoredTransitions)
     stores_memories = True
     memory_name = "clear"

@@ -54,7 +54,7 @@ class DER(ContinualMethod):
     """Dark experience replay: keep the actor's Gaussian outputs on stored states close to what they were."""
 
     name = "der"
-    stateless_wake_hooks = True  # nothing carried from one update to the next
+    resumable_wake_hooks = True  # nothing carried from one update to the next
     requires = (GaussianActor,)
     stores_memories = True
     memory_name = "der"

@@ -97,7 +97,7 @@ class EWC(ContinualMethod):
     """Elastic weight consolidation: a Fisher-weighted pull toward every earlier skill's parameters in each wake."""
 
     name = "ewc"
-    stateless_wake_hooks = True  # nothing carried from one update to the next
+    resumable_wake_hooks = True  # nothing carried from one update to the next
     requires = (LikelihoodPolicy,)
     stores_memories = True
     memory_name = "ewc"

@@ -37,7 +37,7 @@ class LwF(ContinualMethod):
     """Output distillation from the policy as it was before this skill's wake, on this skill's observations."""
 
     name = "lwf"
-    stateless_wake_hooks = True  # nothing carried from one update to the next
+    resumable_wake_hooks = True  # nothing carried from one update to the next
     requires: ClassVar[tuple[type, ...]] = (PolicySnapshots,)
     config: ClassVar[LwFConfig] = LwFConfig()
 

@@ -96,7 +96,7 @@ class ExperienceReplay(ContinualMethod):
     """Behaviour cloning on stored demonstration frames of earlier skills, mixed into every wake batch."""
 
     name = "replay"
-    stateless_wake_hooks = True  # nothing carried from one update to the next
+    resumable_wake_hooks = True  # nothing carried from one update to the next
     requires = (StoredDemonstrations,)
     stores_memories = True
     memory_name = "replay"
