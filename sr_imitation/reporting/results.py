@@ -212,15 +212,28 @@ def _cell(x: float | None, digits: int = 2) -> str:
     return "-" if x is None else f"{x:.{digits}f}"
 
 
+def episodes_per_cell(results: Mapping[str, Any]) -> int | None:
+    """The episodes one success cell of a run pools (episodes per evaluation unit x units); None when not recorded."""
+    episodes = ((results.get("config") or {}).get("eval") or {}).get("episodes")
+    if not isinstance(episodes, int) or episodes < 1 or not results.get("eval_units"):
+        return None
+    return episodes * int(results["eval_units"])
+
+
+def binomial_se_bound(n: int) -> float:
+    """The largest binomial SE of a success rate over ``n`` episodes: sqrt(p (1 - p) / n) at p = 0.5."""
+    return math.sqrt(0.25 / n)
+
+
 def _binomial_note(results: Mapping[str, Any]) -> list[str]:
     """The evaluation noise of one success cell: a rate over N episodes has binomial SE sqrt(p (1 - p) / N), at most
     sqrt(0.25 / N); the SE over a few evaluation units printed beside the metrics understates it."""
-    episodes = ((results.get("config") or {}).get("eval") or {}).get("episodes")
-    if not isinstance(episodes, int) or episodes < 1 or not results.get("eval_units"):
+    n = episodes_per_cell(results)
+    if n is None:
         return []
-    n = episodes * int(results["eval_units"])
+    episodes = n // int(results["eval_units"])
     return [f"A success cell pools {n} episodes ({episodes} per evaluation unit): its binomial SE is up to "
-            f"{math.sqrt(0.25 / n):.3f} (at 0.5 success); the SE over evaluation units understates that noise."]
+            f"{binomial_se_bound(n):.3f} (at 0.5 success); the SE over evaluation units understates that noise."]
 
 
 def render_markdown(results: Mapping[str, Any]) -> str:

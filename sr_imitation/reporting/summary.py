@@ -27,7 +27,14 @@ import numpy as np
 
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.reporting.results import LOSS_METRICS, METRICS, final_loss, load_results
+from sr_imitation.reporting.results import (
+    LOSS_METRICS,
+    METRICS,
+    binomial_se_bound,
+    episodes_per_cell,
+    final_loss,
+    load_results,
+)
 from sr_imitation.stream.rundir import read_progress
 
 SHORT = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
@@ -111,6 +118,7 @@ def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: s
             "final_success": {s: mean_sem_dict(last[:, i].tolist()) for i, s in enumerate(own)},
             "success_after_own_wake": {s: mean_sem_dict(wake[:, i].tolist()) for i, s in enumerate(own)},
             "memory_bytes_total": mean_sem_dict([r["memory_bytes_total"] for r in runs]),
+            "episodes_per_cell": sorted({n for n in map(episodes_per_cell, runs) if n is not None}),
             # None: the run predates per-kind memory accounting (results.json without "memory_kinds")
             "memory_kinds": None if runs[0].get("memory_kinds") is None else dict(runs[0]["memory_kinds"]),
             # what each kind holds, in words (results.json since session 27; older runs: LEGACY_MEMORY_CONTENTS)
@@ -245,7 +253,25 @@ def render_markdown(summary: Mapping[str, Any], sections: Mapping[str, Sequence[
         for v, row in variants.items():
             lines.append(f"| {v} | " + " | ".join(_fmt(row[key][s]) if s in row[key] else "-" for s in skills)
                          + " |")
+    lines += _binomial_lines(variants)
     return "\n".join(lines) + "\n"
+
+
+def _binomial_lines(variants: Mapping[str, Any]) -> list[str]:
+    """The evaluation noise inside one seed's per-skill success rate (binomial, at the episodes it pools), and what
+    the SE over training seeds holds; nothing when no run recorded its episode count."""
+    counts: dict[tuple[int, ...], list[str]] = {}
+    for v, row in variants.items():
+        if row.get("episodes_per_cell"):
+            counts.setdefault(tuple(row["episodes_per_cell"]), []).append(v)
+    if not counts:
+        return []
+    parts = [f"{' or '.join(map(str, n))} episodes (binomial SE up to "
+             f"{' / '.join(f'{binomial_se_bound(x):.3f}' for x in n)} at 0.5 success)"
+             + ("" if len(counts) == 1 else f": {', '.join(names)}") for n, names in counts.items()]
+    return ["", "Evaluation noise: one seed's success on one skill is a rate over " + "; ".join(parts) + ". The SE "
+            "over training seeds in these tables includes that noise and the variation between training seeds; the "
+            "per-run SE over evaluation units (results.md) understates it."]
 
 
 def _colors(names: Sequence[str], baseline: str | None) -> dict[str, Any]:

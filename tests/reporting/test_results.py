@@ -277,3 +277,17 @@ def test_results_md_states_the_binomial_noise_of_a_success_cell():
     md = render_markdown(_results())  # config: 5 episodes per unit, two units: 10 episodes per cell
     assert "A success cell pools 10 episodes (5 per evaluation unit): its binomial SE is up to 0.158" in md
     assert "pools" not in render_markdown(_results(config={}))  # unknown episode count: nothing claimed
+
+
+def test_summary_states_the_binomial_noise_of_one_seed_s_per_skill_success(tmp_path):
+    runs = [_write_run(tmp_path, f"sr{s}", _results(seed=s)) for s in (0, 1)]
+    runs += [_write_run(tmp_path, "wo0", _results(seed=0, sleep=False, config={"eval": {"episodes": 50}}))]
+    summary = summarize(group_runs(runs))
+    assert summary["variants"]["sr"]["episodes_per_cell"] == [10]  # 5 episodes x 2 evaluation units
+    md = render_markdown_summary(summary)
+    assert "a rate over 10 episodes (binomial SE up to 0.158 at 0.5 success): sr" in md
+    assert "100 episodes (binomial SE up to 0.050 at 0.5 success): wake_only" in md
+    alone = render_markdown_summary(summarize(group_runs(runs[:2])))
+    assert "a rate over 10 episodes (binomial SE up to 0.158 at 0.5 success). The SE" in alone
+    unknown = render_markdown_summary(summarize(group_runs([_write_run(tmp_path, "u", _results(config={}))])))
+    assert "Evaluation noise" not in unknown  # unknown episode count: nothing claimed
