@@ -52,16 +52,7 @@ class SnapshottingToy(ToySubstrate):
             load_weights(path, self.policy, prefixed(tensors, "policy."), "policy")
             start = header["update"]
         for update in range(start, self.wake_steps):
-            x = torch.randn(32, 4)
-            batch = hooks.batch({"obs": x, "y": x @ self.maps[k]})
-            loss = (self.policy(batch["obs"]) - batch["y"]).pow(2).sum(1).mean()
-            for m in memories:
-                loss = loss + distill_weight * m.objective(self.policy_fn, 16)
-            loss = hooks.loss(loss)
-            opt.zero_grad()
-            loss.backward()
-            hooks.adjust()
-            opt.step()
+            loss = self.wake_update(k, memories, distill_weight, opt, hooks)
             if self.kill_at == (k, update):
                 weights = {f"policy.{n}": t for n, t in self.policy.state_dict().items()}
                 write_snapshot(path, identity, weights, {"update": update + 1}, hooks if self.load_hooks else None)

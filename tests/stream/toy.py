@@ -100,17 +100,23 @@ class ToySubstrate:
         opt = torch.optim.SGD(self.policy.parameters(), lr=0.05)
         hooks = WakeHooks(method, k, self.policy_parameters(), self.policy_fn, self.phase_seed)
         for _ in range(self.wake_steps):
-            x = torch.randn(32, 4)
-            batch = hooks.batch({"obs": x, "y": x @ self.maps[k]})
-            loss = (self.policy(batch["obs"]) - batch["y"]).pow(2).sum(1).mean()
-            for m in memories:
-                loss = loss + distill_weight * m.objective(self.policy_fn, 16)
-            loss = hooks.loss(loss)
-            opt.zero_grad()
-            loss.backward()
-            hooks.adjust()
-            opt.step()
+            loss = self.wake_update(k, memories, distill_weight, opt, hooks)
         return {"loss": loss.item(), **hooks.summary()}, {"wake_history.json": {"final_loss": loss.item()}}
+
+    def wake_update(self, k: int, memories: Sequence[Memory], distill_weight: float, opt: torch.optim.Optimizer,
+                    hooks: WakeHooks) -> torch.Tensor:
+        """One wake update on a fresh batch of skill k, shaped by the method's hooks; returns its loss."""
+        x = torch.randn(32, 4)
+        batch = hooks.batch({"obs": x, "y": x @ self.maps[k]})
+        loss = (self.policy(batch["obs"]) - batch["y"]).pow(2).sum(1).mean()
+        for m in memories:
+            loss = loss + distill_weight * m.objective(self.policy_fn, 16)
+        loss = hooks.loss(loss)
+        opt.zero_grad()
+        loss.backward()
+        hooks.adjust()
+        opt.step()
+        return loss
 
     def make_memory(self, k: int) -> Memory:
         self.calls.append(("memory", k))
