@@ -51,8 +51,8 @@ from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.rundir import point_last
 
 __all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "MemoryConfig", "StreamConfig", "ACTTrainer",
-           "TrainStreamConfig", "check_evaluation_envs", "inputs_check", "resume_fingerprint", "seed_everything",
-           "stage_name", "stored_config_dict", "stream_inputs", "train_stream"]
+           "TrainStreamConfig", "check_evaluation_envs", "check_skill_names", "inputs_check", "resume_fingerprint",
+           "seed_everything", "stage_name", "stored_config_dict", "stream_inputs", "train_stream"]
 
 logger = logging.getLogger(__name__)
 
@@ -68,6 +68,7 @@ class ACTTrainer(StreamRun):
                  after_phase: Callable[[int, str], None] | None = None) -> None:
         substrate = ACTSubstrate(cfg, make_env)
         check_method(cfg.method, substrate)  # before the datasets are read for their digests
+        check_skill_names(cfg, make_env is not None)  # a misspelled skill: named, not reported as a missing dataset
         inputs = stream_inputs(cfg)
         stored = stored_config_dict(cfg)
         super().__init__(cfg, substrate, fingerprint=resume_fingerprint(cfg, inputs), stored_config=stored,
@@ -82,9 +83,11 @@ class ACTTrainer(StreamRun):
         return self.substrate.policy
 
     def preflight(self) -> None:
-        """Before anything is trained or written: the datasets, the evaluation environments, the hub."""
+        """Before anything is trained or written: the datasets, the evaluation environments, the hub (the skills'
+        names were checked when the run was built, before the datasets were read)."""
+        custom_env = self.substrate._make_env is not None
         _, inputs, outputs = check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)
-        check_evaluation_envs(self.cfg, inputs, outputs, custom_env=self.substrate._make_env is not None)
+        check_evaluation_envs(self.cfg, inputs, outputs, custom_env=custom_env)
         check_push(self.cfg.policy)  # --policy.push_to_hub: reachable, or one line now rather than after training
 
     def run(self, stop_after: int | None = None, report: bool = True) -> dict[str, Any]:
@@ -133,6 +136,24 @@ def check_recorded_tasks(cfg: TrainStreamConfig) -> None:
                              "stream.skills, the datasets and eval.env_tasks")
 
 
+def check_skill_names(cfg: TrainStreamConfig, custom_env: bool = False) -> None:
+    """Every skill names an environment ``--eval.env`` has, checked on names alone (before any dataset is read, so a
+    misspelled skill is named as such, with a suggestion, not reported as a missing dataset): ``needle``, a needle
+    skill; ``metaworld``, a Meta-World v3 task (``eval.env_tasks`` where given). ``ValueError`` naming the key."""
+    mode, skills = cfg.eval.env, list(cfg.stream.skills)
+    if custom_env:
+        return
+    if mode == "needle":
+        unknown = [s for s in skills if s not in SURGICAI_SKILLS]
+        if unknown:
+            raise ValueError(f"stream.skills: {unknown} have no evaluation environment (the needle environment has "
+                             f"{list(SURGICAI_SKILLS)}); every skill needs a dataset and an environment: evaluate "
+                             "them with --eval.env=gym|lerobot or switch evaluation off with --eval.env=none")
+    if mode == "metaworld":
+        for index in range(len(skills)):
+            resolve_eval_env(cfg.eval, skills, index)  # one line naming the key and a close task name
+
+
 def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],
                           custom_env: bool = False) -> None:
     """Every skill resolves to its evaluation environment before the first gradient (``--eval.env``).
@@ -148,16 +169,10 @@ def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any]
     mode, skills = cfg.eval.env, list(cfg.stream.skills)
     if mode == "none" or custom_env:
         return
+    check_skill_names(cfg)
     if mode == "needle":
-        unknown = [s for s in skills if s not in SURGICAI_SKILLS]
-        if unknown:
-            raise ValueError(f"stream.skills: {unknown} have no evaluation environment (the needle environment has "
-                             f"{list(SURGICAI_SKILLS)}); every skill needs a dataset and an environment: evaluate "
-                             "them with --eval.env=gym|lerobot or switch evaluation off with --eval.env=none")
         return
     if mode == "metaworld":
-        for index in range(len(skills)):
-            resolve_eval_env(cfg.eval, skills, index)  # every task a Meta-World task first (one line each)
         check_recorded_tasks(cfg)
     images = [tuple(f.shape[:2]) if f.shape[-1] == 3 else tuple(f.shape[1:]) for key, f in input_features.items()
               if key.startswith("observation.images.")]

@@ -83,6 +83,27 @@ def test_a_skill_without_an_evaluation_environment_is_refused_before_training(st
     assert "\n" not in str(info.value) and not out.exists()
 
 
+@pytest.mark.parametrize("env, skills, message", [
+    ("metaworld", ["reach-v3", "dor-open-v3"], r"^eval.env_tasks \(null: each skill's name is its task\) \(skill "
+                                               r"'dor-open-v3'\): 'dor-open-v3' is not a Meta-World v3 task; did you "
+                                               r"mean 'door-open-v3'\?$"),
+    ("needle", ["aproach", "place"], r"^stream.skills: \['aproach'\] have no evaluation environment"),
+])
+def test_a_misspelled_skill_is_named_as_such_before_any_dataset_is_read(tmp_path, env, skills, message):
+    """With no dataset for a misspelled skill, the error names the skill (and a close task name), not a missing
+    dataset folder: the names are checked before the datasets are read (they used to be read first)."""
+    from sr_imitation.imitation.evaluate import EvalConfig
+    from sr_imitation.imitation.mt_joint import run_mt_joint
+
+    cfg = tiny_stream_config(tmp_path / "no_datasets", tmp_path / "out", skills, use_images=False)
+    cfg.eval = EvalConfig(env=env, episodes=1, seeds=[0], max_steps=3, videos_per_skill=0)
+    for run in (train_stream, run_mt_joint):
+        with pytest.raises(ValueError, match=message) as info:
+            run(cfg)
+        assert "\n" not in str(info.value) and "not a LeRobot dataset" not in str(info.value)
+        assert not cfg.output_dir.exists()
+
+
 @pytest.mark.parametrize("key, value, message", [
     ("optimizer_lr", -3e-4, "policy.optimizer_lr must be > 0, got -0.0003"),
     ("optimizer_weight_decay", -1.0, "policy.optimizer_weight_decay must be >= 0"),
