@@ -41,8 +41,8 @@ from sr_imitation.imitation.trainer import (
     SETTINGS_ADDED,
     TrainStreamConfig,
     check_evaluation_envs,
-    check_skill_names,
     inputs_check,
+    naming_misspelled_skills,
     stored_config_dict,
     stream_inputs,
 )
@@ -108,8 +108,8 @@ def joint_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = No
 
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
     """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
-    check_skill_names(cfg, make_env is not None)  # a misspelled skill: named with a suggestion, not a missing dataset
-    _, input_features, output_features = check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before writing
+    with naming_misspelled_skills(cfg, make_env is not None):
+        _, input_features, output_features = check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before writing
     check_evaluation_envs(cfg, input_features, output_features, custom_env=make_env is not None)
     stored = joint_stored_config(cfg)
     inputs = stream_inputs(cfg)

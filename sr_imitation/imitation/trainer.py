@@ -16,10 +16,11 @@ recorded phases at the end.
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import logging
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Any
 
@@ -35,7 +36,7 @@ from sr_imitation.imitation.config import (
     stored_config_dict,
     stream_inputs,
 )
-from sr_imitation.imitation.data import check_stream_datasets
+from sr_imitation.imitation.data import DatasetMismatchError, check_stream_datasets
 from sr_imitation.imitation.evaluate import (
     EnvFactory,
     check_env_features,
@@ -51,8 +52,9 @@ from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.rundir import point_last
 
 __all__ = ["RESUME_ALLOW_LIST", "SETTINGS_ADDED", "MemoryConfig", "StreamConfig", "ACTTrainer",
-           "TrainStreamConfig", "check_evaluation_envs", "check_skill_names", "inputs_check", "resume_fingerprint",
-           "seed_everything", "stage_name", "stored_config_dict", "stream_inputs", "train_stream"]
+           "TrainStreamConfig", "check_evaluation_envs", "check_skill_names", "inputs_check",
+           "naming_misspelled_skills", "resume_fingerprint", "seed_everything", "stage_name", "stored_config_dict",
+           "stream_inputs", "train_stream"]
 
 logger = logging.getLogger(__name__)
 
@@ -68,8 +70,8 @@ class ACTTrainer(StreamRun):
                  after_phase: Callable[[int, str], None] | None = None) -> None:
         substrate = ACTSubstrate(cfg, make_env)
         check_method(cfg.method, substrate)  # before the datasets are read for their digests
-        check_skill_names(cfg, make_env is not None)  # a misspelled skill: named, not reported as a missing dataset
-        inputs = stream_inputs(cfg)
+        with naming_misspelled_skills(cfg, make_env is not None):
+            inputs = stream_inputs(cfg)
         stored = stored_config_dict(cfg)
         super().__init__(cfg, substrate, fingerprint=resume_fingerprint(cfg, inputs), stored_config=stored,
                          check_inputs=inputs_check(cfg, inputs), after_phase=after_phase,
@@ -137,9 +139,8 @@ def check_recorded_tasks(cfg: TrainStreamConfig) -> None:
 
 
 def check_skill_names(cfg: TrainStreamConfig, custom_env: bool = False) -> None:
-    """Every skill names an environment ``--eval.env`` has, checked on names alone (before any dataset is read, so a
-    misspelled skill is named as such, with a suggestion, not reported as a missing dataset): ``needle``, a needle
-    skill; ``metaworld``, a Meta-World v3 task (``eval.env_tasks`` where given). ``ValueError`` naming the key."""
+    """Every skill names an environment ``--eval.env`` has, checked on names alone: ``needle``, a needle skill;
+    ``metaworld``, a Meta-World v3 task (``eval.env_tasks`` where given). ``ValueError`` naming the key."""
     mode, skills = cfg.eval.env, list(cfg.stream.skills)
     if custom_env:
         return
@@ -152,6 +153,19 @@ def check_skill_names(cfg: TrainStreamConfig, custom_env: bool = False) -> None:
     if mode == "metaworld":
         for index in range(len(skills)):
             resolve_eval_env(cfg.eval, skills, index)  # one line naming the key and a close task name
+
+
+@contextlib.contextmanager
+def naming_misspelled_skills(cfg: TrainStreamConfig, custom_env: bool = False) -> Iterator[None]:
+    """Around reading the datasets: one that cannot be read for a skill that names no environment of ``--eval.env``
+    (a misspelling: ``dor-open-v3``) is reported as that, the key with a close name suggested
+    (:func:`check_skill_names`), not as a missing dataset folder. Only then: a resume with a changed setting is still
+    refused by the settings check first."""
+    try:
+        yield
+    except DatasetMismatchError:
+        check_skill_names(cfg, custom_env)
+        raise
 
 
 def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],
