@@ -21,6 +21,7 @@ flock "$queue.lock" bash -c '
     echo "# the first $unfinished were taken by a worker and not finished (they resume where they stopped). To continue:"
     echo "#   grep -v \"^#\" tools/experiments/queue_pending.txt > outputs/queue.txt; rm -f outputs/queue.txt.taken"
     echo "#   nohup setsid bash tools/experiments/queue_worker.sh $commit outputs/queue.txt outputs/qlogs > /dev/null 2>&1 &  # x2"
+    echo "# each finished run (its driver archived it): bash tools/experiments/queue_archive.sh <archive> <prefix> <run> <message>"
     cat "$out.lines"
   } > "$out.tmp"
   rm -f "$out.lines"; mv "$out.tmp" "$out"
