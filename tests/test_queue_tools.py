@@ -21,3 +21,37 @@ def test_the_snapshot_keeps_unfinished_taken_lines_first_then_the_queue(tmp_path
     assert "the first 2 were taken" in lines[1] and "queue_worker.sh f00ba47" in lines[3]
     assert "4 line(s), 2 unfinished" in out
     assert queue.read_text().startswith("c -m x")  # the queue itself is left as it was
+
+
+def test_archiving_a_run_commits_it_with_the_queue_s_record_of_it(tmp_path):
+    """queue_archive.sh in a throwaway clone: the run folder and queue_log.txt (header kept, the .done file's lines
+    of the prefix merged, sorted, unique) in one commit of exactly those paths; a run not archived is one line."""
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
+
+    git("init", "-q")
+    git("config", "user.email", "t@t"), git("config", "user.name", "t")
+    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    script = tmp_path / "tools" / "experiments" / "queue_archive.sh"
+    script.write_text((TOOLS / "queue_archive.sh").read_text())
+    archive = tmp_path / "docs" / "arch"
+    (archive / "sr_seed1").mkdir(parents=True)
+    (archive / "sr_seed1" / "results.json").write_text("{}")
+    (archive / "queue_log.txt").write_text("# header\nT0 start mt5_sr_0\nT1 mt5_sr_0 rc=0\n")
+    (tmp_path / "outputs").mkdir()
+    (tmp_path / "outputs" / "queue.txt.done").write_text(
+        "T1 mt5_sr_0 rc=0\nT2 start mt5_sr_1\nT2 start n1_sr_5\nT3 mt5_sr_1 rc=0\n")
+    (tmp_path / "unrelated.txt").write_text("left alone")
+    git("add", "unrelated.txt")
+    out = subprocess.run(["bash", str(script), "docs/arch", "mt5_", "sr_seed1", "archive sr 1"], capture_output=True,
+                         text=True, check=True).stdout
+    assert "archive sr 1" in out
+    assert (archive / "queue_log.txt").read_text().splitlines() == [
+        "# header", "T0 start mt5_sr_0", "T1 mt5_sr_0 rc=0", "T2 start mt5_sr_1", "T3 mt5_sr_1 rc=0"]
+    assert sorted(git("show", "--name-only", "--format=", "HEAD").split()) == [
+        "docs/arch/queue_log.txt", "docs/arch/sr_seed1/results.json"]
+    assert "unrelated.txt" in git("diff", "--cached", "--name-only")  # staged, not committed by the script
+    missing = subprocess.run(["bash", str(script), "docs/arch", "mt5_", "sr_seed9", "x"], capture_output=True,
+                             text=True)
+    assert missing.returncode == 2
+    assert missing.stderr.strip() == "queue_archive: docs/arch/sr_seed9: no such archived run"
