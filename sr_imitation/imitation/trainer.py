@@ -85,11 +85,9 @@ class ACTTrainer(StreamRun):
         return self.substrate.policy
 
     def preflight(self) -> None:
-        """Before anything is trained or written: the datasets, the evaluation environments, the hub (the skills'
-        names were checked when the run was built, before the datasets were read)."""
-        custom_env = self.substrate._make_env is not None
+        """Before anything is trained or written: the datasets, the evaluation environments, the hub."""
         _, inputs, outputs = check_stream_datasets(self.cfg.stream, self.substrate.policy_cfg.use_images)
-        check_evaluation_envs(self.cfg, inputs, outputs, custom_env=custom_env)
+        check_evaluation_envs(self.cfg, inputs, outputs, custom_env=self.substrate._make_env is not None)
         check_push(self.cfg.policy)  # --policy.push_to_hub: reachable, or one line now rather than after training
 
     def run(self, stop_after: int | None = None, report: bool = True) -> dict[str, Any]:
@@ -141,9 +139,9 @@ def check_recorded_tasks(cfg: TrainStreamConfig) -> None:
 def check_skill_names(cfg: TrainStreamConfig, custom_env: bool = False) -> None:
     """Every skill names an environment ``--eval.env`` has, checked on names alone: ``needle``, a needle skill;
     ``metaworld``, a Meta-World v3 task (``eval.env_tasks`` where given). ``ValueError`` naming the key."""
-    mode, skills = cfg.eval.env, list(cfg.stream.skills)
     if custom_env:
         return
+    mode, skills = cfg.eval.env, list(cfg.stream.skills)
     if mode == "needle":
         unknown = [s for s in skills if s not in SURGICAI_SKILLS]
         if unknown:

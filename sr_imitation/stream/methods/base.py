@@ -31,6 +31,7 @@ import torch
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
+from sr_imitation.infra.snapshot import prefixed
 from sr_imitation.stream.substrate import WAKE_HOOKS, MethodSettings, SleepProblem, Substrate
 
 
@@ -112,8 +113,7 @@ class WakeHooks:
         """Restore what :meth:`state` returned (after the method's :meth:`~ContinualMethod.begin_wake`)."""
         self.generator.set_state(tensors["generator"])
         self.updates, self.sums = int(record["updates"]), dict(record["sums"])
-        self.method.load_wake_state({n.removeprefix("method."): t for n, t in tensors.items()
-                                     if n.startswith("method.")}, record.get("method", {}))
+        self.method.load_wake_state(prefixed(dict(tensors), "method."), record.get("method", {}))
 
     def summary(self) -> dict[str, float]:
         """The mean over updates of every number :meth:`~ContinualMethod.adjust_gradients` returned."""
