@@ -6,7 +6,9 @@ Rows (median ms per call; ratios against the plain ACT step on the same batch):
 
 * plain ACT training step: forward + backward + AdamW on a batch of 8 (no memories);
 * ACT-SR wake step at k = 5 (4 earlier memories, distillation batch 8 each) with the snapshots' chunks cached in
-  the memories (what ACT-SR does) and with the 4 snapshots re-run on every step (the naive alternative);
+  the memories (what ACT-SR does) and with the 4 snapshots re-run on every step (the naive alternative); and with
+  the memories in groups of one, one student forward each, as the stream had them before 2026-11-27 (each memory
+  names its own checkpoint, which split the grouping: :mod:`sr_imitation.benchmarks.sleep_joint_forward`);
   the floor is the BC step plus one forward+backward of the student on the 32 distillation observations;
 * one sleep iteration over k = 5 memories (batch 8 each) against 5 forward+backward passes of the student.
 """
@@ -23,6 +25,7 @@ from lerobot.configs.types import FeatureType, PolicyFeature
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
+from sr_imitation.benchmarks.sleep_joint_forward import GroupsOfOne
 from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.memory import summed_objective
 from sr_imitation.core.sleep import sleep_consolidate
@@ -68,7 +71,8 @@ def main() -> None:
             for p in snap.parameters():
                 p.add_(0.01 * (i + 1) * torch.randn_like(p))
         snap.requires_grad_(False)
-    memories = [ActorMemory.from_observations(f"s{i}", snap.memory_chunk, _observations(256, args.image_size, i))
+    memories = [ActorMemory.from_observations(f"s{i}", snap.memory_chunk, _observations(256, args.image_size, i),
+                                              snapshot=f"skill_{i + 1}/wake")  # as the stream names them
                 for i, snap in enumerate(snapshots)]
     g = torch.Generator().manual_seed(0)
     batch = {k: v.float() / 255.0 if v.dtype == torch.uint8 else v
@@ -114,6 +118,8 @@ def main() -> None:
     floor = median_ms(floor_step, args.repeats)
     policy.set_wake_memories(memories, weight=0.5)
     cached = median_ms(train_step, args.repeats)
+    policy.set_wake_memories([GroupsOfOne(m.skill, dict(m.tensors), dict(m.config)) for m in memories], weight=0.5)
+    ungrouped = median_ms(train_step, args.repeats)
     policy.set_wake_memories([], 0.0)
     recomputed = median_ms(recomputing_step, args.repeats)
 
@@ -145,6 +151,8 @@ def main() -> None:
     print(f"| ACT-SR wake step, k = {K}, cached snapshot chunks | {cached:.1f} | {cached / plain:.2f} |")
     print(f"| ACT-SR wake step, k = {K}, snapshots recomputed each step | {recomputed:.1f} | "
           f"{recomputed / plain:.2f} |")
+    print(f"| ACT-SR wake step, k = {K}, cached, memories in groups of one (before 2026-11-27) | {ungrouped:.1f} | "
+          f"{ungrouped / plain:.2f} |")
     print(f"\n| sleep | ms | ratio |\n|---|---|---|\n| {K} x (fwd+bwd) of the student, batch {BATCH} | "
           f"{passes:.1f} | 1.00 |\n| one sleep iteration, k = {K} | {sleep_ms:.1f} | {sleep_ms / passes:.2f} |")
 

@@ -123,12 +123,15 @@ def bench_act_wake(device: torch.device, vision: bool, repeats: int) -> float:
     return timed_ms(step, repeats, device)
 
 
-def bench_act_sleep(device: torch.device, repeats: int, vision: bool = False, joint_forward: bool = False) -> float:
-    """One ACT-SR sleep iteration over K memories of 1024 observations (mean over ``repeats`` + 3 iterations).
+def bench_act_sleep(device: torch.device, repeats: int, vision: bool = False, joint_forward: bool = False,
+                    k: int = K, batch: int = 8, memory_class: type[ActorMemory] = ActorMemory) -> float:
+    """One ACT-SR sleep iteration over ``k`` memories of 1024 observations, ``batch`` from each (mean over
+    ``repeats`` + 3 iterations). Each memory names its own checkpoint (``skill_<i>/wake``), as the stream's do.
 
     ``vision``: the vision preset's policy and memories (64x64 uint8 wrist images, as the memories store them);
-    ``joint_forward``: :class:`~sr_imitation.core.sleep.SleepConfig`'s one forward over the K batches and one backward
-    batched over the K losses (same values up to float order)."""
+    ``joint_forward``: :class:`~sr_imitation.core.sleep.SleepConfig`'s one forward over the k batches and one backward
+    batched over the k losses (same values up to float order); ``memory_class``: the memories' class (a subclass
+    changes how they group, :mod:`sr_imitation.benchmarks.sleep_joint_forward`)."""
     torch.manual_seed(0)
     policy = act_policy(device, vision=vision)
     policy.eval()
@@ -143,17 +146,19 @@ def bench_act_sleep(device: torch.device, repeats: int, vision: bool = False, jo
     policy.set_observation_normalizer(to_device)
     g = torch.Generator().manual_seed(1)
     memories = []
-    for i in range(K):
+    for i in range(k):
         obs = {"observation.state": torch.randn(1024, STATE_DIM, generator=g)}
         if vision:
             obs["observation.images.wrist"] = torch.randint(0, 256, (1024, 3, 64, 64), generator=g, dtype=torch.uint8)
-        memories.append(ActorMemory.from_observations(f"skill{i}", policy.memory_chunk, obs))
+        memories.append(memory_class.from_observations(f"skill{i}", policy.memory_chunk, obs,
+                                                       snapshot=f"skill_{i + 1}/wake"))
         with torch.no_grad():
             for p in policy.parameters():
                 p.add_(0.01 * torch.randn_like(p))
     params = [p for p in policy.parameters() if p.requires_grad]
     anchor = [p.detach().clone() for p in params]
-    cfg = SurgicAISleepConfig(max_iterations=repeats + 3, early_stop_tol=0.0, joint_forward=joint_forward)
+    cfg = SurgicAISleepConfig(max_iterations=repeats + 3, early_stop_tol=0.0, joint_forward=joint_forward,
+                              batch_size=batch)
     t0 = synchronized_clock(device)
     result = sleep_consolidate(params, policy.memory_chunk, memories, cfg, anchor_params=anchor, progress=False)
     return 1e3 * (synchronized_clock(device) - t0) / result.stop_iteration

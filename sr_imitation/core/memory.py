@@ -80,6 +80,9 @@ class Memory(ABC):
     buffer_keys: ClassVar[tuple[str, ...]] = ()
     contents: ClassVar[str] = ""
     """What the memory holds, in words (the memory-budget tables)."""
+    provenance_keys: ClassVar[tuple[str, ...]] = ()
+    """Config keys that only record where the memory came from (a snapshot's name) and leave its objective unchanged:
+    memories that differ only there are evaluated in one policy call (:func:`per_memory_losses`)."""
 
     def __init__(self, skill: str, tensors: Mapping[str, Tensor], config: Mapping[str, Any] | None = None):
         if not skill:
@@ -190,7 +193,9 @@ def summed_objective(
 
 
 def _group_key(memory: Memory) -> tuple[type, str]:
-    return type(memory), json.dumps(dict(memory.config), sort_keys=True)
+    """Memories with equal keys share one policy call: same class, same config up to the provenance keys."""
+    config = {k: v for k, v in memory.config.items() if k not in memory.provenance_keys}
+    return type(memory), json.dumps(config, sort_keys=True)
 
 
 def per_memory_losses(memories: Sequence[Memory], policy: Any, batches: Sequence[Mapping[str, Tensor]]) -> list[Tensor]:

@@ -78,9 +78,11 @@ class SleepConfig:
     joint_forward: bool = False
     """Evaluate same-kind memories in one forward pass and take the k per-memory gradients from one backward pass
     batched over the k losses (``is_grads_batched``): fewer kernel launches (2.9x at k = 5, 1.8x at k = 3) for k times
-    the backward arithmetic. On an H200 2.9x faster at k = 5, batch 8, but not in the two-minute preset's stream
-    (k = 2-3, batch 32: up to 1.7x slower); slower on the CPU. The same values up to float summation order (our
-    choice; off by default; docs/BENCHMARKS.md)."""
+    the backward arithmetic. On an H200 a whole sleep iteration is 1.8-3.2x faster with it (state-only k = 3, batch
+    32: 15.7 vs 37.6 ms; with the camera 41.9 vs 77.6 ms); on the CPU 2-3x slower. Before 2026-11-27 the stream's
+    memories, each naming its own checkpoint, were never grouped, so this ran k forwards plus the batched backward
+    and was slower on the GPU too (``Memory.provenance_keys``). The same values up to float summation order (our
+    choice; off by default: the CPU is this project's machine; docs/BENCHMARKS.md)."""
 
     def __post_init__(self) -> None:
         checks = {  # rule text, holds

@@ -164,6 +164,41 @@ def test_memory_reduction_mean_is_the_per_element_mean_of_the_squared_chunk_diff
         ACTSRConfig(device="cpu", distill_reduction="max")
 
 
+def test_memories_of_different_skills_share_one_policy_call():
+    """The stream writes each skill's memory with its own checkpoint's name (``config["snapshot"]``); that name is
+    provenance, not part of the objective, so wake distillation (``summed_objective``) and the sleep's
+    ``joint_forward`` evaluate all the memories in ONE forward pass, with the same losses as one pass each. Before
+    2026-11-27 the name split them into groups of one: every pass stayed separate (the GPU finding in
+    docs/BENCHMARKS.md). A memory with another reduction is a different objective and keeps its own call."""
+    from sr_imitation.core.memory import per_memory_losses
+
+    policy = ACTSRPolicy(_features(tiny_policy()))
+    policy.set_observation_normalizer(lambda raw: {k: (v.float() / 255 if v.dtype == torch.uint8 else v)
+                                                   for k, v in raw.items()})
+    memories = [ActorMemory.from_observations(
+        skill, policy.memory_chunk, {k: v for k, v in _batch(12, seed=i).items() if k.startswith("observation")},
+        snapshot=f"skill_{i + 1}_{skill}/wake") for i, skill in enumerate(["approach", "place", "insert"])]
+    with torch.no_grad():
+        for p in policy.model.action_head.parameters():
+            p.add_(0.1)
+    calls = []
+
+    def counted(obs):
+        calls.append(len(next(iter(obs.values()))))
+        return policy.memory_chunk(obs)
+
+    gen = torch.Generator().manual_seed(0)
+    batches = [m.sample(8, gen) for m in memories]
+    joint = per_memory_losses(memories, counted, batches)
+    assert calls == [24]  # one call on the three batches together
+    separate = [m.loss(policy.memory_chunk, b) for m, b in zip(memories, batches, strict=True)]
+    torch.testing.assert_close(torch.stack(joint), torch.stack(separate), rtol=1e-5, atol=1e-7)
+    other = ActorMemory(memories[2].skill, dict(memories[2].tensors), {**memories[2].config, "reduction": "sum"})
+    calls.clear()
+    per_memory_losses([*memories[:2], other], counted, batches)
+    assert sorted(calls) == [8, 16]
+
+
 def test_memories_need_a_normalizer_and_non_finite_losses_fail_loudly():
     policy = ACTSRPolicy(_features(tiny_policy()))
     with pytest.raises(RuntimeError, match="normalizer"):

@@ -44,6 +44,7 @@ class ActorMemory(OutputDistillationMemory):
 
     kind = "act_actor"
     contents = "observations (state; wrist images as uint8) + the actor's action chunks on them"
+    provenance_keys = ("snapshot",)  # each skill's memory names its own checkpoint; the objective is the same
 
     @classmethod
     def from_observations(
