@@ -64,6 +64,25 @@ def run(state_datasets, tmp_path_factory) -> tuple[Path, SurgicAISleepConfig]:
     return out, cfg.sleep
 
 
+def test_the_runs_memories_are_evaluated_in_one_policy_call(run):
+    """The memories sr-train writes each name their own checkpoint; that name must not split them: wake distillation
+    and the sleep's joint forward evaluate them all in one forward pass (before 2026-11-27 it took one pass each)."""
+    from sr_imitation.core.memory import per_memory_losses
+
+    out, _ = run
+    memories = [load_memory(p) for p in _memories(out, 3)]
+    assert len({m.config["snapshot"] for m in memories}) == 3
+    calls = []
+
+    def counted(obs):
+        calls.append(len(next(iter(obs.values()))))
+        return torch.zeros(calls[-1], *memories[0].tensors["target"].shape[1:])
+
+    gen = torch.Generator().manual_seed(0)
+    per_memory_losses(memories, counted, [m.sample(4, gen) for m in memories])
+    assert calls == [12]
+
+
 def _same_weights(a: Path, b: Path) -> bool:
     x, y = load_file(str(a / "model.safetensors")), load_file(str(b / "model.safetensors"))
     return x.keys() == y.keys() and all(torch.equal(x[n], y[n]) for n in x)
