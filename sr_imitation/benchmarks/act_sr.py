@@ -2,6 +2,8 @@
 
     python -m sr_imitation.benchmarks.act_sr [--image_size 64] [--dim_model 256] [--repeats 10]
 
+``--image_size 0``: the state-only policy (the state also as the environment state, as the state presets feed it).
+
 Rows (median ms per call; ratios against the plain ACT step on the same batch):
 
 * plain ACT training step: forward + backward + AdamW on a batch of 8 (no memories);
@@ -36,11 +38,13 @@ STATE_DIM, ACTION_DIM, BATCH, K = 35, 7, 8, 5
 
 def _policy(image_size: int, dim_model: int) -> ACTSRPolicy:
     cfg = ACTSRConfig(device="cpu", dim_model=dim_model, n_heads=8, dim_feedforward=4 * dim_model,
-                      n_encoder_layers=2, n_vae_encoder_layers=2, chunk_size=16, n_action_steps=16)
-    cfg.input_features = {
-        "observation.images.wrist": PolicyFeature(FeatureType.VISUAL, (3, image_size, image_size)),
-        "observation.state": PolicyFeature(FeatureType.STATE, (STATE_DIM,)),
-    }
+                      n_encoder_layers=2, n_vae_encoder_layers=2, chunk_size=16, n_action_steps=16,
+                      use_images=image_size > 0)
+    cfg.input_features = {"observation.state": PolicyFeature(FeatureType.STATE, (STATE_DIM,))}
+    if image_size:
+        cfg.input_features["observation.images.wrist"] = PolicyFeature(FeatureType.VISUAL, (3, image_size, image_size))
+    else:
+        cfg.input_features["observation.environment_state"] = PolicyFeature(FeatureType.ENV, (STATE_DIM,))
     cfg.output_features = {"action": PolicyFeature(FeatureType.ACTION, (ACTION_DIM,))}
     policy = ACTSRPolicy(cfg)
     policy.set_observation_normalizer(
@@ -50,6 +54,9 @@ def _policy(image_size: int, dim_model: int) -> ACTSRPolicy:
 
 def _observations(n: int, image_size: int, seed: int) -> dict[str, torch.Tensor]:
     g = torch.Generator().manual_seed(seed)
+    if not image_size:
+        state = torch.randn(n, STATE_DIM, generator=g)
+        return {"observation.state": state, "observation.environment_state": state.clone()}
     return {"observation.images.wrist": torch.randint(0, 255, (n, 3, image_size, image_size), generator=g,
                                                       dtype=torch.uint8),
             "observation.state": torch.randn(n, STATE_DIM, generator=g)}
@@ -140,7 +147,8 @@ def main() -> None:
     _ = summed_objective  # the cached wake step uses it inside ACTSRPolicy.forward
 
     n_params = sum(p.numel() for p in params)
-    print(f"# ACT-SR benchmark: {args.image_size}x{args.image_size} wrist images, dim_model {args.dim_model}, "
+    inputs = f"{args.image_size}x{args.image_size} wrist images" if args.image_size else "state only"
+    print(f"# ACT-SR benchmark: {inputs}, dim_model {args.dim_model}, "
           f"{n_params / 1e6:.1f}M parameters, batch {BATCH}, torch {torch.__version__}, {args.threads} threads, "
           f"{platform.machine()}\n")
     print("| step | ms | ratio to plain ACT step |")
