@@ -29,7 +29,6 @@ from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.benchmarks.sleep_joint_forward import GroupsOfOne
 from sr_imitation.benchmarks.timing import median_ms
-from sr_imitation.core.memory import summed_objective
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.imitation.config import SurgicAISleepConfig
 
@@ -144,7 +143,6 @@ def main() -> None:
     sleep_consolidate(params, policy.memory_chunk, all_memories, sleep_cfg, anchor_params=[p.detach().clone()
                       for p in params], progress=False)
     sleep_ms = 1e3 * (time.perf_counter() - t0) / args.repeats
-    _ = summed_objective  # the cached wake step uses it inside ACTSRPolicy.forward
 
     n_params = sum(p.numel() for p in params)
     inputs = f"{args.image_size}x{args.image_size} wrist images" if args.image_size else "state only"

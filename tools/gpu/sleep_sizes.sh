@@ -2,9 +2,7 @@
 # Whole sleep iterations on CUDA with and without --sleep.joint_forward, memories as the stream writes them, before
 # and after ActorMemory.provenance_keys (python -m sr_imitation.benchmarks.sleep_joint_forward; docs/BENCHMARKS.md):
 # at the stream's sizes (k = 2 and 3 memories, batch 32, state-only; k = 3, batch 32, with the camera) and at the
-# device benchmark's (k = 5, batch 8), one call on one GPU, nothing beside it. Carry as for tools/gpu/grads_sizes.sh:
-#   mkdir -p /tmp/whl_off && mv .whl/mujoco-* .whl/pyopengl-* .whl/glfw-* /tmp/whl_off/
-#   device run 'bash tools/gpu/sleep_sizes.sh' with carry [.whl]; then mv /tmp/whl_off/* .whl/
+# device benchmark's (k = 5, batch 8), one call on one GPU, nothing beside it. Carry as tools/gpu/grads_sizes.sh says.
 # Writes $OUT/sleep_joint_forward_cuda_<policy>_k<k>_b<batch>.txt.
 source "$(dirname "$0")/env.sh"
 for size in "state 3 32" "state 2 32" "vision 3 32" "state 5 8"; do
