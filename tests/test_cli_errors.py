@@ -4,6 +4,7 @@ written; ``--debug`` shows the traceback."""
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import pytest
 
@@ -108,6 +109,31 @@ def test_needle_presets_are_runnable_by_sr_train_and_sr_main(preset):
     train = imitation_cli.parse_train_config(preset, ["--seed=5"])
     assert train.seed == 5 and train.stream.dataset_root == main.record.root
     assert train.policy.dim_model == main.train.policy.dim_model and train.wake == main.train.wake
+
+
+def test_a_dataset_root_flag_on_a_preset_is_never_silently_dropped(capsys):
+    """``sr-train --config_path=<sr-main preset> --stream.dataset_root=X`` read the preset's ``record.root`` and
+    ignored X without a word; now the flag overrides it like any flag (both spellings). ``sr-main`` reads its datasets
+    where it records them: a ``--train.stream.dataset_root`` elsewhere is one line naming both keys."""
+    from sr_imitation.imitation.cli import parse_config
+    from sr_imitation.main_job import MainJobConfig
+
+    preset = "configs/needle_cpu_m16.json"
+    assert imitation_cli.parse_train_config(preset, []).stream.dataset_root == Path("datasets/needle_cpu")
+    for args in (["--stream.dataset_root=elsewhere"], ["--stream.dataset_root", "elsewhere"]):
+        train = imitation_cli.parse_train_config(preset, ["--seed=3", *args])
+        assert train.stream.dataset_root == Path("elsewhere") and train.seed == 3
+    main = parse_config(MainJobConfig, preset, ["--record.root=mine"])
+    assert main.train.stream.dataset_root == main.record.root == Path("mine")
+    assert parse_config(MainJobConfig, preset, ["--train.stream.dataset_root=datasets/needle_cpu"]).record.root \
+        == Path("datasets/needle_cpu")
+    from sr_imitation.main_job import main as main_job
+
+    line = _one_line_error("sr-main", main_job, [f"--config_path={preset}", "--train.stream.dataset_root=elsewhere"],
+                           capsys)
+    assert line.startswith("sr-main: error: train.stream.dataset_root: 'elsewhere', but this job reads its datasets "
+                           "where it records them (record.root: 'datasets/needle_cpu'); give the folder as "
+                           "--record.root"), line
 
 
 @pytest.mark.parametrize("text, expected", [

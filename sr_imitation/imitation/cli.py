@@ -85,12 +85,30 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     args = implied_policy_type(data.get("train") if preset else data, legacy_flags(data, args))
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
+        args, root = take_flag(args, "--stream.dataset_root")
         cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **lerobot).train
         cfg.output_dir = Path(cfg.output_dir)
+        if root is not None:  # record.root is where the preset's datasets are by default; a flag overrides it
+            cfg.stream.dataset_root = Path(root)
         return cfg
     cfg = parse_config(TrainStreamConfig, config_path, args, **lerobot)
     cfg.output_dir = output_dir_for(config_path, args, cfg.output_dir)
     return cfg
+
+
+def take_flag(args: list[str], flag: str) -> tuple[list[str], str | None]:
+    """``args`` without ``flag`` (``--flag=value`` or ``--flag value``) and its last value (None if not given)."""
+    rest, value, i = [], None, 0
+    while i < len(args):
+        arg = args[i]
+        if arg.startswith(flag + "="):
+            value = arg[len(flag) + 1 :]
+        elif arg == flag and i + 1 < len(args):
+            value, i = args[i + 1], i + 1
+        else:
+            rest.append(arg)
+        i += 1
+    return rest, value
 
 
 def legacy_flags(data: dict, args: list[str]) -> list[str]:

@@ -358,5 +358,9 @@ class MainJobConfig:
     """Also write a full-suture video of the scripted expert (expert_suture.mp4) to train.output_dir."""
 
     def __post_init__(self) -> None:
+        given = Path(self.train.stream.dataset_root)
+        if given not in (Path(StreamConfig.dataset_root), Path(self.record.root)):
+            raise ValueError(f"train.stream.dataset_root: {str(given)!r}, but this job reads its datasets where it "
+                             f"records them (record.root: {str(self.record.root)!r}); give the folder as --record.root")
         self.train.stream.dataset_root = self.record.root
         self.record.skills = list(self.train.stream.skills)

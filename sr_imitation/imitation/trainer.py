@@ -131,7 +131,7 @@ def check_recorded_tasks(cfg: TrainStreamConfig) -> None:
             continue
         recorded = read_checked_json(record)
         if recorded.get("env") == "metaworld" and recorded.get("skill") != task:
-            raise ValueError(f"{record}: skill {skills[index]!r}'s dataset was recorded on Meta-World task "
+            raise ValueError(f"{record}: the dataset of skill {skills[index]!r} was recorded on Meta-World task "
                              f"{recorded.get('skill')!r}, but it is evaluated on {task!r}; check the order of "
                              "stream.skills, the datasets and eval.env_tasks")
 
@@ -158,12 +158,31 @@ def naming_misspelled_skills(cfg: TrainStreamConfig, custom_env: bool = False) -
     """Around reading the datasets: one that cannot be read for a skill that names no environment of ``--eval.env``
     (a misspelling: ``dor-open-v3``) is reported as that, the key with a close name suggested
     (:func:`check_skill_names`), not as a missing dataset folder. Only then: a resume with a changed setting is still
-    refused by the settings check first."""
+    refused by the settings check first. A dataset folder that does not exist at all under ``--stream.dataset_root``,
+    for a skill the needle or Meta-World recorder can record, gets the ``sr-record`` command that records it."""
     try:
         yield
-    except DatasetMismatchError:
+    except DatasetMismatchError as exc:
         check_skill_names(cfg, custom_env)
-        raise
+        hint = record_hint(cfg, custom_env)
+        if hint is None:
+            raise
+        raise DatasetMismatchError(f"{exc}; {hint}") from None  # the one line shown is the innermost error
+
+
+def record_hint(cfg: TrainStreamConfig, custom_env: bool = False) -> str | None:
+    """``to record them: sr-record ...`` for the skills whose ``<dataset_root>/<skill>`` folder does not exist,
+    when ``--eval.env`` is ``needle`` or ``metaworld`` (the recorders' own environments; our choice: datasets given
+    by path or repo_id, or evaluated elsewhere, get no guess)."""
+    stream = cfg.stream
+    if custom_env or cfg.eval.env not in ("needle", "metaworld") or stream.dataset_paths or stream.repo_ids:
+        return None
+    missing = [s for s in stream.skills if not (Path(stream.dataset_root) / s).exists()]
+    if not missing:
+        return None
+    env = " --env=metaworld" if cfg.eval.env == "metaworld" else ""
+    return (f"to record them: sr-record{env} --root={stream.dataset_root} --skills=[{','.join(missing)}] "
+            f"(sr-record{env} --help: episodes, images)")
 
 
 def check_evaluation_envs(cfg: TrainStreamConfig, input_features: dict[str, Any], output_features: dict[str, Any],

@@ -176,8 +176,8 @@ def test_a_dataset_recorded_on_another_task_is_refused_naming_its_file(tmp_path_
     out = tmp_path_factory.mktemp("mw_swap_run") / "run"
     cfg = tiny_stream_config(root, out, list(TASKS), use_images=False)
     cfg.eval = EvalConfig(env="metaworld", env_tasks=list(reversed(TASKS)), episodes=1, seeds=[0], max_steps=5)
-    with pytest.raises(ValueError, match=r"reach-v3/meta/sr_record\.json: skill 'reach-v3''s dataset was recorded "
-                                         r"on Meta-World task 'reach-v3', but it is evaluated on "
+    with pytest.raises(ValueError, match=r"reach-v3/meta/sr_record\.json: the dataset of skill 'reach-v3' was "
+                                         r"recorded on Meta-World task 'reach-v3', but it is evaluated on "
                                          r"'button-press-topdown-v3'"):
         train_stream(cfg)
     assert not out.exists()

@@ -104,6 +104,52 @@ def test_a_misspelled_skill_is_named_as_such_before_any_dataset_is_read(tmp_path
         assert not cfg.output_dir.exists()
 
 
+@pytest.mark.parametrize("env, skills, present, record", [
+    ("needle", SKILLS, ["approach", "place"], "sr-record --root={root} --skills=[insert]"),
+    ("metaworld", ["reach-v3", "door-open-v3"], [], "sr-record --env=metaworld --root={root} "
+                                                    "--skills=[reach-v3,door-open-v3]"),
+])
+def test_datasets_not_recorded_yet_get_the_command_that_records_them(state_datasets, tmp_path, env, skills,
+                                                                      present, record):
+    """A skill whose dataset folder does not exist, in a stream evaluated in one of the recorders' environments:
+    the one line names the folder and the ``sr-record`` command for exactly the missing skills, for the stream and
+    the MT-Joint oracle alike; nothing is written."""
+    from sr_imitation.imitation.evaluate import EvalConfig
+    from sr_imitation.imitation.mt_joint import run_mt_joint
+
+    root = tmp_path / "d"
+    root.mkdir()
+    for skill in present:
+        shutil.copytree(state_datasets / skill, root / skill)
+    cfg = tiny_stream_config(root, tmp_path / "out", skills, use_images=False)
+    cfg.eval = EvalConfig(env=env, episodes=1, seeds=[0], max_steps=3, videos_per_skill=0)
+    first_missing = next(s for s in skills if s not in present)
+    expected = (f"{root / first_missing}: not a LeRobot dataset (missing {root / first_missing}/meta/info.json); "
+                f"to record them: {record.format(root=root)} (")
+    for run in (train_stream, run_mt_joint):
+        with pytest.raises(DatasetMismatchError) as info:
+            run(cfg)
+        assert str(info.value).startswith(expected) and "\n" not in str(info.value)
+        assert not cfg.output_dir.exists()
+
+
+def test_datasets_given_by_path_or_evaluated_elsewhere_get_no_guess(tmp_path):
+    """No ``sr-record`` hint where the recorders cannot know the data: datasets given by path, or a stream evaluated
+    in the user's own environment (``--eval.env=none`` here)."""
+    from sr_imitation.imitation.evaluate import EvalConfig
+
+    cfg = tiny_stream_config(tmp_path / "d", tmp_path / "out", SKILLS, use_images=False)
+    cfg.eval = EvalConfig(env="none")
+    with pytest.raises(DatasetMismatchError, match=r"approach: not a LeRobot dataset") as info:
+        train_stream(cfg)
+    assert "sr-record" not in str(info.value)
+    cfg = tiny_stream_config(tmp_path / "d", tmp_path / "out", SKILLS, use_images=False)
+    cfg.stream.dataset_paths = [tmp_path / "d" / s for s in SKILLS]
+    with pytest.raises(DatasetMismatchError, match=r"approach: not a LeRobot dataset") as info:
+        train_stream(cfg)
+    assert "sr-record" not in str(info.value) and not cfg.output_dir.exists()
+
+
 @pytest.mark.parametrize("key, value, message", [
     ("optimizer_lr", -3e-4, "policy.optimizer_lr must be > 0, got -0.0003"),
     ("optimizer_weight_decay", -1.0, "policy.optimizer_weight_decay must be >= 0"),
