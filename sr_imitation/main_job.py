@@ -16,7 +16,7 @@ import os
 import sys
 from pathlib import Path
 
-from sr_imitation.imitation.cli import parse_config
+from sr_imitation.imitation.cli import parse_config, parse_preset
 from sr_imitation.imitation.config import MainJobConfig
 from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
@@ -30,9 +30,11 @@ __all__ = ["MainJobConfig", "main", "preset_with_datasets", "run_main_job"]
 
 def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:
     """An sr-main preset with ``sr-train`` flags applied to its train section (``--seed=1``), its datasets recorded
-    if missing and checked if present (the experiment drivers' start)."""
-    cfg = parse_config(MainJobConfig, preset, train_flags, prefix="train.")
-    ensure_recorded(cfg.record)
+    if missing and checked if present (the experiment drivers' start); with ``--stream.dataset_root`` the stream reads
+    the user's own datasets there and nothing is recorded (each run checks them before its first gradient)."""
+    cfg, own_datasets = parse_preset(preset, train_flags)
+    if not own_datasets:
+        ensure_recorded(cfg.record)
     return cfg
 
 

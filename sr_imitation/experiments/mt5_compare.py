@@ -36,6 +36,7 @@ from typing import Any
 from sr_imitation.experiments.archive import RunKey
 from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
+from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.reporting.summary import load_groups, write_summary
 from sr_imitation.reporting.summary import summarize as summary_of
 from sr_imitation.stream.config import check_choices
@@ -189,4 +190,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli("sr_imitation.experiments.mt5_compare", main)  # user errors: one line (--debug: the traceback)

@@ -51,6 +51,7 @@ from sr_imitation.experiments.grid import main as grid_main
 from sr_imitation.imitation.cli import parse_train_config
 from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
 from sr_imitation.imitation.trainer import TrainStreamConfig, resume_fingerprint, train_stream
+from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.reporting.summary import load_groups, write_summary
 from sr_imitation.reporting.summary import summarize as summary_of
@@ -214,4 +215,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli("sr_imitation.experiments.needle_compare", main)  # user errors: one line (--debug: the traceback)

@@ -28,7 +28,7 @@ import draccus
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.trainer import ACTTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
-from sr_imitation.infra.cli_errors import setup_logging
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
 from sr_imitation.io import write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
@@ -133,4 +133,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli("sr_imitation.experiments.sleep_replay", main)  # user errors: one line (--debug: the traceback)

@@ -27,7 +27,7 @@ from sr_imitation.imitation.config import LEGACY_DEFAULTS, MainJobConfig
 from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory
 from sr_imitation.imitation.trainer import TrainStreamConfig, train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
-from sr_imitation.infra.cli_parsing import parse_command, wants_help
+from sr_imitation.infra.cli_parsing import parse_command, take_flag, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
 from sr_imitation.io import MANIFEST, verify_manifest, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
@@ -85,30 +85,23 @@ def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamC
     args = implied_policy_type(data.get("train") if preset else data, legacy_flags(data, args))
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
-        args, root = take_flag(args, "--stream.dataset_root")
-        cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **lerobot).train
+        cfg = parse_preset(config_path, args, **lerobot)[0].train
         cfg.output_dir = Path(cfg.output_dir)
-        if root is not None:  # record.root is where the preset's datasets are by default; a flag overrides it
-            cfg.stream.dataset_root = Path(root)
         return cfg
     cfg = parse_config(TrainStreamConfig, config_path, args, **lerobot)
     cfg.output_dir = output_dir_for(config_path, args, cfg.output_dir)
     return cfg
 
 
-def take_flag(args: list[str], flag: str) -> tuple[list[str], str | None]:
-    """``args`` without ``flag`` (``--flag=value`` or ``--flag value``) and its last value (None if not given)."""
-    rest, value, i = [], None, 0
-    while i < len(args):
-        arg = args[i]
-        if arg.startswith(flag + "="):
-            value = arg[len(flag) + 1 :]
-        elif arg == flag and i + 1 < len(args):
-            value, i = args[i + 1], i + 1
-        else:
-            rest.append(arg)
-        i += 1
-    return rest, value
+def parse_preset(config_path: str | Path, args: list[str], **names: Any) -> tuple[MainJobConfig, bool]:
+    """An ``sr-main`` preset with ``sr-train`` flags applied to its train section (``--seed=1``), and whether the
+    stream reads datasets of the user's own: ``--stream.dataset_root`` names where they are, instead of the preset's
+    ``record.root`` (where the preset records them; never dropped silently)."""
+    args, root = take_flag(list(args), "--stream.dataset_root")
+    cfg = parse_config(MainJobConfig, config_path, args, prefix="train.", **names)
+    if root is not None:
+        cfg.train.stream.dataset_root = Path(root)
+    return cfg, root is not None
 
 
 def legacy_flags(data: dict, args: list[str]) -> list[str]:

@@ -143,6 +143,21 @@ def apply_flag_names(args: Sequence[str], known: Sequence[str], names: Mapping[s
     return out
 
 
+def take_flag(args: list[str], flag: str) -> tuple[list[str], str | None]:
+    """``args`` without ``flag`` (``--flag=value`` or ``--flag value``) and its last value (None if not given)."""
+    rest, value, i = [], None, 0
+    while i < len(args):
+        arg = args[i]
+        if arg.startswith(flag + "="):
+            value = arg[len(flag) + 1 :]
+        elif arg == flag and i + 1 < len(args):
+            value, i = args[i + 1], i + 1
+        else:
+            rest.append(arg)
+        i += 1
+    return rest, value
+
+
 def check_flags_known(args: Sequence[str], known: Sequence[str]) -> None:
     """A :class:`UsageError` naming the first flag of ``args`` that is not in ``known``, with the nearest ones."""
     known_set = set(known)
