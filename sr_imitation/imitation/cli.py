@@ -11,9 +11,13 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import json
+import logging
 import os
+import shutil
 import sys
+import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -32,6 +36,8 @@ from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
 from sr_imitation.io import MANIFEST, verify_manifest, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
+
+logger = logging.getLogger(__name__)
 
 
 @contextlib.contextmanager
@@ -187,17 +193,22 @@ class PolicyPath:
 
 @dataclass
 class EvalCommandConfig:
-    """``sr-eval`` configuration (``--eval.env`` as for ``sr-train``: needle, gym or lerobot; one entry of
-    ``--eval.gym_ids`` / ``--eval.env_tasks`` per skill)."""
+    """``sr-eval`` configuration (``--eval.env`` as for ``sr-train``: needle, metaworld, gym or lerobot; one entry of
+    ``--eval.gym_ids`` / ``--eval.env_tasks`` per skill). A checkpoint that ``sr-train`` wrote carries its run's
+    ``train_config.json``: its stream's skills and evaluation settings are then the defaults (flags override them)."""
 
     policy: PolicyPath = field(default_factory=PolicyPath)
     """The checkpoint to evaluate (--policy.path)."""
     skills: list[str] = field(default_factory=lambda: list(SURGICAI_SKILLS))
-    """Skills to evaluate, in the policy's stream order (default - the five needle skills)."""
+    """Skills to evaluate, in the policy's stream order (default: the checkpoint's stream, else the five needle
+    skills)."""
     eval: EvalConfig = field(default_factory=EvalConfig)
-    """Where and how each skill is evaluated (the same settings as sr-train's --eval.*)."""
+    """Where and how each skill is evaluated (the same settings as sr-train's --eval.*; default: the checkpoint's
+    run's)."""
     output_dir: Path = Path("outputs/eval")
     """Where eval.json and the videos are written."""
+    overwrite: bool = False
+    """Replace the eval.json and videos/ of an earlier sr-eval in output_dir (refused otherwise, before evaluating)."""
     device: str = "cpu"
     """Torch device of the policy (cpu, cuda or mps)."""
     progress: bool = True
@@ -209,6 +220,47 @@ class EvalCommandConfig:
         self.eval.check_skills(self.skills)
 
 
+@contextlib.contextmanager
+def checkpoint_defaults(args: list[str]) -> Iterator[Path | None]:
+    """A config file for :class:`EvalCommandConfig` holding the skills and ``eval`` settings of the run that wrote the
+    ``--policy.path`` checkpoint (its ``train_config.json``, checked against its seal), or None for a checkpoint
+    without one (stock ``lerobot-train`` writes LeRobot's own, which has no stream). Settings this version does not
+    know are left out; the file lives in a temporary folder while the command line is parsed."""
+    _, given = take_flag(list(args), "--policy.path")
+    stored = None if given is None else Path(given) / "train_config.json"
+    if stored is None or not stored.is_file():
+        yield None
+        return
+    from sr_imitation.io import read_config_json
+
+    config, _ = read_config_json(stored)
+    stream, evaluation = config.get("stream"), config.get("eval")
+    if not isinstance(stream, dict) or not isinstance(evaluation, dict) or "skills" not in stream:
+        yield None
+        return
+    known = {f.name for f in dataclasses.fields(EvalConfig)}
+    defaults = {"skills": list(stream["skills"]), "eval": {k: v for k, v in evaluation.items() if k in known}}
+    logger.info("sr-eval: skills %s and evaluation settings (env %s) from %s; flags override them",
+                defaults["skills"], defaults["eval"].get("env"), stored)
+    with tempfile.TemporaryDirectory(prefix="sr-eval-") as folder:
+        path = Path(folder) / "checkpoint_eval.json"
+        path.write_text(json.dumps(defaults))
+        yield path
+
+
+def check_eval_output(cfg: EvalCommandConfig) -> None:
+    """``FileExistsError`` naming ``output_dir/eval.json`` when an earlier evaluation is there and ``--overwrite`` is
+    not given; with it, that evaluation's eval.json and videos/ are removed (nothing else in the folder)."""
+    earlier = cfg.output_dir / "eval.json"
+    if not earlier.exists():
+        return
+    if not cfg.overwrite:
+        raise FileExistsError(f"{earlier}: an earlier evaluation is there; give another --output_dir, or "
+                              "--overwrite=true to replace it")
+    earlier.unlink()
+    shutil.rmtree(cfg.output_dir / "videos", ignore_errors=True)
+
+
 def eval_main(args: list[str] | None = None) -> None:
     """``sr-eval``: evaluate any ACT-SR (or ACT) checkpoint on a set of skills (needle skills by default, or the
     environments ``--eval.env`` names), with videos."""
@@ -217,11 +269,12 @@ def eval_main(args: list[str] | None = None) -> None:
     from lerobot.policies.factory import get_policy_class, make_pre_post_processors
 
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=config_path,
-                        names=LEROBOT_EVAL_FLAGS)
+    with checkpoint_defaults(rest) if config_path is None else contextlib.nullcontext(config_path) as defaults:
+        cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=defaults, names=LEROBOT_EVAL_FLAGS)
     path = Path(cfg.policy.path)
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
+    check_eval_output(cfg)
     if (path.parent / MANIFEST).is_file():  # an sr-train stage or sr-sleep checkpoint: sealed, checked before use
         verify_manifest(path.parent)
     policy_cfg = PreTrainedConfig.from_pretrained(path)

@@ -267,6 +267,29 @@ def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
         eval_main([f"--policy.path={copy / 'pretrained_model'}", f"--output_dir={tmp_path / 'x'}"])
 
 
+def test_sr_eval_takes_a_run_s_skills_and_settings_and_never_replaces_an_evaluation_unasked(main_job_run, tmp_path):
+    """A checkpoint that sr-train wrote is evaluated on its own stream's skills with its run's evaluation settings
+    (it used to default to the five needle skills: a Meta-World checkpoint failed on 'approach'), a flag overriding
+    one of them; a second evaluation into the same folder is refused before evaluating, unless --overwrite=true."""
+    from sr_imitation.imitation.cli import eval_main
+
+    tmp, _ = main_job_run
+    checkpoint = tmp / "run" / "last" / "pretrained_model"
+    out = tmp_path / "own"
+    args = [f"--policy.path={checkpoint}", "--eval.seeds=[3,4]", "--progress=false", f"--output_dir={out}"]
+    eval_main(args)
+    record = json.loads((out / "eval.json").read_text())["results"]
+    assert list(record) == ["approach", "place"]  # the run's stream, not the five needle skills
+    assert all(len(r["success_per_seed"]) == 2 for r in record.values())  # the flag over the run's seeds [0]
+    assert len(list((out / "videos").glob("*.mp4"))) == 2  # the run's videos_per_skill (1 per skill)
+    before = (out / "eval.json").read_bytes()
+    with pytest.raises(FileExistsError, match=r"own/eval.json: an earlier evaluation is there"):
+        eval_main([*args, "--eval.videos_per_skill=0"])
+    assert (out / "eval.json").read_bytes() == before and len(list((out / "videos").glob("*.mp4"))) == 2
+    eval_main([*args, "--eval.videos_per_skill=0", "--overwrite=true"])
+    assert not (out / "videos").exists() or not list((out / "videos").glob("*.mp4"))  # the old videos went too
+
+
 def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, monkeypatch):
     from sr_imitation.experiments import needle_compare
     from sr_imitation.experiments.needle_compare import CompareConfig, run_compare
