@@ -15,7 +15,6 @@ import dataclasses
 import json
 import logging
 import os
-import shutil
 import sys
 import tempfile
 from collections.abc import Iterator
@@ -208,7 +207,8 @@ class EvalCommandConfig:
     output_dir: Path = Path("outputs/eval")
     """Where eval.json and the videos are written."""
     overwrite: bool = False
-    """Replace the eval.json and videos/ of an earlier sr-eval in output_dir (refused otherwise, before evaluating)."""
+    """Replace an earlier sr-eval's eval.json in output_dir and the videos it lists (refused otherwise, before
+    evaluating)."""
     device: str = "cpu"
     """Torch device of the policy (cpu, cuda or mps)."""
     progress: bool = True
@@ -250,15 +250,23 @@ def checkpoint_defaults(args: list[str]) -> Iterator[Path | None]:
 
 def check_eval_output(cfg: EvalCommandConfig) -> None:
     """``FileExistsError`` naming ``output_dir/eval.json`` when an earlier evaluation is there and ``--overwrite`` is
-    not given; with it, that evaluation's eval.json and videos/ are removed (nothing else in the folder)."""
+    not given; with it, that evaluation's eval.json and the videos it lists are removed (nothing else)."""
+    from sr_imitation.io import read_checked_json
+
     earlier = cfg.output_dir / "eval.json"
     if not earlier.exists():
         return
     if not cfg.overwrite:
         raise FileExistsError(f"{earlier}: an earlier evaluation is there; give another --output_dir, or "
                               "--overwrite=true to replace it")
+    videos = cfg.output_dir / "videos"
+    for result in read_checked_json(earlier)["results"].values():
+        for video in map(Path, result.get("videos", [])):
+            if video.parent.resolve() == videos.resolve():
+                video.unlink(missing_ok=True)
     earlier.unlink()
-    shutil.rmtree(cfg.output_dir / "videos", ignore_errors=True)
+    if videos.is_dir() and not any(videos.iterdir()):
+        videos.rmdir()
 
 
 def eval_main(args: list[str] | None = None) -> None:

@@ -111,6 +111,7 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
+from sr_imitation.stream.rundir import OverwriteRefusedError
 
 logger = logging.getLogger(__name__)
 
@@ -217,7 +218,7 @@ class OfflineSleepConfig:
     output_dir: Path = Path("outputs/sleep")
     """Where the consolidated checkpoint and the tables go (refused if it exists, unless --overwrite=true)."""
     overwrite: bool = False
-    """Replace an existing output_dir (only once the new one is complete)."""
+    """Replace an existing output_dir (only once the new one is complete; only an earlier sr-sleep output)."""
     progress: bool = True
     """Console progress bars."""
     torch_threads: int | None = None
@@ -542,6 +543,27 @@ def _inside(path: Path, directory: Path) -> bool:
     return path == directory or directory in path.parents
 
 
+SLEEP_OUTPUT_ENTRIES = ("pretrained_model", RESULTS_FILE, REPORT_FILE, DIAGNOSTICS_FILE, "videos", MANIFEST)
+"""What an ``sr-sleep`` output directory holds (module docstring): ``--overwrite=true`` replaces only such a
+directory."""
+
+
+def sleep_output_problem(out: Path) -> str | None:
+    """Why the occupied ``out`` is not an earlier ``sr-sleep`` output that ``--overwrite=true`` may replace (None if
+    it is): it is not a directory, holds no ``sleep.json``, or holds an entry sr-sleep never writes (a user's folder
+    given as output_dir by mistake is never removed)."""
+    if not out.is_dir() or out.is_symlink():
+        return "not a directory"
+    names = sorted(p.name for p in out.iterdir())
+    if RESULTS_FILE not in names:
+        return f"it holds no {RESULTS_FILE}, so it is not an sr-sleep output"
+    foreign = [n for n in names if n not in SLEEP_OUTPUT_ENTRIES]
+    if foreign:
+        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
+        return f"it holds {shown}, which sr-sleep does not write"
+    return None
+
+
 def check_inputs(cfg: OfflineSleepConfig, custom_env: bool = False) -> SleepInputs:
     """Load and check every input of the sleep (see the module docstring); raises one-line errors naming the file."""
     out = cfg.output_dir
@@ -549,8 +571,13 @@ def check_inputs(cfg: OfflineSleepConfig, custom_env: bool = False) -> SleepInpu
     for path in inputs:
         if _inside(Path(path), out):
             raise ValueError(f"output_dir {out} holds the input {path}; choose another output_dir")
-    if out.exists() and (not out.is_dir() or any(out.iterdir())) and not cfg.overwrite:
-        raise FileExistsError(f"{out} already exists; pass --overwrite=true to replace it")
+    if out.exists() and (not out.is_dir() or any(out.iterdir())):
+        if not cfg.overwrite:
+            raise FileExistsError(f"{out} already exists; pass --overwrite=true to replace it")
+        problem = sleep_output_problem(out)
+        if problem is not None:
+            raise OverwriteRefusedError(f"{out}: --overwrite=true refused: {problem}; remove or move it yourself, or "
+                                        "choose another output_dir (nothing was removed)")
     if cfg.eval.skills and not custom_env:
         check_eval_envs(cfg.eval)
     loaded = load_policy(Path(cfg.policy.path), cfg.policy.device)

@@ -270,7 +270,8 @@ def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
 def test_sr_eval_takes_a_run_s_skills_and_settings_and_never_replaces_an_evaluation_unasked(main_job_run, tmp_path):
     """A checkpoint that sr-train wrote is evaluated on its own stream's skills with its run's evaluation settings
     (it used to default to the five needle skills: a Meta-World checkpoint failed on 'approach'), a flag overriding
-    one of them; a second evaluation into the same folder is refused before evaluating, unless --overwrite=true."""
+    one of them; a second evaluation into the same folder is refused before evaluating, unless --overwrite=true (which
+    removes that evaluation's files only)."""
     from sr_imitation.imitation.cli import eval_main
 
     tmp, _ = main_job_run
@@ -286,8 +287,9 @@ def test_sr_eval_takes_a_run_s_skills_and_settings_and_never_replaces_an_evaluat
     with pytest.raises(FileExistsError, match=r"own/eval.json: an earlier evaluation is there"):
         eval_main([*args, "--eval.videos_per_skill=0"])
     assert (out / "eval.json").read_bytes() == before and len(list((out / "videos").glob("*.mp4"))) == 2
+    (out / "videos" / "mine.txt").write_text("kept")  # not the evaluation's: --overwrite=true leaves it
     eval_main([*args, "--eval.videos_per_skill=0", "--overwrite=true"])
-    assert not (out / "videos").exists() or not list((out / "videos").glob("*.mp4"))  # the old videos went too
+    assert not list((out / "videos").glob("*.mp4")) and (out / "videos" / "mine.txt").read_text() == "kept"
 
 
 def test_needle_compare_summarizes_variants_over_seeds(main_job_run, tmp_path, monkeypatch):

@@ -160,6 +160,18 @@ def test_sr_sleep_lowers_the_summed_memory_loss_and_writes_a_checkpoint_lerobot_
         sleep_main(args)
     assert sleep_main([*args, "--overwrite=true"])["sleep"]["stop_iteration"] == 2
     assert read_checked_json(target / "sleep.json")["sleep"]["stop_iteration"] == 2
+    # --overwrite=true never removes what sr-sleep did not write: a user's folder, or an output with a file added.
+    mine = tmp_path / "my_project"
+    mine.mkdir()
+    (mine / "notes.txt").write_text("precious")
+    (target / "analysis.ipynb").write_text("{}")
+    for folder, why in ((mine, "it holds no sleep.json, so it is not an sr-sleep output"),
+                        (target, "it holds analysis.ipynb, which sr-sleep does not write")):
+        args[2] = f"--output_dir={folder}"
+        with pytest.raises(ValueError, match=rf"{folder}: --overwrite=true refused: {why}; .*nothing was removed"):
+            sleep_main([*args, "--overwrite=true"])
+    assert (mine / "notes.txt").read_text() == "precious" and (target / "analysis.ipynb").is_file()
+    verify_manifest(target)  # the earlier output untouched
 
 
 def test_success_before_and_after_where_an_environment_is_given(run, tmp_path):
