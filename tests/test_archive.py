@@ -69,3 +69,8 @@ def test_archiving_copies_the_report_files_and_replaces_an_older_copy(tmp_path):
     with pytest.raises(FileNotFoundError, match="has not finished"):
         archive_run(_run(tmp_path / "runs" / "sr_seed1", finished=False), tmp_path / "archive", "sr_seed1")
     assert not (tmp_path / "archive" / "sr_seed1").exists()
+    # A folder of that name holding anything an archived run does not is never replaced.
+    (kept / "notes.md").write_text("mine")
+    with pytest.raises(ValueError, match=r"sr_seed0: not replaced by the archived run: it holds notes.md"):
+        archive_run(run, tmp_path / "archive", "sr_seed0")
+    assert (kept / "notes.md").read_text() == "mine" and (kept / "results.json").is_file()

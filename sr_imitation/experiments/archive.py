@@ -33,6 +33,7 @@ from sr_imitation.infra.fingerprint import (
     diff_settings,
     read_fingerprint,
 )
+from sr_imitation.stream.rundir import OverwriteRefusedError
 
 logger = logging.getLogger(__name__)
 
@@ -65,11 +66,16 @@ def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerpri
 
 
 def archive_run(run: Path, archive: Path, name: str) -> Path:
-    """Copy a finished run's :data:`ARCHIVED_FILES` into ``archive / name`` (replacing an older copy) atomically;
-    returns the archived directory."""
+    """Copy a finished run's :data:`ARCHIVED_FILES` into ``archive / name`` (replacing an older copy, never a folder
+    holding anything else) atomically; returns the archived directory."""
     run, target = Path(run), Path(archive) / name
     if not (run / "results.json").is_file():
         raise FileNotFoundError(f"{run}: no results.json, the run has not finished; nothing archived")
+    foreign = sorted(p.name for p in target.iterdir() if p.name not in ARCHIVED_FILES) if target.is_dir() else []
+    if foreign or (target.exists() and not target.is_dir()):
+        raise OverwriteRefusedError(f"{target}: not replaced by the archived run: it holds "
+                                    f"{', '.join(foreign[:3]) or 'a file'}, which an archived run does not; remove or "
+                                    "move it yourself (nothing was removed)")
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=target.parent))
     try:
