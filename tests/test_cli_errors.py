@@ -141,6 +141,20 @@ def test_a_dataset_root_flag_on_a_preset_is_never_silently_dropped(capsys, monke
                            "--record.root"), line
 
 
+@pytest.mark.parametrize("skills, says", [
+    ("[]", "stream.skills: the stream needs at least one skill"),
+    ("[approach,place,approach]", "stream.skills must be distinct, got ['approach', 'place', 'approach'] "
+                                  "(['approach'] more than once)"),
+])
+def test_a_stream_s_skill_list_errors_name_the_key(skills, says, tmp_path, capsys):
+    from sr_imitation.cli import train_main
+
+    line = _one_line_error("sr-train", train_main, [f"--stream.skills={skills}", f"--output_dir={tmp_path / 'o'}"],
+                           capsys)
+    assert line.startswith(f"sr-train: error: {says}"), line
+    assert not (tmp_path / "o").exists()
+
+
 @pytest.mark.parametrize("text, expected", [
     ('{"seed": 1,', r"sr-train: error: .*bad.json: not valid JSON \(Expecting"),  # names the file
     ('{"seed": "abc"}', r"sr-train: error: seed: invalid literal for int\(\)"),  # names the key

@@ -113,9 +113,10 @@ class StreamConfig(StreamSettings):
 
     def __post_init__(self) -> None:
         if not self.skills:
-            raise ValueError("the stream needs at least one skill")
+            raise ValueError("stream.skills: the stream needs at least one skill")
         if len(set(self.skills)) != len(self.skills):
-            raise ValueError(f"skills must be distinct, got {self.skills}")
+            repeated = sorted({s for s in self.skills if self.skills.count(s) > 1})
+            raise ValueError(f"stream.skills must be distinct, got {self.skills} ({repeated} more than once)")
         if self.stats not in STATS_SOURCES:
             raise ValueError(f"stream.stats must be one of {STATS_SOURCES}, got {self.stats!r}")
         if not self.reexpress_inputs and self.stats != "seen":
