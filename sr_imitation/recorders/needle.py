@@ -216,13 +216,20 @@ def run_demo(env: NeedleEnv, seed: int, scene_video: bool, expert: ExpertSetting
 @contextlib.contextmanager
 def quiet_dataset_progress():
     """Hugging Face ``datasets``' per-episode ``Map:`` progress bars off while a recorder writes (one line per
-    episode would flood the log; the recorder's own progress line says how far it is); restored afterwards."""
+    episode would flood the log; the recorder's own progress line says how far it is); restored afterwards. Also
+    silenced: LeRobot 0.4.4's ``compute_stats`` warning "Converting input from bool to uint8" for the boolean
+    ``next.success`` / ``next.done`` features (raised by its histogram of every recorded episode; it changes no
+    number and says nothing a user can act on)."""
+    import warnings
+
     from datasets.utils import logging as hf_logging
 
     was_enabled = hf_logging.is_progress_bar_enabled()
     hf_logging.disable_progress_bar()
     try:
-        yield
+        with warnings.catch_warnings():
+            warnings.filterwarnings("ignore", message="Converting input from bool to", category=RuntimeWarning)
+            yield
     finally:
         if was_enabled:
             hf_logging.enable_progress_bar()
