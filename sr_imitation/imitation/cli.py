@@ -248,25 +248,29 @@ def checkpoint_defaults(args: list[str]) -> Iterator[Path | None]:
         yield path
 
 
-def check_eval_output(cfg: EvalCommandConfig) -> None:
+def check_eval_output(cfg: EvalCommandConfig) -> set[Path]:
     """``FileExistsError`` naming ``output_dir/eval.json`` when an earlier evaluation is there and ``--overwrite`` is
-    not given; with it, that evaluation's eval.json and the videos it lists are removed (nothing else)."""
+    not given; with it, the videos that evaluation lists (:func:`replace_earlier_videos` removes those the new one
+    does not write again, once it is written: a failed evaluation loses nothing)."""
     from sr_imitation.io import read_checked_json
 
     earlier = cfg.output_dir / "eval.json"
     if not earlier.exists():
-        return
+        return set()
     if not cfg.overwrite:
         raise FileExistsError(f"{earlier}: an earlier evaluation is there; give another --output_dir, or "
                               "--overwrite=true to replace it")
-    videos = cfg.output_dir / "videos"
-    for result in read_checked_json(earlier)["results"].values():
-        for video in map(Path, result.get("videos", [])):
-            if video.parent.resolve() == videos.resolve():
-                video.unlink(missing_ok=True)
-    earlier.unlink()
-    if videos.is_dir() and not any(videos.iterdir()):
-        videos.rmdir()
+    videos = (cfg.output_dir / "videos").resolve()
+    listed = {Path(v) for r in read_checked_json(earlier)["results"].values() for v in r.get("videos", [])}
+    return {v for v in listed if v.resolve().parent == videos}
+
+
+def replace_earlier_videos(earlier: set[Path], record: dict[str, Any]) -> None:
+    """Remove the earlier evaluation's videos that the new ``record`` does not list (nothing else in the folder)."""
+    kept = {Path(v).resolve() for r in record.values() for v in r["videos"]}
+    for video in earlier:
+        if video.resolve() not in kept:
+            video.unlink(missing_ok=True)
 
 
 def eval_main(args: list[str] | None = None) -> None:
@@ -282,7 +286,7 @@ def eval_main(args: list[str] | None = None) -> None:
     path = Path(cfg.policy.path)
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
-    check_eval_output(cfg)
+    earlier_videos = check_eval_output(cfg)
     if (path.parent / MANIFEST).is_file():  # an sr-train stage or sr-sleep checkpoint: sealed, checked before use
         verify_manifest(path.parent)
     policy_cfg = PreTrainedConfig.from_pretrained(path)
@@ -301,6 +305,7 @@ def eval_main(args: list[str] | None = None) -> None:
     record = {s: {"success": r.success, "success_per_seed": r.success_per_seed, "videos": r.videos}
               for s, r in results.items()}
     write_checked_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})
+    replace_earlier_videos(earlier_videos, record)
     print(json.dumps({s: round(r["success"], 4) for s, r in record.items()}, indent=2))  # eval.json: exact
     print(f"written: {cfg.output_dir / 'eval.json'}, videos in {cfg.output_dir / 'videos'}")
 
