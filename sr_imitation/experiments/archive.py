@@ -33,7 +33,7 @@ from sr_imitation.infra.fingerprint import (
     diff_settings,
     read_fingerprint,
 )
-from sr_imitation.stream.rundir import OverwriteRefusedError
+from sr_imitation.stream.rundir import OverwriteRefusedError, few_names
 
 logger = logging.getLogger(__name__)
 
@@ -74,7 +74,7 @@ def archive_run(run: Path, archive: Path, name: str) -> Path:
     foreign = sorted(p.name for p in target.iterdir() if p.name not in ARCHIVED_FILES) if target.is_dir() else []
     if foreign or (target.exists() and not target.is_dir()):
         raise OverwriteRefusedError(f"{target}: not replaced by the archived run: it holds "
-                                    f"{', '.join(foreign[:3]) or 'a file'}, which an archived run does not; remove or "
+                                    f"{few_names(foreign) or 'a file'}, which an archived run does not; remove or "
                                     "move it yourself (nothing was removed)")
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=target.parent))

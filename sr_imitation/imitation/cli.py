@@ -32,7 +32,7 @@ from sr_imitation.imitation.trainer import TrainStreamConfig, train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command, take_flag, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
-from sr_imitation.io import MANIFEST, verify_manifest, write_checked_json
+from sr_imitation.io import MANIFEST, read_checked_json, read_config_json, verify_manifest, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 
@@ -231,8 +231,6 @@ def checkpoint_defaults(args: list[str]) -> Iterator[Path | None]:
     if stored is None or not stored.is_file():
         yield None
         return
-    from sr_imitation.io import read_config_json
-
     config, _ = read_config_json(stored)
     stream, evaluation = config.get("stream"), config.get("eval")
     if not isinstance(stream, dict) or not isinstance(evaluation, dict) or "skills" not in stream:
@@ -252,8 +250,6 @@ def check_eval_output(cfg: EvalCommandConfig) -> set[Path]:
     """``FileExistsError`` naming ``output_dir/eval.json`` when an earlier evaluation is there and ``--overwrite`` is
     not given; with it, the videos that evaluation lists (:func:`replace_earlier_videos` removes those the new one
     does not write again, once it is written: a failed evaluation loses nothing)."""
-    from sr_imitation.io import read_checked_json
-
     earlier = cfg.output_dir / "eval.json"
     if not earlier.exists():
         return set()

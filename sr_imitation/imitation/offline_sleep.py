@@ -111,7 +111,7 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
-from sr_imitation.stream.rundir import OverwriteRefusedError
+from sr_imitation.stream.rundir import OverwriteRefusedError, few_names
 
 logger = logging.getLogger(__name__)
 
@@ -559,8 +559,7 @@ def sleep_output_problem(out: Path) -> str | None:
         return f"it holds no {RESULTS_FILE}, so it is not an sr-sleep output"
     foreign = [n for n in names if n not in SLEEP_OUTPUT_ENTRIES]
     if foreign:
-        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
-        return f"it holds {shown}, which sr-sleep does not write"
+        return f"it holds {few_names(foreign)}, which sr-sleep does not write"
     return None
 
 

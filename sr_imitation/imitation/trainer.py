@@ -177,7 +177,7 @@ def record_hint(cfg: TrainStreamConfig, custom_env: bool = False) -> str | None:
     stream = cfg.stream
     if custom_env or cfg.eval.env not in ("needle", "metaworld") or stream.dataset_paths or stream.repo_ids:
         return None
-    missing = [s for s in stream.skills if not (Path(stream.dataset_root) / s).exists()]
+    missing = [s for i, s in enumerate(stream.skills) if not stream.dataset_path(i).exists()]
     if not missing:
         return None
     env = " --env=metaworld" if cfg.eval.env == "metaworld" else ""

@@ -144,18 +144,15 @@ def apply_flag_names(args: Sequence[str], known: Sequence[str], names: Mapping[s
 
 
 def take_flag(args: list[str], flag: str) -> tuple[list[str], str | None]:
-    """``args`` without ``flag`` (``--flag=value`` or ``--flag value``) and its last value (None if not given)."""
-    rest, value, i = [], None, 0
-    while i < len(args):
-        arg = args[i]
-        if arg.startswith(flag + "="):
-            value = arg[len(flag) + 1 :]
-        elif arg == flag and i + 1 < len(args):
-            value, i = args[i + 1], i + 1
-        else:
-            rest.append(arg)
-        i += 1
-    return rest, value
+    """``args`` without ``flag`` (``--flag=value`` or ``--flag value``, read as :func:`_flag_tokens` reads every flag)
+    and its last value (None if not given; a ``flag`` without a value stays, for the parser to refuse)."""
+    drop: set[int] = set()
+    value = None
+    for i, name, given in _flag_tokens(args):
+        if name == flag and given is not None:
+            value = given
+            drop.update((i,) if "=" in args[i] else (i, i + 1))
+    return [arg for j, arg in enumerate(args) if j not in drop], value
 
 
 def check_flags_known(args: Sequence[str], known: Sequence[str]) -> None:

@@ -117,6 +117,12 @@ def _is_temporary(name: str) -> bool:
     return any(fnmatch.fnmatchcase(name, pattern) for pattern in TEMPORARY_PATTERNS)
 
 
+def few_names(names: Sequence[str], most: int = 3) -> str:
+    """``a, b, c and 4 more``: the first ``most`` of ``names`` for a one-line message."""
+    extra = len(names) - most
+    return ", ".join(names[:most]) + (f" and {extra} more" if extra > 0 else "")
+
+
 def run_entries_problem(path: Path, entries: Iterable[str] = ()) -> str | None:
     """Why the occupied directory ``path`` is not recognisably a run of this package (``None`` if it is): it holds
     neither a settings fingerprint nor the progress and config of a run written before fingerprints, or it holds
@@ -131,8 +137,7 @@ def run_entries_problem(path: Path, entries: Iterable[str] = ()) -> str | None:
         return f"it holds no {FINGERPRINT_FILE}, so it is not a run of this package"
     foreign = [n for n in names if not _is_temporary(n) and not any(fnmatch.fnmatchcase(n, p) for p in patterns)]
     if foreign:
-        shown = ", ".join(foreign[:3]) + (f" and {len(foreign) - 3} more" if len(foreign) > 3 else "")
-        return f"it holds {shown}, which no run writes"
+        return f"it holds {few_names(foreign)}, which no run writes"
     return None
 
 
