@@ -369,6 +369,24 @@ def test_every_mt5_test_run_ran_the_recorded_test_preset():
         assert 0 <= config["seed"] <= 9 and run.name.endswith(f"_seed{config['seed']}"), run.name
 
 
+def test_every_mt5_run_after_step_k1_read_the_same_demonstrations():
+    """The 100-demonstration datasets are recorded once per machine (RESULTS' K1 line): every archived run from K1 on,
+    calibration and test, read datasets with the same content digests (its settings_fingerprint.json), so a session
+    that had to record them again (another machine, another CPU type) cannot add runs on other demonstrations
+    unnoticed; step 0's 50-demonstration runs read other ones."""
+    digests: dict[tuple, list[str]] = {}
+    for name in ("calibration", "calibration_k1", "calibration_k2", "calibration_k3", "calibration_k4", "compare"):
+        for run in sorted((DOCS / "results" / f"metaworld_mt5_imitation_{name}").glob("*_seed*")):
+            settings = json.loads((run / "settings_fingerprint.json").read_text())["settings"]
+            key = tuple(sorted((k, v) for k, v in settings.items() if k.startswith("inputs.datasets.")))
+            assert len(key) == 5, run
+            digests.setdefault(key, []).append(f"{name}/{run.name}")
+    assert len(digests) == 2, {k: len(v) for k, v in digests.items()}
+    step0, rest = sorted(digests.values(), key=lambda runs: not runs[0].startswith("calibration/"))
+    assert all(r.startswith("calibration/") for r in step0) and not any(r.startswith("calibration/") for r in rest)
+    assert sum(r.startswith("compare/") for r in rest) >= 27
+
+
 # --- the needle replication N1 (seeds 5-9; the protocol's third test) -------------------------------------------------
 
 def test_the_needle_replication_n1_recomputes(text):
