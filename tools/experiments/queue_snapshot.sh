@@ -22,7 +22,7 @@ flock "$queue.lock" bash -c '
     echo "#   grep -v \"^#\" tools/experiments/queue_pending.txt > outputs/queue.txt; rm -f outputs/queue.txt.taken"
     echo "#   nohup setsid bash tools/experiments/queue_worker.sh $commit outputs/queue.txt outputs/qlogs > /dev/null 2>&1 &  # x2"
     echo "# a fresh machine first needs the datasets the lines read (their sr-record commands: docs/RESULTS.md); recorded"
-    echo "# again, they must have the archived runs' digests (tests/test_results_doc.py checks every archived run)"
+    echo "# again, they must have the digests of the archived runs (tests/test_results_doc.py checks every archived run)"
     echo "# each finished run (its driver archived it): bash tools/experiments/queue_archive.sh <archive> <prefix> <run> <message>"
     cat "$out.lines"
   } > "$out.tmp"
