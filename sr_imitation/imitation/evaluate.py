@@ -294,6 +294,7 @@ def lerobot_env_config(env_type: str, task: str, options: Mapping[str, Any]) -> 
     import draccus
     from lerobot.envs.configs import EnvConfig, HubEnvConfig
 
+    import sr_imitation.envs.metaworld.lerobot_config  # noqa: F401  (registers --env.type=sr_meta_world)
     import sr_imitation.envs.needle.lerobot_config  # noqa: F401  (registers --env.type=needle)
 
     try:
