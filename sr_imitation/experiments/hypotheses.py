@@ -27,10 +27,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.reporting.results import LOSS_METRICS, METRICS, final_loss, load_results
 from sr_imitation.reporting.stats import holm, paired_test
@@ -237,7 +237,8 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 
 def main(args: list[str] | None = None) -> None:
     setup_logging()
-    cfg = draccus.parse(HypothesesConfig, args=list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(HypothesesConfig, list(sys.argv[1:] if args is None else args),
+                        prog="python -m sr_imitation.experiments.hypotheses")
     rows = run_tests(cfg)
     text = render(rows, cfg.archive, cfg.preregistered, cfg.note)
     if cfg.output is not None:

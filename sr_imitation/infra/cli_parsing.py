@@ -192,6 +192,7 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
         args = apply_flag_names(args, known, names or {}, prog)
         check_flags_known(args, known)
         full = [f"--{prefix}{a[2:]}" if prefix and a.startswith("--") and a != "--" else a for a in args]
+        full = keep_text_verbatim(cls, full)
         try:
             return parser.parse_args(full)
         except UsageError as exc:
@@ -200,6 +201,29 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
                 if message.startswith(f"argument {flag}:"):
                     message = f"{message}; {note}"
             raise UsageError(message) from None
+
+
+_YAML_SHAPED = re.compile(r"^\s*[\[{]|: |:$| #")
+"""What YAML reads as other than the plain text: a list or mapping, ``key: value``, a comment."""
+
+
+def keep_text_verbatim(cls: type, args: Sequence[str]) -> list[str]:
+    """``args`` with the value of every flag of a text field (``str`` or ``str | None``) that YAML would read as other
+    than its text (``--note=a: b`` is the mapping ``{a: b}`` to draccus, stored as the text ``"{'a': 'b'}"``) quoted,
+    so the field holds what was typed. Values already quoted, and every other field, are left to draccus."""
+    out = list(args)
+    for i, name, value in _flag_tokens(out):
+        if value is None or value[:1] in ("'", '"') or not _YAML_SHAPED.search(value):
+            continue
+        found = _field_class(cls, name[2:])
+        if found is None or _field_types(found[0]).get(found[1]) not in (str, str | None):
+            continue
+        quoted = "'" + value.replace("'", "''") + "'"
+        if "=" in out[i]:
+            out[i] = f"{name}={quoted}"
+        else:
+            out[i + 1] = quoted
+    return out
 
 
 def show_values_as_defaults(parser: ArgumentParser, source: str, values: Mapping) -> int:

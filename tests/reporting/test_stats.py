@@ -152,6 +152,22 @@ def test_a_flag_value_the_shell_cut_short_is_one_line_naming_the_value(tmp_path,
 
 
 
+def test_a_note_is_kept_as_typed(tmp_path, capsys):
+    """``--note`` is free text: "M1 and M2: the family" reached hypotheses.md as the YAML mapping draccus read from
+    it (``{'M1 and M2': 'the family'}``); text fields now hold what was typed, whatever YAML makes of it."""
+    from sr_imitation.experiments.hypotheses import main
+
+    _archive(tmp_path, {"sr": [0.7, 0.6, 0.65], "wake_only": [0.5, 0.55, 0.4]})
+    for note in ("M1 and M2: the family, Holm over both", "[a list, or not]", "ends with a colon:", "#1 # two"):
+        main([f"--archive={tmp_path}", "--tests=[sr>wake_only]", f"--note={note}", f"--output={tmp_path / 'h'}"])
+        assert f"\n\n{note}\n\n" in (tmp_path / "h" / "hypotheses.md").read_text()
+    main([f"--archive={tmp_path}", "--tests=[sr>wake_only]", "--note", "as: two tokens", f"--output={tmp_path / 'h'}"])
+    assert "\n\nas: two tokens\n\n" in (tmp_path / "h" / "hypotheses.md").read_text()
+    main([f"--archive={tmp_path}", "--tests=[sr>wake_only]", """--note='quoted: by the user'""",
+          f"--output={tmp_path / 'h'}"])
+    assert "\n\nquoted: by the user\n\n" in (tmp_path / "h" / "hypotheses.md").read_text()
+
+
 def test_the_sign_flip_p_is_the_exact_fraction_of_sign_assignments():
     import itertools
 
