@@ -442,6 +442,83 @@ def test_the_needle_replication_n1_recomputes(text):
     assert short in readme and short in text  # README's "Does sleep help?" and RESULTS' first paragraph
 
 
+# --- the MT5 imitation stream's tests M1 and M2, and the family's Holm verdict ---------------------------------------
+
+MT5_COMPARE = DOCS / "results" / "metaworld_mt5_imitation_compare"
+FAMILY = ["M1=sr>wake_only@0-9", "M2=sr!=replay@0-9",
+          f"N1={DOCS / 'results' / 'needle_cpu_m16_replication'}::sr>wake_only@5-9"]
+"""The protocol's test family, exactly as its commit declares it (RESULTS, 09:19 note: the command)."""
+
+
+def _p(value: float) -> str:
+    return f"{value:.4f}" if value >= 0.001 else f"{value:.1e}"
+
+
+def test_the_mt5_family_recomputes(text):
+    """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
+    seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
+    rows = _table_rows("| training seed | SR final AFSR | wake-only final AFSR | replay final AFSR | SR - wake-only | "
+                       "SR - replay |")
+    runs = {(v, s): json.loads((MT5_COMPARE / f"{v}_seed{s}" / "results.json").read_text())
+            for v in ("sr", "wake_only", "replay") for s in range(10)}
+    assert [int(r[0]) for r in rows] == list(range(10))
+    for seed, *cells in rows:
+        a, b, c = (runs[(v, int(seed))]["metrics"]["afsr"]["final"] for v in ("sr", "wake_only", "replay"))
+        assert cells == [f"{a:.3f}", f"{b:.3f}", f"{c:.3f}", f"{a - b:+.3f}", f"{a - c:+.3f}"], seed
+    family = run_tests(HypothesesConfig(archive=MT5_COMPARE, tests=FAMILY, holm=True))
+    table = _table_rows("| test | seeds | mean diff +- SE | bootstrap 95% CI | t | p | sign-flip p | Holm p | "
+                        "Holm sign-flip p | verdict (Holm, alpha 0.05) |")
+    assert [r[0].split(":")[0] for r in table] == ["M1", "M2", "N1"]
+    for cells, r in zip(table, family, strict=True):
+        assert cells[1:9] == [f"{r['seeds'][0]}-{r['seeds'][-1]}", f"{r['mean']:+.3f} +- {r['sem']:.3f}",
+                              f"[{r['ci_low']:+.3f}, {r['ci_high']:+.3f}]", f"{r['t']:.2f}", _p(r["p"]),
+                              _p(r["sign_flip_p"]), _p(r["p_holm"]), _p(r["sign_flip_p_holm"])], cells[0]
+        assert cells[9].startswith("rejected" if r["significant_holm"] else "not rejected"), cells[0]
+    stored = json.loads((MT5_COMPARE / "hypotheses" / "hypotheses.json").read_text())["tests"]
+    assert [(t["name"], t["seeds"], t["p"], t["sign_flip_p"], t["p_holm"], t["sign_flip_p_holm"]) for t in stored] \
+        == [(r["name"], r["seeds"], r["p"], r["sign_flip_p"], r["p_holm"], r["sign_flip_p_holm"]) for r in family]
+    with pytest.raises(ValueError, match="no finished run yet"):
+        run_tests(HypothesesConfig(archive=MT5_COMPARE, tests=["sr>wake_only@0-10"]))
+    # descriptive: the arms, BWT against both references, per-skill finals, the first two wakes shared by SR and
+    # wake-only (no sleep precedes the second), the README's lines
+    metric = {(v, m): [runs[(v, s)]["metrics"][m]["final"] for s in range(10)]
+              for v in ("sr", "wake_only", "replay") for m in ("afsr", "bwt", "bwt_wake", "prs", "spi")}
+    assert f"SR {_mean_se(metric[('sr', 'afsr')])} vs wake-only {_mean_se(metric[('wake_only', 'afsr')])}, paired " \
+           f"{family[0]['mean']:+.3f} +- {family[0]['sem']:.3f}" in text
+    assert f"replay {_mean_se(metric[('replay', 'afsr')])}, paired {family[1]['mean']:+.3f} +- {family[1]['sem']:.3f}" \
+        in text
+    bwt = {v: _signed(metric[(v, "bwt")]) for v in ("sr", "wake_only", "replay")}
+    assert f"BWT {bwt['sr']} against the stage's evaluation and {_signed(metric[('sr', 'bwt_wake')])} against the " \
+           f"evaluation right after each own wake, vs wake-only {bwt['wake_only']} and replay {bwt['replay']}" in text
+    assert metric[("wake_only", "bwt")] == metric[("wake_only", "bwt_wake")]
+    for m, label in (("prs", "PRS"), ("spi", "SPI")):
+        assert f"{label} " + " / ".join(f"{np.mean(metric[(v, m)]):.3f}" for v in ("sr", "wake_only", "replay")) in text
+    final = {v: np.mean([runs[(v, s)]["success_matrix"][-1] for s in range(10)], axis=0)
+             for v in ("sr", "wake_only", "replay")}
+    names = ["reach", "door-open", "drawer-open", "window-close", "button-press"]
+    per_skill = ", ".join(f"{n} " + " / ".join(f"{final[v][i]:.2f}" for v in ("sr", "wake_only", "replay"))
+                          for i, n in enumerate(names))
+    assert f"SR / wake-only / replay: {per_skill}" in text
+    own = np.mean([runs[("sr", s)]["success_after_own_wake"] for s in range(10)], axis=0)
+    assert "own wake " + " / ".join(f"{x:.2f}" for x in own) + " for reach" in text
+    for s in range(10):
+        sr, wake = (runs[(v, s)]["stages"] for v in ("sr", "wake_only"))
+        assert [sr[i]["wake"]["best_val_l1"] for i in (0, 1)] == [wake[i]["wake"]["best_val_l1"] for i in (0, 1)]
+        assert "sleep" not in sr[0] and "sleep" in sr[1]
+    diffs = np.subtract(family[0]["a_values"], family[0]["b_values"])
+    assert (np.sum(diffs > 1e-9), np.sum(np.abs(diffs) < 1e-9), np.sum(diffs < -1e-9)) == (8, 1, 1)
+    reach_own = [runs[("sr", s)]["success_after_own_wake"][0] for s in range(10)]
+    reach_final = [final[v][0] for v in ("sr", "wake_only", "replay")]
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert f"SR {_mean_se(metric[('sr', 'afsr')])} vs wake-only {_mean_se(metric[('wake_only', 'afsr')])}, paired " \
+           f"{family[0]['mean']:+.3f} +- {family[0]['sem']:.3f}, SR ahead on 8 of 10 seeds, one-sided p = " \
+           f"{family[0]['p']:.3f} (sign-flip {family[0]['sign_flip_p']:.3f})" in readme
+    assert f"({min(reach_own):.2f}-{max(reach_own):.2f} by seed" in readme
+    assert f"(final {min(reach_final):.2f}-{max(reach_final):.2f})" in readme
+    assert f"smallest adjusted p {min(r['p_holm'] for r in family):.3f}" in readme and \
+        not any(r["significant_holm"] for r in family)
+
+
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
 
 def _list(values: list[float]) -> str:
