@@ -505,6 +505,20 @@ def test_the_mt5_family_recomputes(text):
         sr, wake = (runs[(v, s)]["stages"] for v in ("sr", "wake_only"))
         assert [sr[i]["wake"]["best_val_l1"] for i in (0, 1)] == [wake[i]["wake"]["best_val_l1"] for i in (0, 1)]
         assert "sleep" not in sr[0] and "sleep" in sr[1]
+    curve = {v: np.mean([runs[(v, s)]["metrics"]["afsr"]["curve"] for s in range(10)], axis=0)
+             for v in ("sr", "wake_only", "replay")}
+    second = {v: np.mean([runs[(v, s)]["success_matrix"][1][:2] for s in range(10)], axis=0)
+              for v in ("sr", "wake_only", "replay")}
+    before = np.mean([runs[("sr", s)]["extra"]["success_matrix_after_wake"][1][:2] for s in range(10)], axis=0)
+    assert f"lifts reach from {before[0]:.2f} to {second['sr'][0]:.2f} and drops door-open from {before[1]:.2f} to " \
+           f"{second['sr'][1]:.2f} (means over seeds, before and after that sleep; wake-only " \
+           f"{second['wake_only'][0]:.2f} / {second['wake_only'][1]:.2f}, replay {second['replay'][0]:.2f} / " \
+           f"{second['replay'][1]:.2f})" in text
+    later = {v: " / ".join(f"{x:.3f}" for x in curve[v][2:]) for v in ("sr", "wake_only")}
+    assert f"after stage 2 is below wake-only's ({curve['sr'][1]:.3f} vs {curve['wake_only'][1]:.3f}, replay " \
+           f"{curve['replay'][1]:.3f}) and above it from stage 3 on ({later['sr']} vs {later['wake_only']}" in text
+    assert curve["sr"][1] < curve["wake_only"][1] and all(curve["sr"][2:] > curve["wake_only"][2:])
+    assert f"final {final['sr'][1]:.2f} in both" in text and f"{final['sr'][1]:.2f}" == f"{final['wake_only'][1]:.2f}"
     diffs = np.subtract(family[0]["a_values"], family[0]["b_values"])
     assert (np.sum(diffs > 1e-9), np.sum(np.abs(diffs) < 1e-9), np.sum(diffs < -1e-9)) == (8, 1, 1)
     reach_own = [runs[("sr", s)]["success_after_own_wake"][0] for s in range(10)]
