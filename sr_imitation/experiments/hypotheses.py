@@ -186,10 +186,23 @@ def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = Fals
     return "\n".join(lines) + "\n"
 
 
+def panel_title(name: str, r: dict[str, Any]) -> str:
+    """A test's panel title: mean difference +- SE, CI, p and sign-flip p; with a Holm adjustment, a third line with
+    the adjusted p's and the family's verdict (the one the test is judged by)."""
+    if r["n"] < 2:
+        return f"{name}: {r['n']} paired seed(s), no test"
+    title = (f"{name}: {r['mean']:+.3f} +- {r['sem']:.3f}\nCI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], "
+             f"p = {r['p']:.4f}, sign-flip {r['sign_flip_p']:.4f}")
+    if "p_holm" in r:
+        verdict = "rejected" if r["significant_holm"] else "not rejected"
+        title += f"\nHolm: p = {r['p_holm']:.4f}, sign-flip {r['sign_flip_p_holm']:.4f}: {verdict}"
+    return title
+
+
 def plot(rows: list[dict[str, Any]], path: Path) -> None:
     """One panel per test: each seed's A and B values joined by a line (green where A - B has the tested sign, or
     for a two-sided test the mean difference's sign; red where not), labelled with its training seed, the means +-
-    SE beside them, and the test's mean difference, CI and p in the title."""
+    SE beside them, and :func:`panel_title` above it."""
     import io
 
     import matplotlib
@@ -221,12 +234,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
         ax.set_xticks([0, 1], ticks, fontsize=6)
         ax.set_xlim(-0.6, 1.6)
         ax.set_ylabel(f"final {r['metric']}")
-        if r["n"] >= 2:
-            ax.set_title(f"{name}: {r['mean']:+.3f} +- {r['sem']:.3f}\n"
-                         f"CI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], p = {r['p']:.4f}, "
-                         f"sign-flip {r['sign_flip_p']:.4f}", fontsize=8)
-        else:
-            ax.set_title(f"{name}: {r['n']} paired seed(s), no test", fontsize=8)
+        ax.set_title(panel_title(name, r), fontsize=8)
         ax.grid(alpha=0.3)
     fig.tight_layout()
     buf = io.BytesIO()

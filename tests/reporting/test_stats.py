@@ -152,6 +152,22 @@ def test_a_flag_value_the_shell_cut_short_is_one_line_naming_the_value(tmp_path,
 
 
 
+def test_a_family_s_figure_shows_its_holm_verdict(tmp_path):
+    """With --holm the panel titles carry the adjusted p's and the family's verdict (the one a test is judged by),
+    so the figure cannot be read as if the unadjusted p decided; without it they do not."""
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, panel_title, run_tests
+
+    _archive(tmp_path, {"sr": [0.7, 0.6, 0.65, 0.68], "wake_only": [0.5, 0.55, 0.4, 0.6],
+                        "replay": [0.7, 0.6, 0.6, 0.66]})
+    family = run_tests(HypothesesConfig(archive=tmp_path, tests=["sr>wake_only", "sr!=replay"], holm=True))
+    for r in family:
+        verdict = "rejected" if r["significant_holm"] else "not rejected"
+        assert panel_title("t", r).splitlines()[-1] == \
+            f"Holm: p = {r['p_holm']:.4f}, sign-flip {r['sign_flip_p_holm']:.4f}: {verdict}"
+    alone = run_tests(HypothesesConfig(archive=tmp_path, tests=["sr>wake_only"]))[0]
+    assert len(panel_title("t", alone).splitlines()) == 2 and "Holm" not in panel_title("t", alone)
+
+
 def test_a_note_is_kept_as_typed(tmp_path, capsys):
     """``--note`` is free text: "M1 and M2: the family" reached hypotheses.md as the YAML mapping draccus read from
     it (``{'M1 and M2': 'the family'}``); text fields now hold what was typed, whatever YAML makes of it."""
