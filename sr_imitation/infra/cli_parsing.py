@@ -203,8 +203,9 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
             raise UsageError(message) from None
 
 
-_YAML_SHAPED = re.compile(r"^\s*[\[{]|: |:$| #")
-"""What YAML reads as other than the plain text: a list or mapping, ``key: value``, a comment."""
+_YAML_SHAPED = re.compile(r"^\s*[\[{#&*!|>%@`-]|: |:$| #")
+"""What YAML reads as other than the plain text: a list or mapping (flow or block), ``key: value``, a comment, an
+anchor, alias, tag, block scalar or directive (YAML's indicator characters at the start)."""
 
 
 def keep_text_verbatim(cls: type, args: Sequence[str]) -> list[str]:

@@ -174,7 +174,8 @@ def test_a_note_is_kept_as_typed(tmp_path, capsys):
     from sr_imitation.experiments.hypotheses import main
 
     _archive(tmp_path, {"sr": [0.7, 0.6, 0.65], "wake_only": [0.5, 0.55, 0.4]})
-    for note in ("M1 and M2: the family, Holm over both", "[a list, or not]", "ends with a colon:", "#1 # two"):
+    for note in ("M1 and M2: the family, Holm over both", "[a list, or not]", "ends with a colon:", "#1 # two",
+                 "#1", "!important", "- a dash", "*starred*", "> quoted"):
         main([f"--archive={tmp_path}", "--tests=[sr>wake_only]", f"--note={note}", f"--output={tmp_path / 'h'}"])
         assert f"\n\n{note}\n\n" in (tmp_path / "h" / "hypotheses.md").read_text()
     main([f"--archive={tmp_path}", "--tests=[sr>wake_only]", "--note", "as: two tokens", f"--output={tmp_path / 'h'}"])
