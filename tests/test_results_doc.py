@@ -450,10 +450,6 @@ FAMILY = ["M1=sr>wake_only@0-9", "M2=sr!=replay@0-9",
 """The protocol's test family, exactly as its commit declares it (RESULTS, 09:19 note: the command)."""
 
 
-def _p(value: float) -> str:
-    return f"{value:.4f}" if value >= 0.001 else f"{value:.1e}"
-
-
 def test_the_mt5_family_recomputes(text):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
@@ -471,8 +467,8 @@ def test_the_mt5_family_recomputes(text):
     assert [r[0].split(":")[0] for r in table] == ["M1", "M2", "N1"]
     for cells, r in zip(table, family, strict=True):
         assert cells[1:9] == [f"{r['seeds'][0]}-{r['seeds'][-1]}", f"{r['mean']:+.3f} +- {r['sem']:.3f}",
-                              f"[{r['ci_low']:+.3f}, {r['ci_high']:+.3f}]", f"{r['t']:.2f}", _p(r["p"]),
-                              _p(r["sign_flip_p"]), _p(r["p_holm"]), _p(r["sign_flip_p_holm"])], cells[0]
+                              f"[{r['ci_low']:+.3f}, {r['ci_high']:+.3f}]", f"{r['t']:.2f}",
+                              *(f"{r[k]:.4f}" for k in ("p", "sign_flip_p", "p_holm", "sign_flip_p_holm"))], cells[0]
         assert cells[9].startswith("rejected" if r["significant_holm"] else "not rejected"), cells[0]
     stored = json.loads((MT5_COMPARE / "hypotheses" / "hypotheses.json").read_text())["tests"]
     assert [(t["name"], t["seeds"], t["p"], t["sign_flip_p"], t["p_holm"], t["sign_flip_p_holm"]) for t in stored] \

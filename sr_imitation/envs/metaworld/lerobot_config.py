@@ -28,7 +28,12 @@ from sr_imitation.envs.metaworld.env import DEFAULT_CAMERA, OBS_TYPES, MetaWorld
 from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM, check_task
 
 ENV_TYPE = "sr_meta_world"
-GYM_NAMESPACE = "sr_meta_world"
+"""``--env.type`` and the gym namespace (``sr_meta_world/<task>``)."""
+
+
+def gym_id(task: str) -> str:
+    """The gym id of ``task``: ``sr_meta_world/reach-v3``."""
+    return f"{ENV_TYPE}/{task}"
 
 
 def make_env(task: str, episode_length: int = 200, **kwargs: Any) -> MetaWorldEnv:
@@ -39,10 +44,10 @@ def make_env(task: str, episode_length: int = 200, **kwargs: Any) -> MetaWorldEn
 
 def register(task: str) -> str:
     """Register ``sr_meta_world/<task>`` with gymnasium (once) and return the id."""
-    gym_id = f"{GYM_NAMESPACE}/{task}"
-    if gym_id not in gym.registry:
-        gym.register(id=gym_id, entry_point=f"{__name__}:make_env", kwargs={"task": task})
-    return gym_id
+    name = gym_id(task)
+    if name not in gym.registry:
+        gym.register(id=name, entry_point=f"{__name__}:make_env", kwargs={"task": task})
+    return name
 
 
 @EnvConfig.register_subclass(ENV_TYPE)
@@ -113,7 +118,7 @@ class MetaWorldStateEnvConfig(EnvConfig):
 
     @property
     def gym_id(self) -> str:
-        return f"{GYM_NAMESPACE}/{self.task}"
+        return gym_id(self.task)
 
     @property
     def gym_kwargs(self) -> dict:
