@@ -11,13 +11,18 @@ at the step the expert starts closing the jaw. Seeds ``0 .. episodes - 1``; no r
 from __future__ import annotations
 
 import json
+import sys
 from dataclasses import dataclass, field
 
-import draccus
 import numpy as np
 
 from sr_imitation.envs.needle import SKILL_NAMES, NeedleEnv
 from sr_imitation.envs.needle.expert import ExpertSettings, NeedleExpert
+from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.infra.cli_parsing import parse_command
+
+PROG = "python -m sr_imitation.benchmarks.demo_endings"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -46,7 +51,7 @@ def demo_ending(skill: str, scale: float, jaw_close_mm: float, seed: int) -> dic
 
 
 def main(args: list[str] | None = None) -> None:
-    cfg = draccus.parse(DemoEndingsConfig, args=args)
+    cfg = parse_command(DemoEndingsConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     rows = []
     print("| demo_threshold_scale | expert_jaw_close_mm | skill | success | steps | final position (mm) | "  # noqa: T201
           "final rotation (deg) | jaw closing starts at (mm) |\n|---|---|---|---|---|---|---|---|")
@@ -63,4 +68,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(PROG, main)  # usage errors: one line

@@ -24,13 +24,15 @@ import time
 from dataclasses import dataclass
 from pathlib import Path
 
-import draccus
 import numpy as np
 
 from sr_imitation.core.aggregation import FrankWolfeNashAggregator, NashAggregator, nash_objective
-from sr_imitation.infra.cli_errors import setup_logging
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.benchmarks.nash"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -221,4 +223,4 @@ def main(cfg: NashBenchConfig) -> dict:
 
 
 if __name__ == "__main__":
-    main(draccus.parse(NashBenchConfig))
+    run_cli(PROG, lambda args: main(parse_command(NashBenchConfig, args, prog=PROG)))  # usage errors: one line

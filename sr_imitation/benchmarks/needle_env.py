@@ -18,16 +18,21 @@ setup_offscreen_rendering()
 import json  # noqa: E402
 import platform  # noqa: E402
 import shutil  # noqa: E402
+import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
 from pathlib import Path  # noqa: E402
 
-import draccus  # noqa: E402
 import gymnasium as gym  # noqa: E402
 import numpy as np  # noqa: E402
 
 from sr_imitation.envs.needle import SKILL_NAMES, NeedleEnv, gym_id  # noqa: E402
+from sr_imitation.infra.cli_errors import run_cli  # noqa: E402
+from sr_imitation.infra.cli_parsing import parse_command  # noqa: E402
+
+PROG = "python -m sr_imitation.benchmarks.needle_env"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -117,7 +122,7 @@ def bench_record(cfg: NeedleBenchConfig) -> dict:
 
 
 def main(args: list[str] | None = None) -> dict:
-    cfg = draccus.parse(NeedleBenchConfig, args=args)
+    cfg = parse_command(NeedleBenchConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     results = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
                "mujoco_gl": os.environ.get("MUJOCO_GL")}
     results.update(bench_steps(cfg))
@@ -133,4 +138,4 @@ def main(args: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(PROG, main)  # usage errors: one line

@@ -8,16 +8,21 @@ The targets: >= 95% with the ``learnable`` (default) thresholds and >= 90% with 
 from __future__ import annotations
 
 import json
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import draccus
 import numpy as np
 
 from sr_imitation.envs.needle import SKILL_NAMES, THRESHOLD_PRESETS, NeedleEnv
 from sr_imitation.envs.needle.chained import run_chained_episode
 from sr_imitation.envs.needle.expert import run_expert_episode
+from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.infra.cli_parsing import parse_command
+
+PROG = "python -m sr_imitation.benchmarks.needle_expert"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -47,7 +52,7 @@ class ExpertBenchConfig:
 
 
 def main(args: list[str] | None = None) -> dict:
-    cfg = draccus.parse(ExpertBenchConfig, args=args)
+    cfg = parse_command(ExpertBenchConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     results: dict = {}
     t0 = time.perf_counter()
     for preset in cfg.presets:
@@ -87,4 +92,4 @@ def main(args: list[str] | None = None) -> dict:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(PROG, main)  # usage errors: one line

@@ -26,14 +26,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 
 from sr_imitation.experiments.hypotheses import archived_runs
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.calibration"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -140,7 +142,7 @@ def render(reading: dict[str, Any], cfg: CalibrationConfig) -> str:
 
 def main(args: list[str] | None = None) -> None:
     setup_logging()
-    cfg = draccus.parse(CalibrationConfig, args=list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(CalibrationConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     reading = read_calibration(cfg)
     text = render(reading, cfg)
     if cfg.output is not None:
@@ -150,4 +152,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    run_cli("sr_imitation.experiments.calibration", main)
+    run_cli(PROG, main)

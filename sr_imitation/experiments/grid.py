@@ -53,10 +53,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
 
-import draccus
-
 from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import format_duration
 from sr_imitation.reporting.results import final_headline
@@ -445,14 +444,15 @@ def _run_ray(cfg: GridConfig, substrate: GridSubstrate, plan: Mapping[RunKey, An
 
 
 def main(args: list[str] | None = None, config_class: type[GridConfig] = GridConfig,
-         substrate: GridSubstrate | None = None) -> None:
-    """Parse ``args`` into ``config_class`` (the comparison modules pass theirs, with their defaults), run the grid,
-    print the final means and where the tables are."""
+         substrate: GridSubstrate | None = None, prog: str = "sr-grid") -> None:
+    """Parse ``args`` into ``config_class`` (the comparison modules pass theirs, with their defaults, and their
+    command's name ``prog`` for usage errors and ``--help``), run the grid, print the final means and where the tables
+    are."""
     from sr_imitation.reporting.summary import print_final_means
 
     setup_offscreen_rendering()
     setup_logging()
-    cfg = draccus.parse(config_class, args=list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(config_class, list(sys.argv[1:] if args is None else args), prog=prog)
     summary = run_grid(cfg, substrate)
     print_final_means(summary, [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
 

@@ -36,6 +36,8 @@ from sr_imitation.reporting.results import LOSS_METRICS, METRICS, final_loss, lo
 from sr_imitation.reporting.stats import holm, paired_test
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.hypotheses"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 _TEST = re.compile(r"^(?:(\w+)=)?(?:([^<>!=@]+)::)?([\w.]+)(>|<|!=)(?:([^<>!=@]+)::)?([\w.]+)(?:@(\d+)-(\d+))?$")
 _ALTERNATIVE = {">": "greater", "<": "less", "!=": "two-sided"}
@@ -246,7 +248,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 def main(args: list[str] | None = None) -> None:
     setup_logging()
     cfg = parse_command(HypothesesConfig, list(sys.argv[1:] if args is None else args),
-                        prog="python -m sr_imitation.experiments.hypotheses")
+                        prog=PROG)
     rows = run_tests(cfg)
     text = render(rows, cfg.archive, cfg.preregistered, cfg.note)
     if cfg.output is not None:
@@ -258,4 +260,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    run_cli("sr_imitation.experiments.hypotheses", main)
+    run_cli(PROG, main)

@@ -18,15 +18,17 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 
 from sr_imitation.experiments.hypotheses import archived_runs
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.reporting.summary import mean_sem_dict
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.memory_budget"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 PANELS = (("afsr", "final AFSR"), ("bwt_wake", "final BWT_wake"))
 
@@ -131,7 +133,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
 
 def main(args: list[str] | None = None) -> None:
     setup_logging()
-    cfg = draccus.parse(BudgetConfig, args=list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(BudgetConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     summary = collect(cfg)
     text = render(summary)
     if cfg.output is not None:
@@ -142,4 +144,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    run_cli("sr_imitation.experiments.memory_budget", main)
+    run_cli(PROG, main)

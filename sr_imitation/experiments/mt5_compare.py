@@ -43,6 +43,8 @@ from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.mt5_compare"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 PLAIN_ACTOR = ["--excitability.enabled=false"]
 VARIANTS: dict[str, list[str]] = {
@@ -186,8 +188,8 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
 
 
 def main(args: list[str] | None = None) -> None:
-    grid_main(args, MT5CompareConfig, GRID)
+    grid_main(args, MT5CompareConfig, GRID, prog=PROG)
 
 
 if __name__ == "__main__":
-    run_cli("sr_imitation.experiments.mt5_compare", main)  # user errors: one line (--debug: the traceback)
+    run_cli(PROG, main)  # user errors: one line (--debug: the traceback)

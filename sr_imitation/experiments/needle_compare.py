@@ -59,6 +59,8 @@ from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.needle_compare"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 class Variant(NamedTuple):
     """What one variant changes in the preset: the continual method, sleep settings (``--sleep.*``), the method's own
@@ -211,8 +213,8 @@ def summarize(runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, 
 
 
 def main(args: list[str] | None = None) -> None:
-    grid_main(args, CompareConfig, GRID)
+    grid_main(args, CompareConfig, GRID, prog=PROG)
 
 
 if __name__ == "__main__":
-    run_cli("sr_imitation.experiments.needle_compare", main)  # user errors: one line (--debug: the traceback)
+    run_cli(PROG, main)  # user errors: one line (--debug: the traceback)

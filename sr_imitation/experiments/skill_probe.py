@@ -28,7 +28,6 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import draccus
 import numpy as np
 import torch
 
@@ -38,12 +37,15 @@ from sr_imitation.imitation.evaluate import evaluate_skills
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.trainer import TrainStreamConfig
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.main_job import preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.skill_probe"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 STATS = ("own", "first", "union")
 FEATURE_FRAMES = 64
@@ -177,9 +179,9 @@ def run(cfg: ProbeConfig, make_env: Any = None) -> list[dict[str, Any]]:
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     setup_logging()
-    cfg = draccus.parse(ProbeConfig, args=list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(ProbeConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     print(render(run(cfg)))  # noqa: T201  (command output)
 
 
 if __name__ == "__main__":
-    run_cli("skill_probe", main)
+    run_cli(PROG, main)

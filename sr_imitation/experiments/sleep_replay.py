@@ -23,18 +23,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import draccus
-
 from sr_imitation.imitation.cli import parse_config
 from sr_imitation.imitation.substrate import ACTSubstrate
 from sr_imitation.imitation.trainer import ACTTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
 from sr_imitation.io import write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.rundir import OverwriteRefusedError, check_not_an_input, read_progress, run_entries_problem
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.sleep_replay"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -128,9 +129,9 @@ def main(args: list[str] | None = None) -> None:
     setup_logging()
     args = list(sys.argv[1:] if args is None else args)
     sleep_args = [a for a in args if a.startswith("--sleep.")]
-    cfg = draccus.parse(SleepReplayConfig, args=[a for a in args if a not in sleep_args])
+    cfg = parse_command(SleepReplayConfig, [a for a in args if a not in sleep_args], prog=PROG)
     print(json.dumps(replay(cfg, sleep_args), indent=2))  # noqa: T201
 
 
 if __name__ == "__main__":
-    run_cli("sr_imitation.experiments.sleep_replay", main)  # user errors: one line (--debug: the traceback)
+    run_cli(PROG, main)  # user errors: one line (--debug: the traceback)

@@ -9,19 +9,22 @@ switch is PSM2 opening its jaw when PULLOUT begins (hand-over). Run::
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
-import draccus
 import numpy as np
 
 from sr_imitation.envs.needle.env import NeedleEnv
 from sr_imitation.envs.needle.expert import NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, Skill
-from sr_imitation.infra.cli_errors import setup_logging
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.offscreen import setup_offscreen_rendering
 
 logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.envs.needle.chained"
+"""The command as a user types it (usage errors and ``--help`` name it)."""
 
 
 @dataclass
@@ -123,7 +126,7 @@ def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     from sr_imitation.video import write_mp4
 
-    cfg = draccus.parse(ChainedVideoConfig, args=args)
+    cfg = parse_command(ChainedVideoConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
     setup_logging()
     result, frames = run_chained_episode(
         cfg.seed, cfg.thresholds, render=True, height=cfg.height, width=cfg.width, wrist_size=cfg.height // 4
@@ -134,4 +137,4 @@ def main(args: list[str] | None = None) -> None:
 
 
 if __name__ == "__main__":
-    main()
+    run_cli(PROG, main)  # usage errors: one line
