@@ -55,3 +55,48 @@ def test_archiving_a_run_commits_it_with_the_queue_s_record_of_it(tmp_path):
                              text=True)
     assert missing.returncode == 2
     assert missing.stderr.strip() == "queue_archive: docs/arch/sr_seed9: no such archived run"
+
+
+def _resume_clone(tmp_path, pending_lines, manifest_lines):
+    """A throwaway clone holding queue_resume.sh, its worktree helper, a pending file and a datasets manifest whose
+    reference run names two skills."""
+    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    for name in ("queue_resume.sh", "worktree.sh"):
+        (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
+    header = ["# The runs still to do ...", "#   nohup setsid bash tools/experiments/queue_worker.sh abc1234 outputs/q"]
+    (tmp_path / "tools" / "experiments" / "queue_pending.txt").write_text("\n".join(header + pending_lines) + "\n")
+    (tmp_path / "tools" / "experiments" / "datasets.txt").write_text("\n".join(["# header", *manifest_lines]) + "\n")
+    ref = tmp_path / "docs" / "ref" / "sr_seed0"
+    ref.mkdir(parents=True)
+    ref.joinpath("settings_fingerprint.json").write_text(
+        '{"settings": {"inputs.datasets.reach-v3": "aa", "inputs.datasets.door-open-v3": "bb", "seed": 0}}')
+    return subprocess.run(["bash", str(tmp_path / "tools" / "experiments" / "queue_resume.sh"), "--dry-run"],
+                          capture_output=True, text=True)
+
+
+def test_resuming_the_queue_on_a_fresh_machine_records_what_the_lines_read_and_starts_workers(tmp_path):
+    """queue_resume.sh --dry-run on a clone without datasets: the folder a pending line reads is recorded by the
+    manifest's recipe, every skill of the reference run's digests, from the manifest's commit; the queue file is
+    written from the pending lines; workers start under the pending header's commit (one per core, 2 at most)."""
+    import os
+
+    line = "mt5_sr_3 -m x --extra=[--stream.dataset_root=datasets/mw,--wake.max_epochs=60] --seeds=[3]"
+    out = _resume_clone(tmp_path, [line, "mt5_sr_4 -m x --seeds=[4]"],
+                        ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld --num_episodes=100"])
+    assert out.returncode == 0, out.stderr
+    said = out.stderr.splitlines()
+    assert said[0] == ("queue_resume: datasets/mw: recording door-open-v3 reach-v3 from c0ffee0 "
+                       "(sr-record --env=metaworld --num_episodes=100)")
+    assert "queue_resume: would write outputs/queue.txt: 2 line(s) from tools/experiments/queue_pending.txt" in said
+    assert said.count("queue_resume: would start a worker (commit abc1234)") == min(len(os.sched_getaffinity(0)), 2)
+    assert not (tmp_path / "outputs" / "queue.txt").exists() and not (tmp_path / "datasets").exists()
+
+
+def test_resuming_refuses_a_dataset_without_a_recipe_and_says_when_nothing_is_left(tmp_path):
+    out = _resume_clone(tmp_path, ["a -m x --extra=[--stream.dataset_root=datasets/other]"],
+                        ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld"])
+    assert out.returncode == 2
+    assert out.stderr.strip() == ("queue_resume: datasets/other: read by a pending line, not in "
+                                  "tools/experiments/datasets.txt (add its recipe)")
+    done = _resume_clone(tmp_path / "empty", [], ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld"])
+    assert done.returncode == 0 and done.stderr.strip().endswith("nothing left to run")
