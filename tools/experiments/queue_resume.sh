@@ -61,7 +61,7 @@ bad = [k.split(".", 2)[2] for k, v in sorted(settings.items())
 if bad:
     sys.exit(f"queue_resume: {folder}: {', '.join(bad)} differ from the digests of {reference} (another recorder or "
              "CPU type?); no run started. Move the folder away and find out why before queueing.")
-print(f"queue_resume: {folder}: the digests of {reference}", file=sys.stderr)
+print(f"queue_resume: {folder}: the same digests as {reference}", file=sys.stderr)
 PY
   fi
 done
