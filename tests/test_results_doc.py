@@ -450,6 +450,38 @@ FAMILY = ["M1=sr>wake_only@0-9", "M2=sr!=replay@0-9",
 """The protocol's test family, exactly as its commit declares it (RESULTS, 09:19 note: the command)."""
 
 
+def test_the_sac_gate_s_result_recomputes(text):
+    """The SAC gate's table, verdict and AFSRs (RESULTS, dated below its statement) from its two archived MT-Joint
+    runs: each ran ``configs/sac_mt5_gate.json`` exactly (its seed aside; the oracle's actor is plain, no
+    excitability, as the statement says), from the gate's code; each skill's final success per seed and averaged over
+    seeds 0-1; the gate passes only if every average is >= 0.8, and RESULTS says what the numbers say."""
+    gate = DOCS / "results" / "sac_mt5_gate"
+    preset = _flat(json.loads((DOCS.parent / "configs" / "sac_mt5_gate.json").read_text()))
+    runs = []
+    for seed in (0, 1):
+        run = gate / f"mt_joint_seed{seed}"
+        config = _flat(json.loads((run / "train_config.json").read_text()))
+        expected = preset | {"seed": seed, "output_dir": ".", "excitability.enabled": False}
+        assert {k: config.get(k) for k in expected} == expected, run.name
+        results = json.loads((run / "results.json").read_text())
+        assert results["code"]["commit"].startswith("09fcd3e") and results["code"]["dirty"] is False, run.name
+        runs.append(results)
+    finals = np.array([r["success_matrix"][-1] for r in runs])
+    means = finals.mean(axis=0)
+    rows = _table_rows("| skill | seed 0 | seed 1 | mean over seeds 0-1 | >= 0.8 |")
+    assert [r[0] for r in rows] == runs[0]["skills"]
+    for i, (_, a, b, mean, ok) in enumerate(rows):
+        assert (a, b, mean) == (f"{finals[0, i]:.2f}", f"{finals[1, i]:.2f}", f"{means[i]:.2f}")
+        assert ok == ("yes" if means[i] >= 0.8 else "no")
+    passed = bool((means >= 0.8).all())
+    assert ("**the gate passes.**" in text) == passed and ("**the gate fails.**" in text) == (not passed)
+    afsr = [r["metrics"]["afsr"]["final"] for r in runs]
+    assert f"Final AFSR {afsr[0]:.3f} and {afsr[1]:.3f} (mean {np.mean(afsr):.3f})" in text
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert (f"{'**passes**' if passed else '**fails**'}: MT-Joint's final success per skill, mean over seeds 0-1, "
+            f"{' / '.join(f'{m:.2f}' for m in means)} (AFSR {np.mean(afsr):.3f};") in readme
+
+
 def test_the_mt5_family_recomputes(text):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
