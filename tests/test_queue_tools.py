@@ -100,3 +100,21 @@ def test_resuming_refuses_a_dataset_without_a_recipe_and_says_when_nothing_is_le
                                   "tools/experiments/datasets.txt (add its recipe)")
     done = _resume_clone(tmp_path / "empty", [], ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld"])
     assert done.returncode == 0 and done.stderr.strip().endswith("nothing left to run")
+
+
+def test_resuming_while_a_worker_of_the_clone_runs_queues_nothing_twice(tmp_path):
+    """A worker already running in this clone (a second call in one session): the queue file is not rewritten from
+    the pending lines (one of them may be running now) and no worker is added beyond one per core."""
+    import os
+
+    fake = subprocess.Popen(["bash", "-c", "exec -a 'bash tools/experiments/queue_worker.sh abc1234 outputs/queue.txt "
+                             "outputs/qlogs' sleep 60"], cwd=tmp_path)
+    try:
+        out = _resume_clone(tmp_path, ["mt5_sr_4 -m x --seeds=[4]"], ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld"])
+    finally:
+        fake.kill()
+        fake.wait()
+    assert out.returncode == 0, out.stderr
+    assert ("queue_resume: 1 worker(s) of this clone running: outputs/queue.txt left as it is (the pending lines "
+            "may be running now)") in out.stderr.splitlines()
+    assert out.stderr.count("would start a worker") == min(len(os.sched_getaffinity(0)), 2) - 1

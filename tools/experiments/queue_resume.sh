@@ -5,7 +5,8 @@
 #      and this clone lacks: recorded from its commit's worktree, one skill per process, two at a time; then each
 #      such dataset's content digests are checked against the archived run the manifest names, and a mismatch stops
 #      here, before any run (another CPU type can record other demonstrations: RESULTS must not mix them);
-#   3. outputs/queue.txt from the pending file (unless a queue file is already there: it is never overwritten);
+#   3. outputs/queue.txt from the pending file (unless a queue file is already there, or workers of this clone run:
+#      it is never overwritten, and no pending line is queued twice);
 #   4. workers (tools/experiments/queue_worker.sh, commit of the pending file's header) up to one per core, 2 at most.
 #
 #   bash tools/experiments/queue_resume.sh            # all of it
@@ -66,16 +67,6 @@ PY
   fi
 done
 
-mkdir -p outputs
-if [ -s outputs/queue.txt ]; then
-  say "outputs/queue.txt exists ($(grep -c -v -e '^#' -e '^[[:space:]]*$' outputs/queue.txt || true) line(s)): kept as it is"
-elif [ "$dry" = 1 ]; then
-  say "would write outputs/queue.txt: $(wc -l <<< "$lines") line(s) from $pending"
-else
-  printf '%s\n' "$lines" > outputs/queue.txt; rm -f outputs/queue.txt.taken
-  say "outputs/queue.txt: $(wc -l <<< "$lines") line(s) from $pending"
-fi
-
 workers() {  # this clone's workers: queue_worker.sh processes started here (their working folder is this clone)
   local n=0 p
   for p in $(pgrep -f 'queue_worker.sh .* outputs/queue.txt' || true); do
@@ -84,6 +75,18 @@ workers() {  # this clone's workers: queue_worker.sh processes started here (the
   echo "$n"
 }
 running="$(workers)"
+mkdir -p outputs
+if [ "$running" -gt 0 ]; then
+  say "$running worker(s) of this clone running: outputs/queue.txt left as it is (the pending lines may be running now)"
+elif [ -s outputs/queue.txt ]; then
+  say "outputs/queue.txt exists ($(grep -c -v -e '^#' -e '^[[:space:]]*$' outputs/queue.txt || true) line(s)): kept as it is"
+elif [ "$dry" = 1 ]; then
+  say "would write outputs/queue.txt: $(wc -l <<< "$lines") line(s) from $pending"
+else
+  printf '%s\n' "$lines" > outputs/queue.txt; rm -f outputs/queue.txt.taken
+  say "outputs/queue.txt: $(wc -l <<< "$lines") line(s) from $pending"
+fi
+
 cores="$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)"  # nproc obeys OMP_NUM_THREADS, which runs set to 1
 want=$(( cores < 2 ? cores : 2 ))
 for _ in $(seq $((running + 1)) "$want"); do
