@@ -11,7 +11,6 @@ at the step the expert starts closing the jaw. Seeds ``0 .. episodes - 1``; no r
 from __future__ import annotations
 
 import json
-import sys
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -51,7 +50,7 @@ def demo_ending(skill: str, scale: float, jaw_close_mm: float, seed: int) -> dic
 
 
 def main(args: list[str] | None = None) -> None:
-    cfg = parse_command(DemoEndingsConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(DemoEndingsConfig, args, prog=PROG)
     rows = []
     print("| demo_threshold_scale | expert_jaw_close_mm | skill | success | steps | final position (mm) | "  # noqa: T201
           "final rotation (deg) | jaw closing starts at (mm) |\n|---|---|---|---|---|---|---|---|")

@@ -18,7 +18,6 @@ setup_offscreen_rendering()
 import json  # noqa: E402
 import platform  # noqa: E402
 import shutil  # noqa: E402
-import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 from dataclasses import dataclass  # noqa: E402
@@ -122,7 +121,7 @@ def bench_record(cfg: NeedleBenchConfig) -> dict:
 
 
 def main(args: list[str] | None = None) -> dict:
-    cfg = parse_command(NeedleBenchConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(NeedleBenchConfig, args, prog=PROG)
     results = {"machine": f"{platform.processor() or platform.machine()}, {os.cpu_count()} CPUs",
                "mujoco_gl": os.environ.get("MUJOCO_GL")}
     results.update(bench_steps(cfg))

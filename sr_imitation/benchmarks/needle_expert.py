@@ -8,7 +8,6 @@ The targets: >= 95% with the ``learnable`` (default) thresholds and >= 90% with 
 from __future__ import annotations
 
 import json
-import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -52,7 +51,7 @@ class ExpertBenchConfig:
 
 
 def main(args: list[str] | None = None) -> dict:
-    cfg = parse_command(ExpertBenchConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(ExpertBenchConfig, args, prog=PROG)
     results: dict = {}
     t0 = time.perf_counter()
     for preset in cfg.presets:

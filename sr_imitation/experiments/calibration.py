@@ -21,7 +21,6 @@ number the verdicts rest on).
 from __future__ import annotations
 
 import logging
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -142,7 +141,7 @@ def render(reading: dict[str, Any], cfg: CalibrationConfig) -> str:
 
 def main(args: list[str] | None = None) -> None:
     setup_logging()
-    cfg = parse_command(CalibrationConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(CalibrationConfig, args, prog=PROG)
     reading = read_calibration(cfg)
     text = render(reading, cfg)
     if cfg.output is not None:

@@ -44,7 +44,6 @@ import importlib
 import json
 import logging
 import os
-import sys
 import threading
 import time
 import warnings
@@ -452,7 +451,7 @@ def main(args: list[str] | None = None, config_class: type[GridConfig] = GridCon
 
     setup_offscreen_rendering()
     setup_logging()
-    cfg = parse_command(config_class, list(sys.argv[1:] if args is None else args), prog=prog)
+    cfg = parse_command(config_class, args, prog=prog)
     summary = run_grid(cfg, substrate)
     print_final_means(summary, [cfg.output_root / "summary.md", cfg.output_root / "memory.md"])
 

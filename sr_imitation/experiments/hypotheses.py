@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import logging
 import re
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -247,8 +246,7 @@ def plot(rows: list[dict[str, Any]], path: Path) -> None:
 
 def main(args: list[str] | None = None) -> None:
     setup_logging()
-    cfg = parse_command(HypothesesConfig, list(sys.argv[1:] if args is None else args),
-                        prog=PROG)
+    cfg = parse_command(HypothesesConfig, args, prog=PROG)
     rows = run_tests(cfg)
     text = render(rows, cfg.archive, cfg.preregistered, cfg.note)
     if cfg.output is not None:

@@ -13,7 +13,6 @@ both have. Written: ``memory_budget.md`` / ``.json`` / ``.png`` (two panels, log
 from __future__ import annotations
 
 import logging
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -133,7 +132,7 @@ def plot(summary: dict[str, Any], path: Path) -> None:
 
 def main(args: list[str] | None = None) -> None:
     setup_logging()
-    cfg = parse_command(BudgetConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(BudgetConfig, args, prog=PROG)
     summary = collect(cfg)
     text = render(summary)
     if cfg.output is not None:

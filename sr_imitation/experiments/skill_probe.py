@@ -23,7 +23,6 @@ from __future__ import annotations
 import copy
 import logging
 import math
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -179,7 +178,7 @@ def run(cfg: ProbeConfig, make_env: Any = None) -> list[dict[str, Any]]:
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     setup_logging()
-    cfg = parse_command(ProbeConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(ProbeConfig, args, prog=PROG)
     print(render(run(cfg)))  # noqa: T201  (command output)
 
 

@@ -28,6 +28,7 @@ import inspect
 import json
 import logging
 import re
+import sys
 import tempfile
 import textwrap
 import types
@@ -167,7 +168,7 @@ def check_flags_known(args: Sequence[str], known: Sequence[str]) -> None:
         raise UsageError(f"unknown flag {name}{hint}")
 
 
-def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: str | Path | None = None,
+def parse_command(cls: type[T], args: Sequence[str] | None, *, prog: str, config_path: str | Path | None = None,
                   prefix: str = "", names: Mapping[str, str] | None = None,
                   notes: Mapping[str, str] | None = None, help_values: tuple[str, Mapping] | None = None) -> T:
     """``draccus.parse`` of ``cls`` for the command ``prog`` (module docstring): ``--help`` prints every flag's
@@ -177,9 +178,9 @@ def parse_command(cls: type[T], args: Sequence[str], *, prog: str, config_path: 
     any other argparse error is a :class:`UsageError` too, with the sentence ``notes`` holds for its flag appended
     (``--policy.type``: what the command trains).
 
-    ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix`` names (``--seed=1`` is
-    ``--train.seed=1``); errors name the flags as given."""
-    args = list(args)
+    ``args`` None: ``sys.argv[1:]``. ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix``
+    names (``--seed=1`` is ``--train.seed=1``); errors name the flags as given."""
+    args = list(sys.argv[1:] if args is None else args)
     with readable_config(config_path) as (readable, settings):
         parser = command_parser(cls, prog=prog, config_path=readable)
         if wants_help(args):

@@ -9,7 +9,6 @@ switch is PSM2 opening its jaw when PULLOUT begins (hand-over). Run::
 from __future__ import annotations
 
 import logging
-import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -126,7 +125,7 @@ def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     from sr_imitation.video import write_mp4
 
-    cfg = parse_command(ChainedVideoConfig, list(sys.argv[1:] if args is None else args), prog=PROG)
+    cfg = parse_command(ChainedVideoConfig, args, prog=PROG)
     setup_logging()
     result, frames = run_chained_episode(
         cfg.seed, cfg.thresholds, render=True, height=cfg.height, width=cfg.width, wrist_size=cfg.height // 4
