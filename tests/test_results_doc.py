@@ -561,6 +561,45 @@ def test_the_mt5_family_recomputes(text):
         not any(r["significant_holm"] for r in family)
 
 
+def test_the_mt5_references_recompute(text):
+    """The MT5 stream's references on seeds 0-9 (descriptive): MT-Joint's and sequential BC's final AFSR and success
+    per skill, sequential BC's success right after each own wake and on each earlier skill right after the next
+    wake, the share of the gap between them that SR, wake-only and replay close, the baselines archived so far, and
+    the README's line."""
+    names = ["reach", "door-open", "drawer-open", "window-close", "button-press"]
+    runs = {(v, s): json.loads((MT5_COMPARE / f"{v}_seed{s}" / "results.json").read_text())
+            for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay") for s in range(10)}
+    afsr = {v: [runs[(v, s)]["metrics"]["afsr"]["final"] for s in range(10)]
+            for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay")}
+    final = {v: np.mean([runs[(v, s)]["success_matrix"][-1] for s in range(10)], axis=0)
+             for v in ("mt_joint", "sequential_bc")}
+    skills = {v: ", ".join(f"{n} {x:.2f}" for n, x in zip(names, final[v], strict=True)) for v in final}
+    low = [str(s) for s in range(10) if runs[("mt_joint", s)]["success_matrix"][-1][0] < 0.8]
+    assert f"oracle (one ACT on all five datasets at once) ends at {_mean_se(afsr['mt_joint'])} " \
+           f"({skills['mt_joint']}; reach below 0.8 on seeds {', '.join(low)}:" in text
+    assert np.mean(afsr["mt_joint"]) >= 0.9 and final["mt_joint"][0] < 0.8 and min(final["mt_joint"][1:]) >= 0.8
+    own = np.mean([runs[("sequential_bc", s)]["success_after_own_wake"] for s in range(10)], axis=0)
+    at_next = [runs[("sequential_bc", s)]["success_matrix"][i + 1][i] for s in range(10) for i in range(4)]
+    bwt = [runs[("sequential_bc", s)]["metrics"]["bwt"]["final"] for s in range(10)]
+    assert f"sequential BC learns each skill in its own wake ({' / '.join(f'{x:.2f}' for x in own)}) and loses it " \
+           f"at the next wake (an earlier skill's success right after the next wake: mean {np.mean(at_next):.2f} " \
+           f"over the {len(at_next)} seed-skill pairs, above 0.1 in {sum(x > 0.1 for x in at_next)}, at most " \
+           f"{max(at_next):.2f}), ending at {_mean_se(afsr['sequential_bc'])} ({skills['sequential_bc']}; BWT " \
+           f"{_signed(bwt)})" in text
+    closed = {v: (np.mean(afsr[v]) - np.mean(afsr["sequential_bc"]))
+              / (np.mean(afsr["mt_joint"]) - np.mean(afsr["sequential_bc"])) for v in ("sr", "wake_only", "replay")}
+    assert f"SR closes {closed['sr']:.0%}, wake-only {closed['wake_only']:.0%}, replay {closed['replay']:.0%}" in text
+    baselines = {v: json.loads((MT5_COMPARE / f"{v}_seed0" / "results.json").read_text())
+                 for v in ("ewc_lam10000", "lwf_w0.1")}
+    finals = " and ".join(f"{r['metrics']['afsr']['final']:.3f}" for r in baselines.values())
+    worst = [max(r["success_matrix"][i + 1][i] for i in range(4)) for r in baselines.values()]
+    assert f"EWC and LwF seed 0, final AFSR {finals}; like sequential BC they lose each earlier skill at the next " \
+           f"wake (at most {worst[0]:.2f} for EWC, {worst[1]:.2f} for LwF)" in text
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert f"MT-Joint {np.mean(afsr['mt_joint']):.3f}, sequential BC {np.mean(afsr['sequential_bc']):.3f} (10 " \
+           f"seeds each; SR closes {closed['sr']:.0%} of the gap between them" in readme
+
+
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
 
 def _list(values: list[float]) -> str:
