@@ -448,6 +448,14 @@ MT5_COMPARE = DOCS / "results" / "metaworld_mt5_imitation_compare"
 FAMILY = ["M1=sr>wake_only@0-9", "M2=sr!=replay@0-9",
           f"N1={DOCS / 'results' / 'needle_cpu_m16_replication'}::sr>wake_only@5-9"]
 """The protocol's test family, exactly as its commit declares it (RESULTS, 09:19 note: the command)."""
+MT5_SKILLS = ["reach", "door-open", "drawer-open", "window-close", "button-press"]
+"""The stream's skills in its order, as RESULTS names them."""
+
+
+def _mt5_runs(variants: tuple[str, ...], seeds: range = range(10)) -> dict[tuple[str, int], dict]:
+    """The archived MT5 imitation runs' ``results.json``, by (variant, training seed)."""
+    return {(v, s): json.loads((MT5_COMPARE / f"{v}_seed{s}" / "results.json").read_text())
+            for v in variants for s in seeds}
 
 
 def test_the_sac_gate_s_result_recomputes(text):
@@ -487,8 +495,7 @@ def test_the_mt5_family_recomputes(text):
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
     rows = _table_rows("| training seed | SR final AFSR | wake-only final AFSR | replay final AFSR | SR - wake-only | "
                        "SR - replay |")
-    runs = {(v, s): json.loads((MT5_COMPARE / f"{v}_seed{s}" / "results.json").read_text())
-            for v in ("sr", "wake_only", "replay") for s in range(10)}
+    runs = _mt5_runs(("sr", "wake_only", "replay"))
     assert [int(r[0]) for r in rows] == list(range(10))
     for seed, *cells in rows:
         a, b, c = (runs[(v, int(seed))]["metrics"]["afsr"]["final"] for v in ("sr", "wake_only", "replay"))
@@ -523,9 +530,8 @@ def test_the_mt5_family_recomputes(text):
         assert f"{label} " + " / ".join(f"{np.mean(metric[(v, m)]):.3f}" for v in ("sr", "wake_only", "replay")) in text
     final = {v: np.mean([runs[(v, s)]["success_matrix"][-1] for s in range(10)], axis=0)
              for v in ("sr", "wake_only", "replay")}
-    names = ["reach", "door-open", "drawer-open", "window-close", "button-press"]
     per_skill = ", ".join(f"{n} " + " / ".join(f"{final[v][i]:.2f}" for v in ("sr", "wake_only", "replay"))
-                          for i, n in enumerate(names))
+                          for i, n in enumerate(MT5_SKILLS))
     assert f"SR / wake-only / replay: {per_skill}" in text
     own = np.mean([runs[("sr", s)]["success_after_own_wake"] for s in range(10)], axis=0)
     assert "own wake " + " / ".join(f"{x:.2f}" for x in own) + " for reach" in text
@@ -566,14 +572,12 @@ def test_the_mt5_references_recompute(text):
     per skill, sequential BC's success right after each own wake and on each earlier skill right after the next
     wake, the share of the gap between them that SR, wake-only and replay close, the baselines archived so far, and
     the README's line."""
-    names = ["reach", "door-open", "drawer-open", "window-close", "button-press"]
-    runs = {(v, s): json.loads((MT5_COMPARE / f"{v}_seed{s}" / "results.json").read_text())
-            for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay") for s in range(10)}
+    runs = _mt5_runs(("mt_joint", "sequential_bc", "sr", "wake_only", "replay"))
     afsr = {v: [runs[(v, s)]["metrics"]["afsr"]["final"] for s in range(10)]
             for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay")}
     final = {v: np.mean([runs[(v, s)]["success_matrix"][-1] for s in range(10)], axis=0)
              for v in ("mt_joint", "sequential_bc")}
-    skills = {v: ", ".join(f"{n} {x:.2f}" for n, x in zip(names, final[v], strict=True)) for v in final}
+    skills = {v: ", ".join(f"{n} {x:.2f}" for n, x in zip(MT5_SKILLS, final[v], strict=True)) for v in final}
     low = [str(s) for s in range(10) if runs[("mt_joint", s)]["success_matrix"][-1][0] < 0.8]
     assert f"oracle (one ACT on all five datasets at once) ends at {_mean_se(afsr['mt_joint'])} " \
            f"({skills['mt_joint']}; reach below 0.8 on seeds {', '.join(low)}:" in text
@@ -589,8 +593,7 @@ def test_the_mt5_references_recompute(text):
     closed = {v: (np.mean(afsr[v]) - np.mean(afsr["sequential_bc"]))
               / (np.mean(afsr["mt_joint"]) - np.mean(afsr["sequential_bc"])) for v in ("sr", "wake_only", "replay")}
     assert f"SR closes {closed['sr']:.0%}, wake-only {closed['wake_only']:.0%}, replay {closed['replay']:.0%}" in text
-    baselines = {v: json.loads((MT5_COMPARE / f"{v}_seed0" / "results.json").read_text())
-                 for v in ("ewc_lam10000", "lwf_w0.1")}
+    baselines = {v: r for (v, _), r in _mt5_runs(("ewc_lam10000", "lwf_w0.1"), range(1)).items()}
     finals = " and ".join(f"{r['metrics']['afsr']['final']:.3f}" for r in baselines.values())
     worst = [max(r["success_matrix"][i + 1][i] for i in range(4)) for r in baselines.values()]
     assert f"EWC and LwF seed 0, final AFSR {finals}; like sequential BC they lose each earlier skill at the next " \
