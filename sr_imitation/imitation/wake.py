@@ -265,6 +265,9 @@ def wake_train(
                 ) from exc
             for key, value in out.items():
                 sums[key] = sums.get(key, 0.0) + float(value)
+            # the loss the step minimised, a method's wake term (EWC's penalty, LwF's distillation) included: the
+            # policy's outputs alone do not show it
+            sums["loss"] = sums.get("loss", 0.0) + float(tracker.loss.val)
             result.steps += 1
             bar.update(1)
         val_l1 = validation_l1(policy, preprocessor, val_loader)

@@ -97,7 +97,8 @@ def test_ewc_runs_a_tiny_act_stream_with_the_empirical_fisher(state_datasets, tm
 
     from sr_imitation.stream.methods.ewc import EWC
 
-    monkeypatch.setattr(EWC, "config", dataclasses.replace(EWC.config, fisher_states=4))
+    # lambda 1e6: a penalty the float32 loss can show after the tiny stream's few steps
+    monkeypatch.setattr(EWC, "config", dataclasses.replace(EWC.config, fisher_states=4, lam=1e6))
     cfg = tiny_stream_config(state_datasets, tmp_path / "ewc", SKILLS[:2], use_images=False)
     cfg.method = "ewc"
     results = train_stream(cfg, fake_env_factory)
@@ -107,6 +108,12 @@ def test_ewc_runs_a_tiny_act_stream_with_the_empirical_fisher(state_datasets, tm
     assert torch.sqrt(sum(f.pow(2).sum() for f in fisher)) == pytest.approx(1.0, abs=1e-5)
     assert results["memory_bytes_total"] == sum(m.nbytes() for m in [memory]) * 1 + results["memory_bytes"]["place"]
     assert results["memory_kinds"] == {"ewc_fisher": results["memory_bytes_total"]}
+    # each epoch's record shows the loss the steps minimised: the policy's alone in the first wake (nothing to
+    # anchor to), with the penalty on top in the second (the weights leave the anchor after the first step)
+    first, second = (json.loads((tmp_path / "ewc" / stage / "wake" / "wake_history.json").read_text())["history"]
+                     for stage in ("skill_1_approach", "skill_2_place"))
+    assert all(r["loss"] == pytest.approx(r["bc_loss"], rel=1e-6) for r in first)
+    assert all(r["loss"] > r["bc_loss"] for r in second), second
 
 
 class _FeaturePolicy(_Policy):
