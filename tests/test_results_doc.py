@@ -570,8 +570,9 @@ def test_the_mt5_family_recomputes(text):
 def test_the_mt5_references_recompute(text):
     """The MT5 stream's references on seeds 0-9 (descriptive): MT-Joint's and sequential BC's final AFSR and success
     per skill, sequential BC's success right after each own wake and on each earlier skill right after the next
-    wake, the share of the gap between them that SR, wake-only and replay close, the baselines archived so far, and
-    the README's line."""
+    wake, the share of the gap between them that SR, wake-only and replay close; the baselines EWC, LwF and
+    M2Distill on seeds 0-2 likewise (final AFSR and BWT, right after own wake, the worst earlier skill right after
+    the next wake, final per skill); and the README's line."""
     runs = _mt5_runs(("mt_joint", "sequential_bc", "sr", "wake_only", "replay"))
     afsr = {v: [runs[(v, s)]["metrics"]["afsr"]["final"] for s in range(10)]
             for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay")}
@@ -593,15 +594,34 @@ def test_the_mt5_references_recompute(text):
     closed = {v: (np.mean(afsr[v]) - np.mean(afsr["sequential_bc"]))
               / (np.mean(afsr["mt_joint"]) - np.mean(afsr["sequential_bc"])) for v in ("sr", "wake_only", "replay")}
     assert f"SR closes {closed['sr']:.0%}, wake-only {closed['wake_only']:.0%}, replay {closed['replay']:.0%}" in text
-    baselines = {v: r for (v, _), r in _mt5_runs(("ewc_lam10000", "lwf_w0.1"), range(1)).items()}
-    finals = " and ".join(f"{r['metrics']['afsr']['final']:.3f}" for r in baselines.values())
-    worst = [max(r["success_matrix"][i + 1][i] for i in range(4)) for r in baselines.values()]
-    assert f"EWC and LwF seed 0, final AFSR {finals}; like sequential BC they lose each earlier skill at the next " \
-           f"wake (at most {worst[0]:.2f} for EWC, {worst[1]:.2f} for LwF)" in text
+    names = {"ewc_lam10000": "EWC", "lwf_w0.1": "LwF", "m2distill_w0.01": "M2Distill"}
+    base = _mt5_runs((*names, "sequential_bc"), range(3))
+
+    def finals(v: str, metric: str) -> list[float]:
+        return [base[(v, s)]["metrics"][metric]["final"] for s in range(3)]
+
+    ends = ", ".join(f"{n} {_mean_se(finals(v, 'afsr'))} (BWT {_signed(finals(v, 'bwt'))})" for v, n in names.items())
+    assert f"{ends}; sequential BC on the same seeds {_mean_se(finals('sequential_bc', 'afsr'))}" in text
+    own = {v: np.mean([base[(v, s)]["success_after_own_wake"] for s in range(3)], axis=0) for v in names}
+    assert f"(success right after it: {', '.join(f'{n} {_list(own[v])}' for v, n in names.items())})" in text
+    at_next = {v: [base[(v, s)]["success_matrix"][i + 1][i] for s in range(3) for i in range(4)] for v in names}
+    assert "12 seed-skill pairs: " + "; ".join(f"{n} mean {np.mean(at_next[v]):.2f}, at most {max(at_next[v]):.2f}"
+                                               for v, n in names.items()) + ")" in text
+    last = {v: np.mean([base[(v, s)]["success_matrix"][-1] for s in range(3)], axis=0) for v in names}
+    assert "; ".join(f"{n} {', '.join(f'{k} {x:.2f}' for k, x in zip(MT5_SKILLS, last[v], strict=True))}"
+                     for v, n in names.items()) in text
+    # the drawer-open LwF and M2Distill end with came back in the last wake after the window-close wake had lost it
+    back = [(v, s) for v in ("lwf_w0.1", "m2distill_w0.01") for s in range(3)
+            if base[(v, s)]["success_matrix"][-1][2] > 0]
+    fell = max(base[k]["success_matrix"][3][2] for k in back)
+    assert f"in each of the {len(back)} runs that end above 0 on it, it had fallen to at most {fell:.2f} at the " \
+           "window-close wake" in text
     readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert f"MT-Joint {np.mean(afsr['mt_joint']):.3f}, sequential BC {np.mean(afsr['sequential_bc']):.3f} (10 " \
            f"seeds each; SR closes {closed['sr']:.0%} of the gap between them, wake-only {closed['wake_only']:.0%})" \
         in readme
+    means = ", ".join(f"{n} {np.mean(finals(v, 'afsr')):.3f}" for v, n in names.items())
+    assert f"wake-only {closed['wake_only']:.0%}); {means} (3 seeds each;" in readme
 
 
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
