@@ -622,6 +622,8 @@ def test_the_mt5_references_recompute(text):
         in readme
     means = ", ".join(f"{n} {np.mean(finals(v, 'afsr')):.3f}" for v, n in names.items())
     assert f"wake-only {closed['wake_only']:.0%}); {means} (3 seeds each;" in readme
+    assert f"MT-Joint {np.mean(afsr['mt_joint']):.3f} and sequential BC {np.mean(afsr['sequential_bc']):.3f} (10 " \
+           f"seeds), {means} (3 seeds;" in text  # RESULTS' headline
 
 
 # --- the MT5 imitation stream's calibration (protocol in RESULTS; readings below it) ---------------------------------
