@@ -458,6 +458,16 @@ def _mt5_runs(variants: tuple[str, ...], seeds: range = range(10)) -> dict[tuple
             for v in variants for s in seeds}
 
 
+def _finals(runs: dict[tuple[str, int], dict], variant: str, metric: str, seeds: range) -> list[float]:
+    """``variant``'s final ``metric`` on each of ``seeds``, from :func:`_mt5_runs`' runs."""
+    return [runs[(variant, s)]["metrics"][metric]["final"] for s in seeds]
+
+
+def _after_next_wake(runs: dict[tuple[str, int], dict], variant: str, seeds: range) -> list[float]:
+    """Each earlier skill's success right after the next wake (skills 1-4), over ``seeds``."""
+    return [runs[(variant, s)]["success_matrix"][i + 1][i] for s in seeds for i in range(4)]
+
+
 def test_the_sac_gate_s_result_recomputes(text):
     """The SAC gate's table, verdict and AFSRs (RESULTS, dated below its statement) from its two archived MT-Joint
     runs: each ran ``configs/sac_mt5_gate.json`` exactly (its seed aside; the oracle's actor is plain, no
@@ -574,8 +584,7 @@ def test_the_mt5_references_recompute(text):
     M2Distill on seeds 0-2 likewise (final AFSR and BWT, right after own wake, the worst earlier skill right after
     the next wake, final per skill); and the README's line."""
     runs = _mt5_runs(("mt_joint", "sequential_bc", "sr", "wake_only", "replay"))
-    afsr = {v: [runs[(v, s)]["metrics"]["afsr"]["final"] for s in range(10)]
-            for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay")}
+    afsr = {v: _finals(runs, v, "afsr", range(10)) for v in ("mt_joint", "sequential_bc", "sr", "wake_only", "replay")}
     final = {v: np.mean([runs[(v, s)]["success_matrix"][-1] for s in range(10)], axis=0)
              for v in ("mt_joint", "sequential_bc")}
     skills = {v: ", ".join(f"{n} {x:.2f}" for n, x in zip(MT5_SKILLS, final[v], strict=True)) for v in final}
@@ -584,9 +593,9 @@ def test_the_mt5_references_recompute(text):
            f"({skills['mt_joint']}; reach below 0.8 on seeds {', '.join(low)}:" in text
     assert np.mean(afsr["mt_joint"]) >= 0.9 and final["mt_joint"][0] < 0.8 and min(final["mt_joint"][1:]) >= 0.8
     own = np.mean([runs[("sequential_bc", s)]["success_after_own_wake"] for s in range(10)], axis=0)
-    at_next = [runs[("sequential_bc", s)]["success_matrix"][i + 1][i] for s in range(10) for i in range(4)]
-    bwt = [runs[("sequential_bc", s)]["metrics"]["bwt"]["final"] for s in range(10)]
-    assert f"sequential BC learns each skill in its own wake ({' / '.join(f'{x:.2f}' for x in own)}) and loses it " \
+    at_next = _after_next_wake(runs, "sequential_bc", range(10))
+    bwt = _finals(runs, "sequential_bc", "bwt", range(10))
+    assert f"sequential BC learns each skill in its own wake ({_list(own)}) and loses it " \
            f"at the next wake (an earlier skill's success right after the next wake: mean {np.mean(at_next):.2f} " \
            f"over the {len(at_next)} seed-skill pairs, above 0.1 in {sum(x > 0.1 for x in at_next)}, at most " \
            f"{max(at_next):.2f}), ending at {_mean_se(afsr['sequential_bc'])} ({skills['sequential_bc']}; BWT " \
@@ -598,14 +607,14 @@ def test_the_mt5_references_recompute(text):
     base = _mt5_runs((*names, "sequential_bc"), range(3))
 
     def finals(v: str, metric: str) -> list[float]:
-        return [base[(v, s)]["metrics"][metric]["final"] for s in range(3)]
+        return _finals(base, v, metric, range(3))
 
     ends = ", ".join(f"{n} {_mean_se(finals(v, 'afsr'))} (BWT {_signed(finals(v, 'bwt'))})" for v, n in names.items())
     assert f"{ends}; sequential BC on the same seeds {_mean_se(finals('sequential_bc', 'afsr'))}" in text
-    own = {v: np.mean([base[(v, s)]["success_after_own_wake"] for s in range(3)], axis=0) for v in names}
-    assert f"(success right after it: {', '.join(f'{n} {_list(own[v])}' for v, n in names.items())})" in text
-    at_next = {v: [base[(v, s)]["success_matrix"][i + 1][i] for s in range(3) for i in range(4)] for v in names}
-    assert "12 seed-skill pairs: " + "; ".join(f"{n} mean {np.mean(at_next[v]):.2f}, at most {max(at_next[v]):.2f}"
+    own_wake = {v: np.mean([base[(v, s)]["success_after_own_wake"] for s in range(3)], axis=0) for v in names}
+    assert f"(success right after it: {', '.join(f'{n} {_list(own_wake[v])}' for v, n in names.items())})" in text
+    next_wake = {v: _after_next_wake(base, v, range(3)) for v in names}
+    assert "12 seed-skill pairs: " + "; ".join(f"{n} mean {np.mean(next_wake[v]):.2f}, at most {max(next_wake[v]):.2f}"
                                                for v, n in names.items()) + ")" in text
     last = {v: np.mean([base[(v, s)]["success_matrix"][-1] for s in range(3)], axis=0) for v in names}
     assert "; ".join(f"{n} {', '.join(f'{k} {x:.2f}' for k, x in zip(MT5_SKILLS, last[v], strict=True))}"
