@@ -110,6 +110,14 @@ class GridSubstrate(Protocol):
         """Write the summary of ``{variant: {seed: run directory}}`` into ``output_root``; return it."""
 
 
+LOCAL_RAY_SYSTEM_CONFIG: dict[str, int] = {"health_check_period_ms": 3000, "health_check_failure_threshold": 100}
+"""Ray's settings for the local Ray this runner starts (our choice). By default Ray's head marks a node dead after
+5 missed health checks 3 s apart; on a 2-core machine whose cores the runs (and any other work) hold, the raylet
+can answer late for that long, and every run on it then fails with "The task's local raylet died" (measured: CI,
+2026-11-28, two pytest workers beside a Ray run). A local Ray has one node, so waiting 5 minutes before calling it
+dead loses nothing; a raylet that truly crashed still ends its workers' tasks at once."""
+
+
 @dataclass
 class RayOptions:
     """Where the runs go and what each one asks for (``--ray.*``)."""
@@ -384,8 +392,9 @@ def _run_ray(cfg: GridConfig, substrate: GridSubstrate, plan: Mapping[RunKey, An
     if started:
         with warnings.catch_warnings():  # Ray 2.52's notice of a future default: runs without GPUs keep seeing none
             warnings.filterwarnings("ignore", message=".*RAY_ACCEL_ENV_VAR_OVERRIDE_ON_ZERO", category=FutureWarning)
-            ray.init(address=opts.address, num_cpus=opts.local_cpus if opts.address is None else None,
-                     log_to_driver=opts.log_to_driver)
+            local = opts.address is None
+            ray.init(address=opts.address, num_cpus=opts.local_cpus if local else None,
+                     log_to_driver=opts.log_to_driver, _system_config=LOCAL_RAY_SYSTEM_CONFIG if local else None)
     try:
         res = ray.cluster_resources()
         logger.info("Ray: %g CPUs, %g GPUs, %.1f GiB memory", res.get("CPU", 0), res.get("GPU", 0),

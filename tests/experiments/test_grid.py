@@ -16,7 +16,15 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.experiments.archive import archive_run
-from sr_imitation.experiments.grid import KILL_HOOK_ENV, GridConfig, completed_phases, run_grid, substrate_of_preset
+from sr_imitation.experiments.grid import (
+    KILL_HOOK_ENV,
+    LOCAL_RAY_SYSTEM_CONFIG,
+    GridConfig,
+    RayOptions,
+    completed_phases,
+    run_grid,
+    substrate_of_preset,
+)
 from sr_imitation.experiments.mt5_compare import MT5CompareConfig
 from sr_imitation.experiments.needle_compare import CompareConfig
 from sr_imitation.infra.fingerprint import SettingsMismatchError
@@ -72,7 +80,7 @@ def local_ray():
     assert not ray.is_initialized() and _ray_processes() == []
 
     def start() -> None:
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, _system_config=LOCAL_RAY_SYSTEM_CONFIG)
 
     yield start
     ray.shutdown()
@@ -150,15 +158,18 @@ def test_runs_in_the_archive_are_not_submitted(preset, loop_runs, local_ray, tmp
 def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(local_ray, tmp_path, caplog):
     from tests.experiments import toy_grid
 
-    local_ray()
+    # the runner starts its own local Ray here (and stops it: the fixture checks no Ray process is left)
     out, archive = tmp_path / "grid", tmp_path / "archive"
     cfg = GridConfig(preset=tmp_path / "unused.json", variants=["after_a", "a", "fails", "after_fails", "b"],
-                     seeds=[0], output_root=out, archive=archive)
+                     seeds=[0], output_root=out, archive=archive, ray=RayOptions(local_cpus=2))
     with pytest.raises(RuntimeError, match=r"2 of 5 runs failed .*fails_seed0: .*toy failure; "
                                            r"after_fails_seed0: not started: fails_seed0 failed"):
         run_grid(cfg, toy_grid.GRID)
     results = {v: json.loads((out / f"{v}_seed0" / "results.json").read_text()) for v in ("a", "b", "after_a")}
     assert results["after_a"]["waited"] and results["after_a"]["start"] >= results["a"]["end"]
+    # with patient health checks: on two busy cores Ray's defaults (5 misses 3 s apart) declared the raylet dead
+    want = [LOCAL_RAY_SYSTEM_CONFIG[k] for k in ("health_check_period_ms", "health_check_failure_threshold")]
+    assert all(r["ray_health_checks"] == want for r in results.values())
     assert sorted(p.name for p in archive.iterdir()) == ["a_seed0", "after_a_seed0", "b_seed0"]  # the others kept
     assert not (out / "after_fails_seed0").exists()
     assert "toy failure" in (out / "logs" / "fails_seed0.log").read_text()  # the traceback in the run's log

@@ -25,6 +25,18 @@ class ToyRun:
     torch_threads: int | None = None
 
 
+def _ray_health_checks() -> list[int] | None:
+    """The Ray settings this worker's node runs with (period in ms, missed checks before a node is dead); ``None``
+    outside Ray."""
+    import ray
+
+    if not ray.is_initialized():
+        return None
+    from ray._raylet import Config
+
+    return [Config.health_check_period_ms(), Config.health_check_failure_threshold()]
+
+
 class ToyGrid:
     variants = {"a": None, "b": None, "fails": None, **dict.fromkeys(AFTER)}
     default_variants = ["a", "b"]
@@ -58,7 +70,8 @@ class ToyGrid:
         before = AFTER.get(variant)
         waited = before is None or (out.parent / run_name(before, run.seed) / "results.json").is_file()
         time.sleep(0.3)
-        results = {"metrics": {"afsr": {"final": 0.5}}, "start": start, "end": time.time(), "waited": waited}
+        results = {"metrics": {"afsr": {"final": 0.5}}, "start": start, "end": time.time(), "waited": waited,
+                   "ray_health_checks": _ray_health_checks()}
         (out / "results.json").write_text(json.dumps(results))
 
     def summarize(self, runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
