@@ -156,7 +156,8 @@ def test_the_vision_baseline_rows_so_far_recompute():
 
 
 def test_the_vision_test_h4_and_its_first_lines_recompute(text):
-    """H4 (pre-registered): its table row and the first paragraph's vision sentence, from the vision archive."""
+    """H4 (exploratory since 2026-11-28: seed 0's pair was known when it was written): its table row and the first
+    paragraph's vision sentence, from the vision archive."""
     archive = DOCS / "results" / "needle_cpu_vision_compare"
     (h4,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only"]))
     assert h4["seeds"] == [0, 1, 2, 3, 4]
@@ -341,6 +342,28 @@ def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archiv
         assert _git("merge-base", "--is-ancestor", statement, commit).returncode == 0, (commit, commits[commit])
         if code is not None:
             assert commit.startswith(_git("rev-parse", code).stdout.strip()), (commit, commits[commit])
+
+
+PREREGISTERED = {"metaworld_mt5_imitation_compare": "M1, M2", "needle_cpu_m16_replication": "N1", "sac_mt5_gate": "G1"}
+"""The archives whose tests were stated before any run of their preset (the imitation protocol, the SAC gate)."""
+
+
+def test_only_tests_stated_before_any_run_are_labelled_pre_registered_in_an_archive():
+    """The protocol's rule, on every archived ``hypotheses.md``: headed "Pre-registered" only in an archive whose tests
+    a protocol declared before any run of its preset (and only the declared ones: no ``hypotheses_exploratory/``);
+    every other one "Exploratory (not pre-registered)" (the m16 H1/H2 and vision H4 files were headed "Pre-registered"
+    until 2026-11-28)."""
+    found = sorted(DOCS.glob("results/**/hypotheses*/hypotheses.md"))
+    assert len(found) >= 7
+    for md in found:
+        head = md.read_text().splitlines()[0]
+        if head.startswith("Pre-registered"):
+            assert md.parent.name == "hypotheses" and md.parents[1].name in PREREGISTERED, md
+        else:
+            assert head.startswith("Exploratory (not pre-registered)"), md
+    for name in ("needle_cpu_m16_compare", "needle_cpu_vision_compare"):
+        text = (DOCS / "results" / name / "hypotheses" / "hypotheses.md").read_text()
+        assert text.startswith("Exploratory") and "Labelled exploratory (corrected 2026-11-28" in text, name
 
 
 def test_every_mt5_test_run_ran_the_recorded_test_preset():
