@@ -13,7 +13,9 @@ import numpy as np
 import pytest
 
 from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_values, run_tests
+from sr_imitation.experiments.mt5_compare import VARIANTS as MT5_VARIANTS
 from sr_imitation.io import read_checked_json
+from sr_imitation.stream.rundir import read_progress
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 ARCHIVE = DOCS / "results" / "needle_cpu_m16_compare"
@@ -521,6 +523,46 @@ def test_the_sac_gate_s_result_recomputes(text):
     readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert (f"{'**passes**' if passed else '**fails**'}: MT-Joint's final success per skill, mean over seeds 0-1, "
             f"{' / '.join(f'{m:.2f}' for m in means)} (AFSR {np.mean(afsr):.3f};") in readme
+
+
+SAC_FOLLOW_UP = ("sr", "wake_only", "reset_distill")
+"""The SAC gate's follow-up variants (RESULTS, the gate's statement)."""
+SAC_FOLLOW_UP_HEADER = ("| variant | training seed | final success reach / door-open / drawer-open / window-close / "
+                        "button-press | right after own wake | final AFSR | BWT / BWT_wake | compute minutes |")
+
+
+def _compute_minutes(run: Path) -> float:
+    """A run's compute time: its completed phases' seconds (``progress.json``), a wake resumed from a snapshot
+    counted by its own record (``wake.seconds``, which carries the time before the snapshot; the phase's own
+    ``seconds`` starts at the resume)."""
+    completed = read_progress(run / "progress.json")["completed"]
+    return sum(max(rec["seconds"], rec.get("wake", {}).get("seconds", 0.0)) for rec in completed.values()) / 60
+
+
+def test_the_sac_follow_up_rows_so_far_recompute(text):
+    """The SAC gate's follow-up table (RESULTS, below the gate's result) has one row per archived SR, wake-only and
+    Reset & Distill run, each recomputed from its raw files; every such run ran ``configs/sac_mt5_gate.json`` with
+    only its seed and its variant's flags (``mt5_compare.VARIANTS``) changed, from the gate's code, clean."""
+    gate = DOCS / "results" / "sac_mt5_gate"
+    preset = _flat(json.loads((DOCS.parent / "configs" / "sac_mt5_gate.json").read_text()))
+    archived = sorted((v, int(p.name.rsplit("_seed", 1)[1])) for v in SAC_FOLLOW_UP for p in gate.glob(f"{v}_seed*"))
+    rows = _table_rows(SAC_FOLLOW_UP_HEADER)
+    assert sorted((v, int(s)) for v, s, *_ in rows) == archived
+    for variant, seed, finals, own, afsr, bwt, minutes in rows:
+        run = gate / f"{variant}_seed{seed}"
+        config = _flat(json.loads((run / "train_config.json").read_text()))
+        flags = dict(flag.removeprefix("--").split("=", 1) for flag in MT5_VARIANTS[variant])
+        expected = {k: v for k, v in preset.items() if k not in flags} | {"seed": int(seed), "output_dir": "."}
+        assert {k: config.get(k) for k in expected} == expected, run.name
+        assert all(str(config[k]).lower() == v for k, v in flags.items()), run.name
+        r = json.loads((run / "results.json").read_text())
+        assert r["code"]["commit"].startswith("09fcd3e") and r["code"]["dirty"] is False, run.name
+        assert finals == " / ".join(f"{x:.2f}" for x in r["success_matrix"][-1]), run.name
+        assert own == " / ".join(f"{x:.2f}" for x in r["success_after_own_wake"]), run.name
+        m = r["metrics"]
+        assert afsr == f"{m['afsr']['final']:.3f}", run.name
+        assert bwt == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", run.name
+        assert minutes == f"{_compute_minutes(run):.0f}", run.name
 
 
 def test_the_mt5_family_recomputes(text):
