@@ -563,6 +563,12 @@ def test_the_sac_follow_up_rows_so_far_recompute(text):
         assert afsr == f"{m['afsr']['final']:.3f}", run.name
         assert bwt == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", run.name
         assert minutes == f"{_compute_minutes(run):.0f}", run.name
+    pair = [json.loads((gate / f"{v}_seed0" / "results.json").read_text())["metrics"]["afsr"]["final"]
+            for v in ("sr", "wake_only")]
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert (f"The first pair (seed 0; descriptive until all five are in): SR {pair[0]:.3f}, wake-only {pair[1]:.3f}"
+            in readme)
+    assert f"Seed 0's pair: SR - wake-only {pair[0] - pair[1]:+.3f} in final AFSR" in text
 
 
 def test_the_mt5_family_recomputes(text):
