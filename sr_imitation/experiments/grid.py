@@ -114,8 +114,8 @@ LOCAL_RAY_SYSTEM_CONFIG: dict[str, int] = {"health_check_period_ms": 3000, "heal
 """Ray's settings for the local Ray this runner starts (our choice). By default Ray's head marks a node dead after
 5 missed health checks 3 s apart; on a 2-core machine whose cores the runs (and any other work) hold, the raylet
 can answer late for that long, and every run on it then fails with "The task's local raylet died" (measured: CI,
-2026-11-28, two pytest workers beside a Ray run). A local Ray has one node, so waiting 5 minutes before calling it
-dead loses nothing; a raylet that truly crashed still ends its workers' tasks at once."""
+2026-11-28, two pytest workers beside a Ray run). Here the head waits 100 missed checks (5 minutes). The cost: a
+local raylet that truly crashed may be declared dead up to 5 minutes later (not measured)."""
 
 
 @dataclass
