@@ -15,7 +15,7 @@ import pytest
 from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_values, run_tests
 from sr_imitation.experiments.mt5_compare import VARIANTS as MT5_VARIANTS
 from sr_imitation.io import read_checked_json
-from sr_imitation.stream.rundir import read_progress
+from sr_imitation.reporting.summary import phase_seconds
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 ARCHIVE = DOCS / "results" / "needle_cpu_m16_compare"
@@ -106,8 +106,6 @@ def test_the_memory_budget_table_recomputes(text):
 
 def test_the_vision_rows_so_far_recompute():
     """Every filled cell of the vision table's "Runs so far" rows (typed in as each run landed) against its run."""
-    from sr_imitation.reporting.summary import phase_seconds
-
     archive = DOCS / "results" / "needle_cpu_vision_compare"
     rows = _table_rows("| training seed | SR | wake-only | SR - wake-only | SR BWT / BWT_wake | "
                        "wake-only BWT / BWT_wake | minutes SR / wake-only |")
@@ -132,8 +130,6 @@ def test_the_vision_rows_so_far_recompute():
 
 def test_the_vision_baseline_rows_so_far_recompute():
     """Every filled cell of the vision table's "Baselines so far" rows against its run (and SR's at the same seed)."""
-    from sr_imitation.reporting.summary import phase_seconds
-
     archive = DOCS / "results" / "needle_cpu_vision_compare"
     rows = _table_rows("| variant | training seed | final AFSR | AFSR - SR (same seed) | BWT / BWT_wake | minutes |")
     variants = {"sequential BC": "sequential_bc", "MT-Joint": "mt_joint"}
@@ -532,17 +528,10 @@ SAC_FOLLOW_UP_HEADER = ("| variant | training seed | final success reach / door-
                         "button-press | right after own wake | final AFSR | BWT / BWT_wake | compute minutes |")
 
 
-def _compute_minutes(run: Path) -> float:
-    """A run's compute time: its completed phases' seconds (``progress.json``), a wake resumed from a snapshot
-    counted by its own record (``wake.seconds``, which carries the time before the snapshot; the phase's own
-    ``seconds`` starts at the resume)."""
-    completed = read_progress(run / "progress.json")["completed"]
-    return sum(max(rec["seconds"], rec.get("wake", {}).get("seconds", 0.0)) for rec in completed.values()) / 60
-
-
 def test_the_sac_follow_up_rows_so_far_recompute(text):
     """The SAC gate's follow-up table (RESULTS, below the gate's result) has one row per archived SR, wake-only and
-    Reset & Distill run, each recomputed from its raw files; every such run ran ``configs/sac_mt5_gate.json`` with
+    Reset & Distill run, each recomputed from its raw files (compute minutes: ``phase_seconds``, which counts a wake
+    resumed from its snapshot from its start); every such run ran ``configs/sac_mt5_gate.json`` with
     only its seed and its variant's flags (``mt5_compare.VARIANTS``) changed, from the gate's code, clean."""
     gate = DOCS / "results" / "sac_mt5_gate"
     preset = _flat(json.loads((DOCS.parent / "configs" / "sac_mt5_gate.json").read_text()))
@@ -563,7 +552,7 @@ def test_the_sac_follow_up_rows_so_far_recompute(text):
         m = r["metrics"]
         assert afsr == f"{m['afsr']['final']:.3f}", run.name
         assert bwt == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", run.name
-        assert minutes == f"{_compute_minutes(run):.0f}", run.name
+        assert minutes == f"{phase_seconds(run) / 60:.0f}", run.name
     pair = [json.loads((gate / f"{v}_seed0" / "results.json").read_text())["metrics"]["afsr"]["final"]
             for v in ("sr", "wake_only")]
     readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())

@@ -82,13 +82,21 @@ def _load_run(run: str | Path) -> dict[str, Any]:
 def phase_seconds(run: str | Path) -> float | None:
     """A run's compute time: the sum of its completed phases' ``seconds`` in ``progress.json`` (wake, sleep,
     evaluation, memory; not process start-up or data loading); ``None`` without a progress file. A resumed run
-    counts each phase once, as it finally completed."""
+    counts each phase once, as it finally completed. A phase's ``seconds`` starts when its process started it, so a
+    SAC wake (or MT-Joint's training) resumed from its snapshot counts its own record instead where that is larger
+    (``wake.seconds``, which carries the time before the snapshot); an ACT wake resumed from its snapshot keeps no
+    such record and counts from the resume."""
     path = Path(run) / "progress.json"
     if not path.is_file():
         return None
     completed = read_progress(path).get("completed") or {}
-    return float(sum(rec["seconds"] for rec in completed.values()
+    return float(sum(_phase_time(rec) for rec in completed.values()
                      if isinstance(rec, Mapping) and isinstance(rec.get("seconds"), (int, float))))
+
+
+def _phase_time(record: Mapping[str, Any]) -> float:
+    own = record.get("wake", {}).get("seconds") if isinstance(record.get("wake"), Mapping) else None
+    return max(record["seconds"], own) if isinstance(own, (int, float)) else record["seconds"]
 
 
 def summarize(groups: Mapping[str, Mapping[str, Mapping[str, Any]]], baseline: str = DEFAULT_BASELINE

@@ -186,6 +186,13 @@ def test_summary_reports_each_runs_phase_time(tmp_path):
         "1.wake": {"seconds": 90.0, "steps": 10}, "1.wake.eval": {"seconds": 30}, "2.memory": {"bytes": 5}}})
     untimed = _write_run(tmp_path, "untimed", _results(seed=1))
     assert phase_seconds(timed) == 120.0 and phase_seconds(untimed) is None
+    # a SAC wake resumed from its snapshot: the phase's time counts from the resume, the wake's own record from its
+    # start (SR seed 0 of the SAC gate's follow-up: 1060 s and 2565 s); the larger is the wake's compute time
+    resumed = _write_run(tmp_path, "resumed", _results(seed=2))
+    write_checked_json(resumed / "progress.json", {"version": 1, "completed": {
+        "2.wake": {"seconds": 1060.0, "wake": {"seconds": 2565.0, "episodes": 800}},
+        "2.wake.eval": {"seconds": 5.0}, "3.wake": {"seconds": 100.0, "wake": {"seconds": 99.5}}}})
+    assert phase_seconds(resumed) == 2565.0 + 5.0 + 100.0
     summary = summarize(group_runs([timed, untimed]))
     assert summary["variants"]["sr"]["phase_seconds"] == {"0": 120.0, "1": None}
     md = render_markdown_summary(summary)
