@@ -8,6 +8,7 @@ import json
 import re
 import subprocess
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -490,22 +491,25 @@ def _after_next_wake(runs: dict[tuple[str, int], dict], variant: str, seeds: ran
     return [runs[(variant, s)]["success_matrix"][i + 1][i] for s in seeds for i in range(4)]
 
 
+def _gate_run(run: Path, seed: int, overrides: dict[str, Any]) -> dict:
+    """An archived run of ``configs/sac_mt5_gate.json`` checked to have run that preset with only its seed and
+    ``overrides`` changed, from the gate's code, clean; its ``results.json``."""
+    preset = _flat(json.loads((DOCS.parent / "configs" / "sac_mt5_gate.json").read_text()))
+    config = _flat(json.loads((run / "train_config.json").read_text()))
+    expected = preset | overrides | {"seed": seed, "output_dir": "."}
+    assert {k: config.get(k) for k in expected} == expected, run.name
+    results = json.loads((run / "results.json").read_text())
+    assert results["code"]["commit"].startswith("09fcd3e") and results["code"]["dirty"] is False, run.name
+    return results
+
+
 def test_the_sac_gate_s_result_recomputes(text):
     """The SAC gate's table, verdict and AFSRs (RESULTS, dated below its statement) from its two archived MT-Joint
     runs: each ran ``configs/sac_mt5_gate.json`` exactly (its seed aside; the oracle's actor is plain, no
     excitability, as the statement says), from the gate's code; each skill's final success per seed and averaged over
     seeds 0-1; the gate passes only if every average is >= 0.8, and RESULTS says what the numbers say."""
     gate = DOCS / "results" / "sac_mt5_gate"
-    preset = _flat(json.loads((DOCS.parent / "configs" / "sac_mt5_gate.json").read_text()))
-    runs = []
-    for seed in (0, 1):
-        run = gate / f"mt_joint_seed{seed}"
-        config = _flat(json.loads((run / "train_config.json").read_text()))
-        expected = preset | {"seed": seed, "output_dir": ".", "excitability.enabled": False}
-        assert {k: config.get(k) for k in expected} == expected, run.name
-        results = json.loads((run / "results.json").read_text())
-        assert results["code"]["commit"].startswith("09fcd3e") and results["code"]["dirty"] is False, run.name
-        runs.append(results)
+    runs = [_gate_run(gate / f"mt_joint_seed{seed}", seed, {"excitability.enabled": False}) for seed in (0, 1)]
     finals = np.array([r["success_matrix"][-1] for r in runs])
     means = finals.mean(axis=0)
     rows = _table_rows("| skill | seed 0 | seed 1 | mean over seeds 0-1 | >= 0.8 |")
@@ -528,33 +532,36 @@ SAC_FOLLOW_UP_HEADER = ("| variant | training seed | final success reach / door-
                         "button-press | right after own wake | final AFSR | BWT / BWT_wake | compute minutes |")
 
 
+def _flag_value(text: str) -> Any:
+    """A command-line flag's value as the stored config holds it (``false`` -> False, ``0.5`` -> 0.5, a name as is)."""
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
 def test_the_sac_follow_up_rows_so_far_recompute(text):
     """The SAC gate's follow-up table (RESULTS, below the gate's result) has one row per archived SR, wake-only and
     Reset & Distill run, each recomputed from its raw files (compute minutes: ``phase_seconds``, which counts a wake
     resumed from its snapshot from its start); every such run ran ``configs/sac_mt5_gate.json`` with
     only its seed and its variant's flags (``mt5_compare.VARIANTS``) changed, from the gate's code, clean."""
     gate = DOCS / "results" / "sac_mt5_gate"
-    preset = _flat(json.loads((DOCS.parent / "configs" / "sac_mt5_gate.json").read_text()))
     archived = sorted((v, int(p.name.rsplit("_seed", 1)[1])) for v in SAC_FOLLOW_UP for p in gate.glob(f"{v}_seed*"))
     rows = _table_rows(SAC_FOLLOW_UP_HEADER)
     assert sorted((v, int(s)) for v, s, *_ in rows) == archived
+    final_afsr = {}
     for variant, seed, finals, own, afsr, bwt, minutes in rows:
         run = gate / f"{variant}_seed{seed}"
-        config = _flat(json.loads((run / "train_config.json").read_text()))
         flags = dict(flag.removeprefix("--").split("=", 1) for flag in MT5_VARIANTS[variant])
-        expected = {k: v for k, v in preset.items() if k not in flags} | {"seed": int(seed), "output_dir": "."}
-        assert {k: config.get(k) for k in expected} == expected, run.name
-        assert all(str(config[k]).lower() == v for k, v in flags.items()), run.name
-        r = json.loads((run / "results.json").read_text())
-        assert r["code"]["commit"].startswith("09fcd3e") and r["code"]["dirty"] is False, run.name
+        r = _gate_run(run, int(seed), {k: _flag_value(v) for k, v in flags.items()})
         assert finals == " / ".join(f"{x:.2f}" for x in r["success_matrix"][-1]), run.name
         assert own == " / ".join(f"{x:.2f}" for x in r["success_after_own_wake"]), run.name
         m = r["metrics"]
         assert afsr == f"{m['afsr']['final']:.3f}", run.name
         assert bwt == f"{m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:+.3f}", run.name
         assert minutes == f"{phase_seconds(run) / 60:.0f}", run.name
-    pair = [json.loads((gate / f"{v}_seed0" / "results.json").read_text())["metrics"]["afsr"]["final"]
-            for v in ("sr", "wake_only")]
+        final_afsr[(variant, int(seed))] = m["afsr"]["final"]
+    pair = [final_afsr[(v, 0)] for v in ("sr", "wake_only")]
     readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert (f"The first pair (seed 0; descriptive until all five are in): SR {pair[0]:.3f}, wake-only {pair[1]:.3f}"
             in readme)

@@ -67,11 +67,10 @@ def _same_results(a: Path, b: Path) -> bool:
 
 
 def _phase_seconds(root: Path) -> float:
-    """The runs' own compute time: every recorded phase's seconds (progress.json), summed over the runs."""
-    total = 0.0
-    for progress in root.glob("*/progress.json"):
-        total += sum(p.get("seconds", 0.0) for p in json.loads(progress.read_text())["completed"].values())
-    return total
+    """The runs' own compute time (:func:`~sr_imitation.reporting.summary.phase_seconds`), summed over the runs."""
+    from sr_imitation.reporting.summary import phase_seconds
+
+    return sum(phase_seconds(progress.parent) or 0.0 for progress in root.glob("*/progress.json"))
 
 
 RUNNERS = ("loop", "ray", "processes")

@@ -95,7 +95,8 @@ def phase_seconds(run: str | Path) -> float | None:
 
 
 def _phase_time(record: Mapping[str, Any]) -> float:
-    own = record.get("wake", {}).get("seconds") if isinstance(record.get("wake"), Mapping) else None
+    wake = record.get("wake")
+    own = wake.get("seconds") if isinstance(wake, Mapping) else None
     return max(record["seconds"], own) if isinstance(own, (int, float)) else record["seconds"]
 
 
