@@ -128,11 +128,10 @@ def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]
             result = wake_train(substrate.policy, substrate.preprocessor, union_data(substrate), joint_wake(cfg),
                                 substrate.phase_seed(0, "wake"), cfg.progress,
                                 snapshot=cfg.output_dir / WAKE_SNAPSHOT)
-            history = dataclasses.asdict(result)
-            substrate.save_policy(0, "wake", {"wake_history.json": history})
-            run.mark(0, "wake", {"seconds": time.perf_counter() - t0, "epochs": result.epochs,
-                                  "best_epoch": result.best_epoch, "best_val_l1": result.best_val_l1,
-                                  "steps": result.steps})
+            substrate.save_policy(0, "wake", {"wake_history.json": result.history_record()})
+            run.mark(0, "wake", {"seconds": time.perf_counter() - t0 + result.seconds_before_resume,
+                                  "epochs": result.epochs, "best_epoch": result.best_epoch,
+                                  "best_val_l1": result.best_val_l1, "steps": result.steps})
         else:
             substrate.load_policy(0, "wake")
     if not run.done(0, "wake.eval"):

@@ -443,9 +443,9 @@ class ACTSubstrate:
                             self.cfg.progress, on_epoch=on_epoch, hooks=hooks,
                             snapshot=self.out / self.stage_dir_name(k) / WAKE_SNAPSHOT)
         self.policy.set_wake_memories([], 0.0)
-        history = dataclasses.asdict(result) | {"distill_weight": distill_weight, "n_memories": len(memories)}
-        record = {"seconds": time.perf_counter() - t0, "epochs": result.epochs, "best_epoch": result.best_epoch,
-                  "best_val_l1": result.best_val_l1, "steps": result.steps}
+        history = result.history_record() | {"distill_weight": distill_weight, "n_memories": len(memories)}
+        record = {"seconds": time.perf_counter() - t0 + result.seconds_before_resume, "epochs": result.epochs,
+                  "best_epoch": result.best_epoch, "best_val_l1": result.best_val_l1, "steps": result.steps}
         return record, {"wake_history.json": history}
 
     def make_memory(self, k: int) -> Memory:

@@ -16,7 +16,7 @@ import logging
 import math
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -103,6 +103,16 @@ class WakeResult:
     best_val_l1: float
     steps: int
     history: list[dict[str, float]] = field(default_factory=list)
+    seconds_before_resume: float = 0.0
+    """Wall time the wake had run before the snapshot it resumed from (0 for a wake run in one go): a phase's time is
+    measured from the process that finishes it, so the caller adds this to report the wake's whole compute time. Not
+    part of :meth:`history_record`: it depends on where the wake was killed."""
+
+    def history_record(self) -> dict[str, Any]:
+        """What ``wake_history.json`` keeps: the same for a wake run in one go and for one killed and resumed."""
+        record = asdict(self)
+        del record["seconds_before_resume"]
+        return record
 
 
 def masked_chunk_l1(policy: Any, batch: dict[str, torch.Tensor]) -> tuple[float, int]:
@@ -240,11 +250,12 @@ def wake_train(
                 "steps_per_epoch": steps_per_epoch, "max_epochs": cfg.max_epochs}
     if snapshot is not None and snapshot.is_file():
         loop, best_state = wake_snapshot.load(snapshot, identity, policy, optimizer, generators, hooks)
-        result = WakeResult(data.skill, loop.epochs, loop.best_epoch, loop.best_val_l1, loop.steps, loop.history)
+        result = WakeResult(data.skill, loop.epochs, loop.best_epoch, loop.best_val_l1, loop.steps, loop.history,
+                            loop.seconds)
         logger.info("wake %s: resumed from %s after %d epochs (%d steps)", data.skill, snapshot, result.epochs,
                     result.steps)
     every_s = cfg.snapshot_every_s  # negative: none written (one found is still continued from, then removed)
-    last_snapshot = time.perf_counter()
+    started = last_snapshot = time.perf_counter()
     bar = Progress(cfg.max_epochs * steps_per_epoch, f"wake {data.skill}", logger, enabled=progress,
                    initial=result.steps)
     for epoch in range(result.epochs, cfg.max_epochs):
@@ -289,7 +300,8 @@ def wake_train(
         if (snapshot is not None and processes.is_main and epoch + 1 < cfg.max_epochs and every_s >= 0
                 and time.perf_counter() - last_snapshot >= every_s):
             loop = wake_snapshot.WakeRecord(result.epochs, result.best_epoch, result.best_val_l1, result.steps,
-                                            result.history)
+                                            result.history,
+                                            result.seconds_before_resume + time.perf_counter() - started)
             wake_snapshot.save(snapshot, identity, loop, policy, optimizer, best_state, generators, hooks)
             last_snapshot = time.perf_counter()
     bar.close()

@@ -12,7 +12,9 @@ on to one checked safetensors file, and a wake that finds that file continues fr
 - the wake's own generators (the training and validation loaders', the distillation's memory sampler) and the
   process's global ones (torch's, CUDA's on a GPU, numpy's, Python's): dropout, ACT's VAE sampling and the loaders'
   worker seeds draw from them;
-- the loop's record: epochs done, steps, the per-epoch history, the best epoch and its validation l1;
+- the loop's record: epochs done, steps, the per-epoch history, the best epoch and its validation l1, and the wall
+  time run so far (so that the phase's reported compute time counts the time before the kill, as the SAC wake's
+  does; it changes no number the wake computes);
 - a continual method's wake hooks: their generator and counters and the method's own wake state
   (``ContinualMethod.wake_state``; every method with wake hooks declares ``resumable_wake_hooks``).
 
@@ -73,6 +75,9 @@ class WakeRecord:
     best_val_l1: float
     steps: int
     history: list[dict[str, float]]
+    seconds: float = 0.0
+    """Wall time the wake had run when the snapshot was written (its time before earlier resumes included): reported
+    as compute time only, never read by the loop. A snapshot written before this field existed reads as 0."""
 
 
 def save(path: Path, identity: dict[str, Any], record: WakeRecord, policy: torch.nn.Module,
@@ -87,7 +92,8 @@ def save(path: Path, identity: dict[str, Any], record: WakeRecord, policy: torch
     tensors.update({f"rng.{name}": g.get_state() for name, g in generators.named().items()})
     tensors["loop.best_val_l1"] = torch.tensor(record.best_val_l1, dtype=torch.float64)  # inf before a best
     header = {"epochs": record.epochs, "best_epoch": record.best_epoch, "steps": record.steps,
-              "history": record.history, "best_state": best_state is not None}
+              "history": record.history, "best_state": best_state is not None,
+              "seconds": round(record.seconds, 3)}
     write_snapshot(path, {"format": FORMAT, "version": VERSION, **identity}, tensors, header, hooks)
 
 
@@ -104,5 +110,5 @@ def load(path: Path, identity: dict[str, Any], policy: torch.nn.Module, optimize
         generator.set_state(tensors[f"rng.{name}"])
     record = WakeRecord(epochs=int(header["epochs"]), best_epoch=int(header["best_epoch"]),
                         best_val_l1=float(tensors["loop.best_val_l1"]), steps=int(header["steps"]),
-                        history=list(header["history"]))
+                        history=list(header["history"]), seconds=float(header.get("seconds", 0.0)))
     return record, (prefixed(tensors, "best.") if header["best_state"] else None)

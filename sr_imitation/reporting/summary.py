@@ -84,8 +84,9 @@ def phase_seconds(run: str | Path) -> float | None:
     evaluation, memory; not process start-up or data loading); ``None`` without a progress file. A resumed run
     counts each phase once, as it finally completed. A phase's ``seconds`` starts when its process started it, so a
     SAC wake (or MT-Joint's training) resumed from its snapshot counts its own record instead where that is larger
-    (``wake.seconds``, which carries the time before the snapshot); an ACT wake resumed from its snapshot keeps no
-    such record and counts from the resume."""
+    (``wake.seconds``, which carries the time before the snapshot); an ACT wake resumed from its snapshot adds the
+    time before the snapshot to its phase's ``seconds`` itself (runs written before 2026-11-28 did not: theirs count
+    from the resume)."""
     path = Path(run) / "progress.json"
     if not path.is_file():
         return None

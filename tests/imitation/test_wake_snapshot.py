@@ -5,7 +5,9 @@ snapshot, so the checks also show that writing one draws nothing."""
 
 from __future__ import annotations
 
+import itertools
 import json
+import types
 from pathlib import Path
 
 import pytest
@@ -18,6 +20,7 @@ from sr_imitation.imitation.substrate import WAKE_SNAPSHOT
 from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
+from sr_imitation.reporting.summary import phase_seconds
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 
@@ -142,6 +145,35 @@ def test_the_oracles_training_killed_inside_resumes_bit_for_bit(state_datasets, 
     assert not (out / WAKE_SNAPSHOT).exists()
     assert results["success_matrix_per_unit"] == expected["success_matrix_per_unit"]
     _same_weights(out / "mt_joint" / "wake", tmp_path / "whole" / "mt_joint" / "wake")
+
+
+def _slow_clock(monkeypatch) -> None:
+    """The wake loop's clock runs 1000 s per reading: a killed wake's snapshot then carries >= 1000 s of wall time."""
+    ticks = itertools.count()
+    monkeypatch.setattr(wake, "time", types.SimpleNamespace(perf_counter=lambda: 1000.0 * next(ticks)))
+
+
+@pytest.mark.parametrize("oracle", [False, True])
+def test_a_resumed_wake_reports_the_time_before_its_snapshot_too(state_datasets, tmp_path, monkeypatch, oracle):
+    """A phase's time is measured by the process that finishes it; a wake resumed from its snapshot adds the time
+    the snapshot carries, so a run's compute time (reporting.summary.phase_seconds) counts the killed part."""
+    run = run_mt_joint if oracle else train_stream
+    out = tmp_path / "run"
+    with monkeypatch.context() as m:
+        _kill_at_update(m, 2 * STEPS * 2 + 1 if oracle else EPOCHS * STEPS + 2 * STEPS + 1)  # the 3rd epoch of a wake
+        _slow_clock(m)
+        with pytest.raises(Killed):
+            run(_config(state_datasets, out, SKILLS[:2]), fake_env_factory)
+    snapshot = out / WAKE_SNAPSHOT if oracle else out / "skill_2_place" / WAKE_SNAPSHOT
+    carried = load_checked_safetensors(snapshot)[1]["seconds"]
+    assert carried >= 1000.0
+    cfg = _config(state_datasets, out, SKILLS[:2])
+    cfg.resume = True
+    run(cfg, fake_env_factory)
+    progress = json.loads((out / "progress.json").read_text())["completed"]
+    wake_seconds = progress["1.wake"]["seconds"] if oracle else progress["2.wake"]["seconds"]
+    assert carried <= wake_seconds < carried + 600.0
+    assert phase_seconds(out) >= carried
 
 
 def test_a_snapshot_of_another_wake_or_a_damaged_one_is_refused_naming_the_file(state_datasets, tmp_path,
