@@ -17,6 +17,7 @@ from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_value
 from sr_imitation.experiments.mt5_compare import VARIANTS as MT5_VARIANTS
 from sr_imitation.io import read_checked_json
 from sr_imitation.reporting.summary import phase_seconds
+from sr_imitation.rl.cli import parse as parse_sac_config
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 ARCHIVE = DOCS / "results" / "needle_cpu_m16_compare"
@@ -532,12 +533,12 @@ SAC_FOLLOW_UP_HEADER = ("| variant | training seed | final success reach / door-
                         "button-press | right after own wake | final AFSR | BWT / BWT_wake | compute minutes |")
 
 
-def _flag_value(text: str) -> Any:
-    """A command-line flag's value as the stored config holds it (``false`` -> False, ``0.5`` -> 0.5, a name as is)."""
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError:
-        return text
+def _variant_settings(variant: str) -> dict[str, Any]:
+    """The settings ``mt5_compare.VARIANTS[variant]`` changes, as ``sr-train`` parses them on the gate's preset."""
+    flags = MT5_VARIANTS[variant]
+    parsed = _flat(parse_sac_config([f"--config_path={DOCS.parent / 'configs' / 'sac_mt5_gate.json'}",
+                                     *flags]).stored_config())
+    return {key: parsed[key] for key in (flag.removeprefix("--").split("=", 1)[0] for flag in flags)}
 
 
 def test_the_sac_follow_up_rows_so_far_recompute(text):
@@ -552,8 +553,7 @@ def test_the_sac_follow_up_rows_so_far_recompute(text):
     final_afsr = {}
     for variant, seed, finals, own, afsr, bwt, minutes in rows:
         run = gate / f"{variant}_seed{seed}"
-        flags = dict(flag.removeprefix("--").split("=", 1) for flag in MT5_VARIANTS[variant])
-        r = _gate_run(run, int(seed), {k: _flag_value(v) for k, v in flags.items()})
+        r = _gate_run(run, int(seed), _variant_settings(variant))
         assert finals == " / ".join(f"{x:.2f}" for x in r["success_matrix"][-1]), run.name
         assert own == " / ".join(f"{x:.2f}" for x in r["success_after_own_wake"]), run.name
         m = r["metrics"]
