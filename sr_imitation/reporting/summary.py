@@ -82,11 +82,11 @@ def _load_run(run: str | Path) -> dict[str, Any]:
 def phase_seconds(run: str | Path) -> float | None:
     """A run's compute time: the sum of its completed phases' ``seconds`` in ``progress.json`` (wake, sleep,
     evaluation, memory; not process start-up or data loading); ``None`` without a progress file. A resumed run
-    counts each phase once, as it finally completed. A phase's ``seconds`` starts when its process started it, so a
-    SAC wake (or MT-Joint's training) resumed from its snapshot counts its own record instead where that is larger
-    (``wake.seconds``, which carries the time before the snapshot); an ACT wake resumed from its snapshot adds the
-    time before the snapshot to its phase's ``seconds`` itself (runs written before 2026-11-28 did not: theirs count
-    from the resume)."""
+    counts each phase once, as it finally completed. A wake (ACT or SAC, stream or MT-Joint) resumed from its
+    snapshot adds the time before the snapshot to its phase's ``seconds`` itself. Runs written before 2026-11-28 did
+    not: there a phase's ``seconds`` starts when its process started it, so a SAC wake (or SAC MT-Joint's training)
+    counts its own record instead where that is larger (``wake.seconds``, which always carried the time before the
+    snapshot), and an ACT wake of such a run counts from the resume."""
     path = Path(run) / "progress.json"
     if not path.is_file():
         return None

@@ -132,7 +132,8 @@ def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str
                                       progress=cfg.progress, snapshot=out / "train_snapshot.safetensors")
             tensors = {n: t.reshape(-1) if t.ndim == 0 else t for n, t in agent.state_dict().items()}
             save_checked_safetensors(checkpoint, tensors, header)
-            run.mark(0, "train", {"wake": wake.summary(), "seconds": time.perf_counter() - t0})
+            run.mark(0, "train", {"wake": wake.summary(),
+                                  "seconds": time.perf_counter() - t0 + wake.seconds_before_resume})
         else:
             tensors, _ = load_checked_safetensors(checkpoint)
             shapes = {n: t.shape for n, t in agent.state_dict().items()}

@@ -24,6 +24,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import shutil
+import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any, ClassVar
@@ -155,6 +156,7 @@ class SACSubstrate:
             raise ValueError("the SAC wake has no distillation term (the paper's wake is plain SAC); methods shape "
                              "it through their wake hooks")
         cfg = self.cfg
+        t0 = time.perf_counter()
         seed = seed_sequence(cfg.seed, k)
         with SkillEnv(self.skills[k], seed=seed % (2**31), max_episode_steps=cfg.max_episode_steps) as env:
             self.stage_dir(k).mkdir(parents=True, exist_ok=True)
@@ -175,7 +177,9 @@ class SACSubstrate:
                                      wake.transition_sample,
                                      {**self._header(k, "wake"), "format": "sr_imitation.rl.transition_sample"})
         self._memories[k] = memory
-        return {"wake": wake.summary()}, {}
+        # the phase's whole time: a wake resumed from its snapshot adds the time it had run before (our choice, as
+        # the ACT wake does; runs written before 2026-11-28 count from the resume: reporting.summary.phase_seconds)
+        return {"wake": wake.summary(), "seconds": time.perf_counter() - t0 + wake.seconds_before_resume}, {}
 
     def make_memory(self, k: int) -> Memory:
         memory = self._memories.pop(k, None)

@@ -58,6 +58,9 @@ class WakeResult:
     episode_successes: list[bool] = field(default_factory=list)
     critic_validation: dict[str, Any] = field(default_factory=dict)
     seconds: float = 0.0
+    #: wall time the wake had run before the snapshot it was resumed from (0 for a wake run in one process); part of
+    #: ``seconds``, and what a caller timing the whole phase adds to its own clock (not in :meth:`summary`)
+    seconds_before_resume: float = 0.0
     last_update: dict[str, float] = field(default_factory=dict)
     method: dict[str, float] = field(default_factory=dict)
     state_sample: Tensor | None = None
@@ -130,6 +133,7 @@ def train_skill(
         result.episode_rewards, result.episode_successes = loop.episode_rewards, loop.episode_successes
         episode_starts, update_credit, info = loop.episode_starts, loop.update_credit, loop.info
         t0 -= loop.seconds
+        result.seconds_before_resume = loop.seconds
         logger.info("wake %s: resumed from %s after %d episodes (%d steps, %d updates)", env.skill, snapshot,
                     result.episodes, result.env_steps, result.updates)
     last_snapshot = time.perf_counter()

@@ -4,7 +4,9 @@ wake alone, the oracle's one training phase, and a stream run through ``--resume
 from __future__ import annotations
 
 import dataclasses
+import itertools
 import json
+import types
 from pathlib import Path
 
 import numpy as np
@@ -15,6 +17,8 @@ from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.envs.metaworld import tasks
 from sr_imitation.envs.metaworld.tasks import SkillEnv
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
+from sr_imitation.reporting.summary import phase_seconds
+from sr_imitation.rl import wake as rl_wake
 from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, SACConfig, SkillBudget, WakeConfig
 from sr_imitation.rl.mt_joint import run_mt_joint
 from sr_imitation.rl.sac import SACAgent
@@ -151,3 +155,37 @@ def test_a_stream_killed_inside_a_wake_resumes_to_the_same_results(tmp_path, mon
                 for run in ("whole", "killed"))
         assert all(torch.equal(a[n], b[n]) for n in a), name
     assert not (stage / "wake_snapshot.safetensors").exists()
+
+
+@pytest.mark.parametrize("oracle", [False, True])
+def test_a_resumed_sac_wake_writes_its_whole_time_as_its_phase_s_time(tmp_path, monkeypatch, oracle):
+    """The phase's ``seconds`` in progress.json (and a stage's in results.json) count the time the killed process
+    spent in the wake, carried by the snapshot, not only the resumed process's: the wake loop's clock runs 1000 s a
+    reading, so the snapshot carries >= 1000 s while the resumed process's own clock runs at its normal pace."""
+    config = {"eval": EvalConfig(episodes=2, videos_per_skill=0),
+              "wake": WakeConfig(budget_scale=0.002 if oracle else 0.004, snapshot_every_s=0.0)}
+    out = tmp_path / "killed"
+    with monkeypatch.context() as m:
+        _kill_at_reset(m, 4 if oracle else 10)  # inside the oracle's training / stage 2's wake
+        ticks = itertools.count()
+        m.setattr(rl_wake, "time", types.SimpleNamespace(perf_counter=lambda: 1000.0 * next(ticks)))
+        with pytest.raises(Killed):
+            if oracle:
+                run_mt_joint(tiny_config(out, **config), episodes=2000)
+            else:
+                SACTrainer(tiny_config(out, **config)).run()
+    snapshot = out / ("train_snapshot.safetensors" if oracle else "stages/02_door-open/wake_snapshot.safetensors")
+    carried = load_checked_safetensors(snapshot)[1]["seconds"]
+    assert carried >= 1000.0
+    if oracle:
+        run_mt_joint(tiny_config(out, resume=True, **config), episodes=2000)
+    else:
+        SACTrainer(tiny_config(out, resume=True, **config)).run()
+    completed = json.loads((out / "progress.json").read_text())["completed"]
+    record = completed["1.train"] if oracle else completed["2.wake"]
+    assert record["wake"]["seconds"] >= carried  # the wake's own record always counted it
+    assert carried <= record["seconds"] < carried + 600.0  # the phase's time now does too
+    assert phase_seconds(out) >= carried
+    if not oracle:
+        stage = json.loads((out / "results.json").read_text())["stages"][1]
+        assert stage["seconds"] >= carried
