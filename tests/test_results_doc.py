@@ -568,6 +568,12 @@ def test_the_sac_follow_up_rows_so_far_recompute(text):
     assert f"The pairs so far (final AFSR; descriptive until all five are in): {so_far} (" in readme
     for s, (a, b) in pairs.items():
         assert f"Seed {s}'s pair: SR - wake-only {a - b:+.3f} in final AFSR" in text
+    if pairs and len(pairs) < 5:  # the headline (RESULTS' opening summary) says how far G1's runs are
+        seeds = sorted(pairs)
+        assert seeds == list(range(len(seeds)))  # the queue runs the pairs in seed order
+        sr, wake = (" / ".join(f"{pairs[s][i]:.3f}" for s in seeds) for i in (0, 1))
+        assert (f"seeds 0-{seeds[-1]}'s pairs are in (SR {sr}, wake-only {wake}; descriptive until all five pairs "
+                "are)") in text
 
 
 def test_the_mt5_family_recomputes(text):
