@@ -165,22 +165,21 @@ def test_a_resumed_sac_wake_writes_its_whole_time_as_its_phase_s_time(tmp_path, 
     config = {"eval": EvalConfig(episodes=2, videos_per_skill=0),
               "wake": WakeConfig(budget_scale=0.002 if oracle else 0.004, snapshot_every_s=0.0)}
     out = tmp_path / "killed"
+
+    def run(**resume):
+        cfg = tiny_config(out, **resume, **config)
+        return run_mt_joint(cfg, episodes=2000) if oracle else SACTrainer(cfg).run()
+
     with monkeypatch.context() as m:
         _kill_at_reset(m, 4 if oracle else 10)  # inside the oracle's training / stage 2's wake
         ticks = itertools.count()
         m.setattr(rl_wake, "time", types.SimpleNamespace(perf_counter=lambda: 1000.0 * next(ticks)))
         with pytest.raises(Killed):
-            if oracle:
-                run_mt_joint(tiny_config(out, **config), episodes=2000)
-            else:
-                SACTrainer(tiny_config(out, **config)).run()
+            run()
     snapshot = out / ("train_snapshot.safetensors" if oracle else "stages/02_door-open/wake_snapshot.safetensors")
     carried = load_checked_safetensors(snapshot)[1]["seconds"]
     assert carried >= 1000.0
-    if oracle:
-        run_mt_joint(tiny_config(out, resume=True, **config), episodes=2000)
-    else:
-        SACTrainer(tiny_config(out, resume=True, **config)).run()
+    run(resume=True)
     completed = json.loads((out / "progress.json").read_text())["completed"]
     record = completed["1.train"] if oracle else completed["2.wake"]
     assert record["wake"]["seconds"] >= carried  # the wake's own record always counted it
