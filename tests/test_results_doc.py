@@ -564,16 +564,43 @@ def test_the_sac_follow_up_rows_so_far_recompute(text):
     pairs = {s: (final_afsr[("sr", s)], final_afsr[("wake_only", s)]) for v, s in final_afsr if v == "sr"
              and ("wake_only", s) in final_afsr}
     readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
-    so_far = "; ".join(f"seed {s} SR {a:.3f}, wake-only {b:.3f}" for s, (a, b) in sorted(pairs.items()))
-    assert f"The pairs so far (final AFSR; descriptive until all five are in): {so_far} (" in readme
     for s, (a, b) in pairs.items():
         assert f"Seed {s}'s pair: SR - wake-only {a - b:+.3f} in final AFSR" in text
-    if pairs and len(pairs) < 5:  # the headline (RESULTS' opening summary) says how far G1's runs are
+    if pairs and len(pairs) < 5:  # README's SAC bullet and the headline say how far G1's runs are (then: G1's test)
+        so_far = "; ".join(f"seed {s} SR {a:.3f}, wake-only {b:.3f}" for s, (a, b) in sorted(pairs.items()))
+        assert f"The pairs so far (final AFSR; descriptive until all five are in): {so_far} (" in readme
         seeds = sorted(pairs)
         assert seeds == list(range(len(seeds)))  # the queue runs the pairs in seed order
         sr, wake = (" / ".join(f"{pairs[s][i]:.3f}" for s in seeds) for i in (0, 1))
         assert (f"seeds 0-{seeds[-1]}'s pairs are in (SR {sr}, wake-only {wake}; descriptive until all five pairs "
                 "are)") in text
+
+
+G1 = "G1=sr>wake_only@0-4"
+"""The SAC gate's one pre-registered test, exactly as its statement declares it (RESULTS, commit 1702742)."""
+
+
+def test_g1_the_sac_gate_s_test_recomputes(text):
+    """G1 (SR > wake-only, final AFSR, one-sided, SAC gate preset, training seeds 0-4, a family of one): RESULTS'
+    sentence, the headline's and README's short form against a recompute from the archived runs; the stored
+    hypotheses equal it and are labelled pre-registered (its text is in commit 1702742, before any run of the
+    preset)."""
+    gate = DOCS / "results" / "sac_mt5_gate"
+    (g1,) = run_tests(HypothesesConfig(archive=gate, tests=[G1]))
+    assert g1["seeds"] == [0, 1, 2, 3, 4]
+    pairs = " / ".join(f"{d:+.3f}" for d in np.subtract(g1["a_values"], g1["b_values"]))
+    assert (f"G1: SR {_mean_se(g1['a_values'])} vs wake-only {_mean_se(g1['b_values'])}, paired {g1['mean']:+.3f} "
+            f"+- {g1['sem']:.3f} (pairs {pairs}), t = {g1['t']:.2f}, one-sided p = {g1['p']:.1e}, "
+            f"exact sign-flip p = {g1['sign_flip_p']:.4f}, bootstrap 95% CI [{g1['ci_low']:+.3f}, "
+            f"{g1['ci_high']:+.3f}]") in text
+    stored = json.loads((gate / "hypotheses" / "hypotheses.json").read_text())["tests"]
+    assert [(t["name"], t["seeds"], t["p"], t["sign_flip_p"], t["mean"]) for t in stored] == \
+        [("G1", [0, 1, 2, 3, 4], g1["p"], g1["sign_flip_p"], g1["mean"])]
+    assert (gate / "hypotheses" / "hypotheses.md").read_text().startswith("Pre-registered")
+    short = (f"SR {np.mean(g1['a_values']):.3f} vs wake-only {np.mean(g1['b_values']):.3f}, paired "
+             f"{g1['mean']:+.3f} +- {g1['sem']:.3f}, one-sided p = {g1['p']:.1e} (sign-flip {g1['sign_flip_p']:.3f})")
+    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    assert short in readme and short in text  # README's SAC bullet and RESULTS' first paragraph
 
 
 def test_the_mt5_family_recomputes(text):
