@@ -154,6 +154,12 @@ def run_tests(cfg: HypothesesConfig) -> list[dict[str, Any]]:
     return rows
 
 
+def format_p(p: float) -> str:
+    """A p value as the tables and figures print it: 4 decimals, or 2 significant digits below 1e-4 (our choice:
+    "0.0000" reads as an impossible p of zero)."""
+    return f"{p:.4f}" if p >= 1e-4 else f"{p:.1e}"
+
+
 def _label(row: dict[str, Any]) -> str:
     """A row's test as the table shows it: ``M1: sr>wake_only`` for a named test (``M1=sr>wake_only``)."""
     name, test = row.get("name"), row["test"]
@@ -174,10 +180,11 @@ def render(rows: list[dict[str, Any]], archive: Path, preregistered: bool = Fals
     for r in rows:
         line = (f"| {_label(r)} ({r['alternative']}) | {r['metric']} | {','.join(map(str, r['seeds']))} | "
                 f"{r['mean']:+.3f} +- {r['sem']:.3f} | [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}] | "
-                f"{r['t']:.2f} | {r['p']:.4f} | {r['sign_flip_p']:.4f} | {verdict(r, r['significant'])} "
+                f"{r['t']:.2f} | {format_p(r['p'])} | {format_p(r['sign_flip_p'])} | {verdict(r, r['significant'])} "
                 f"({r['alpha']}) |")
         if adjusted:
-            line += f" {r['p_holm']:.4f} | {r['sign_flip_p_holm']:.4f} | {verdict(r, r['significant_holm'])} |"
+            line += (f" {format_p(r['p_holm'])} | {format_p(r['sign_flip_p_holm'])} | "
+                     f"{verdict(r, r['significant_holm'])} |")
         lines.append(line)
     if adjusted:
         lines += ["", f"Holm: adjusted over the {len(rows)} tests above as one family (the verdict on the t-test p; "
@@ -193,10 +200,10 @@ def panel_title(name: str, r: dict[str, Any]) -> str:
     if r["n"] < 2:
         return f"{name}: {r['n']} paired seed(s), no test"
     title = (f"{name}: {r['mean']:+.3f} +- {r['sem']:.3f}\nCI [{r['ci_low']:+.3f}, {r['ci_high']:+.3f}], "
-             f"p = {r['p']:.4f}, sign-flip {r['sign_flip_p']:.4f}")
+             f"p = {format_p(r['p'])}, sign-flip {format_p(r['sign_flip_p'])}")
     if "p_holm" in r:
         verdict = "rejected" if r["significant_holm"] else "not rejected"
-        title += f"\nHolm: p = {r['p_holm']:.4f}, sign-flip {r['sign_flip_p_holm']:.4f}: {verdict}"
+        title += f"\nHolm: p = {format_p(r['p_holm'])}, sign-flip {format_p(r['sign_flip_p_holm'])}: {verdict}"
     return title
 
 

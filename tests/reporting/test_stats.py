@@ -168,6 +168,20 @@ def test_a_family_s_figure_shows_its_holm_verdict(tmp_path):
     assert len(panel_title("t", alone).splitlines()) == 2 and "Holm" not in panel_title("t", alone)
 
 
+def test_a_p_below_1e_4_is_printed_as_a_number_not_as_zero(tmp_path):
+    """The table and the figure print p with 4 decimals, and below 1e-4 in scientific notation: G1's p = 1.3e-05 was
+    drawn as "p = 0.0000"."""
+    from sr_imitation.experiments.hypotheses import HypothesesConfig, format_p, panel_title, render, run_tests
+
+    assert [format_p(p) for p in (0.5, 0.03125, 1e-4, 9.9e-5, 1.2836957924526441e-05)] == \
+        ["0.5000", "0.0312", "0.0001", "9.9e-05", "1.3e-05"]
+    _archive(tmp_path, {"sr": [0.7, 0.69, 0.7, 0.695, 0.7], "wake_only": [0.5, 0.495, 0.505, 0.5, 0.49]})
+    (r,) = run_tests(HypothesesConfig(archive=tmp_path, tests=["sr>wake_only"]))
+    assert r["p"] < 1e-4
+    assert f"| {format_p(r['p'])} | 0.0312 |" in render([r], tmp_path) and "0.0000" not in render([r], tmp_path)
+    assert f"p = {format_p(r['p'])}, sign-flip 0.0312" in panel_title("t", r)
+
+
 def test_a_note_is_kept_as_typed(tmp_path, capsys):
     """``--note`` is free text: "M1 and M2: the family" reached hypotheses.md as the YAML mapping draccus read from
     it (``{'M1 and M2': 'the family'}``); text fields now hold what was typed, whatever YAML makes of it."""
