@@ -31,6 +31,11 @@ def text() -> str:
     return re.sub(r"\s+", " ", (DOCS / "RESULTS.md").read_text())  # lines wrap anywhere
 
 
+@pytest.fixture(scope="module")
+def readme() -> str:
+    return re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+
+
 def _mean_se(values: list[float]) -> str:
     return f"{np.mean(values):.3f} +- {np.std(values, ddof=1) / np.sqrt(len(values)):.3f}"
 
@@ -219,7 +224,7 @@ def test_the_vision_oracle_at_twice_the_steps_rows_recompute(text):
 
 # --- the normalization default measured: --stream.stats=seen against union on needle_cpu_m16 ----------------------
 
-def test_the_seen_against_union_table_and_its_tests_recompute(text):
+def test_the_seen_against_union_table_and_its_tests_recompute(text, readme):
     """Each row of the seen-vs-union table against its two runs, the means, the paired differences and the
     exploratory tests' p values as RESULTS quotes them, and the union re-run's agreement with the archived run."""
     seen, union = DOCS / "results" / "needle_cpu_m16_stats_seen", DOCS / "results" / "needle_cpu_m16_compare"
@@ -249,7 +254,6 @@ def test_the_seen_against_union_table_and_its_tests_recompute(text):
            f"sign-flip p = {sleep['sign_flip_p']:.3f}" in text
     stored = json.loads((seen / "hypotheses" / "hypotheses.json").read_text())["tests"]
     assert [t["p"] for t in stored] == pytest.approx([sr["p"], wake["p"], sleep["p"]])
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert f"SR {np.mean(sr['a_values']):.3f} against {np.mean(sr['b_values']):.3f} and wake-only " \
            f"{np.mean(wake['a_values']):.3f} against {np.mean(wake['b_values']):.3f}, lower on every seed" in readme
     assert f"sleep still helps under it ({sleep['mean']:+.3f} over wake-only)" in readme
@@ -270,7 +274,7 @@ def test_the_seen_against_union_table_and_its_tests_recompute(text):
     assert rerun["success_matrix"] == archived["success_matrix"] and rerun["code"]["commit"].startswith("f3e38eb")
 
 
-def test_the_reexpress_inputs_check_recomputes(text):
+def test_the_reexpress_inputs_check_recomputes(text, readme):
     """The exploratory check (seen with --stream.reexpress_inputs=false): its runs' settings, what their wakes
     learned, and the means, paired differences and p values RESULTS quotes, recomputed from the three archives."""
     results = DOCS / "results"
@@ -293,7 +297,6 @@ def test_the_reexpress_inputs_check_recomputes(text):
            f"{wake['sign_flip_p']:.2f})" in text
     bwt = {v: [runs[(v, s)]["metrics"]["bwt"]["final"] for s in (0, 1, 2)] for v in ("sr", "wake_only")}
     assert f"BWT {_signed(bwt['sr'])} for SR and {_signed(bwt['wake_only'])} for wake-only" in text
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert f"(SR {np.mean(sr['a_values']):.3f}, wake-only {np.mean(wake['a_values']):.3f})" in readme
 
 
@@ -413,7 +416,7 @@ def test_every_mt5_run_after_step_k1_read_the_same_demonstrations():
 
 # --- the needle replication N1 (seeds 5-9; the protocol's third test) -------------------------------------------------
 
-def test_the_needle_replication_n1_recomputes(text):
+def test_the_needle_replication_n1_recomputes(text, readme):
     """N1's table, test and descriptive numbers against its ten archived runs; its runs' settings equal seeds 0-4's
     but for the seed (and settings added since, at the values of the earlier behaviour); the stored test equals a
     recompute, and a test over seeds 5-9 cannot run on fewer."""
@@ -462,7 +465,6 @@ def test_the_needle_replication_n1_recomputes(text):
         run_tests(HypothesesConfig(archive=replication, tests=["sr>wake_only@5-10"]))
     short = f"SR {np.mean(n1['a_values']):.3f} vs wake-only {np.mean(n1['b_values']):.3f}, paired {n1['mean']:+.3f} " \
             f"+- {n1['sem']:.3f}, every pair positive, one-sided p = {n1['p']:.3f} (sign-flip {n1['sign_flip_p']:.3f})"
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert short in readme and short in text  # README's "Does sleep help?" and RESULTS' first paragraph
 
 
@@ -504,7 +506,7 @@ def _gate_run(run: Path, seed: int, overrides: dict[str, Any]) -> dict:
     return results
 
 
-def test_the_sac_gate_s_result_recomputes(text):
+def test_the_sac_gate_s_result_recomputes(text, readme):
     """The SAC gate's table, verdict and AFSRs (RESULTS, dated below its statement) from its two archived MT-Joint
     runs: each ran ``configs/sac_mt5_gate.json`` exactly (its seed aside; the oracle's actor is plain, no
     excitability, as the statement says), from the gate's code; each skill's final success per seed and averaged over
@@ -522,7 +524,6 @@ def test_the_sac_gate_s_result_recomputes(text):
     assert ("**the gate passes.**" in text) == passed and ("**the gate fails.**" in text) == (not passed)
     afsr = [r["metrics"]["afsr"]["final"] for r in runs]
     assert f"Final AFSR {afsr[0]:.3f} and {afsr[1]:.3f} (mean {np.mean(afsr):.3f})" in text
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert (f"{'**passes**' if passed else '**fails**'}: MT-Joint's final success per skill, mean over seeds 0-1, "
             f"{' / '.join(f'{m:.2f}' for m in means)} (AFSR {np.mean(afsr):.3f};") in readme
 
@@ -541,7 +542,7 @@ def _variant_settings(variant: str) -> dict[str, Any]:
     return {key: parsed[key] for key in (flag.removeprefix("--").split("=", 1)[0] for flag in flags)}
 
 
-def test_the_sac_follow_up_rows_so_far_recompute(text):
+def test_the_sac_follow_up_rows_so_far_recompute(text, readme):
     """The SAC gate's follow-up table (RESULTS, below the gate's result) has one row per archived SR, wake-only and
     Reset & Distill run, each recomputed from its raw files (compute minutes: ``phase_seconds``, which counts a wake
     resumed from its snapshot from its start); every such run ran ``configs/sac_mt5_gate.json`` with
@@ -563,7 +564,6 @@ def test_the_sac_follow_up_rows_so_far_recompute(text):
         final_afsr[(variant, int(seed))] = m["afsr"]["final"]
     pairs = {s: (final_afsr[("sr", s)], final_afsr[("wake_only", s)]) for v, s in final_afsr if v == "sr"
              and ("wake_only", s) in final_afsr}
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     for s, (a, b) in pairs.items():
         assert f"Seed {s}'s pair: SR - wake-only {a - b:+.3f} in final AFSR" in text
     if pairs and len(pairs) < 5:  # README's SAC bullet and the headline say how far G1's runs are (then: G1's test)
@@ -580,7 +580,7 @@ G1 = "G1=sr>wake_only@0-4"
 """The SAC gate's one pre-registered test, exactly as its statement declares it (RESULTS, commit 1702742)."""
 
 
-def test_g1_the_sac_gate_s_test_recomputes(text):
+def test_g1_the_sac_gate_s_test_recomputes(text, readme):
     """G1 (SR > wake-only, final AFSR, one-sided, SAC gate preset, training seeds 0-4, a family of one): RESULTS'
     sentence, the headline's and README's short form against a recompute from the archived runs; the stored
     hypotheses equal it and are labelled pre-registered (its text is in commit 1702742, before any run of the
@@ -599,11 +599,10 @@ def test_g1_the_sac_gate_s_test_recomputes(text):
     assert (gate / "hypotheses" / "hypotheses.md").read_text().startswith("Pre-registered")
     short = (f"SR {np.mean(g1['a_values']):.3f} vs wake-only {np.mean(g1['b_values']):.3f}, paired "
              f"{g1['mean']:+.3f} +- {g1['sem']:.3f}, one-sided p = {g1['p']:.1e} (sign-flip {g1['sign_flip_p']:.3f})")
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert short in readme and short in text  # README's SAC bullet and RESULTS' first paragraph
 
 
-def test_the_mt5_family_recomputes(text):
+def test_the_mt5_family_recomputes(text, readme):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
     rows = _table_rows("| training seed | SR final AFSR | wake-only final AFSR | replay final AFSR | SR - wake-only | "
@@ -670,7 +669,6 @@ def test_the_mt5_family_recomputes(text):
     assert (np.sum(diffs > 1e-9), np.sum(np.abs(diffs) < 1e-9), np.sum(diffs < -1e-9)) == (8, 1, 1)
     reach_own = [runs[("sr", s)]["success_after_own_wake"][0] for s in range(10)]
     reach_final = [final[v][0] for v in ("sr", "wake_only", "replay")]
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert f"SR {_mean_se(metric[('sr', 'afsr')])} vs wake-only {_mean_se(metric[('wake_only', 'afsr')])}, paired " \
            f"{family[0]['mean']:+.3f} +- {family[0]['sem']:.3f}, SR ahead on 8 of 10 seeds, one-sided p = " \
            f"{family[0]['p']:.3f} (sign-flip {family[0]['sign_flip_p']:.3f})" in readme
@@ -680,7 +678,7 @@ def test_the_mt5_family_recomputes(text):
         not any(r["significant_holm"] for r in family)
 
 
-def test_the_mt5_references_recompute(text):
+def test_the_mt5_references_recompute(text, readme):
     """The MT5 stream's references on seeds 0-9 (descriptive): MT-Joint's and sequential BC's final AFSR and success
     per skill, sequential BC's success right after each own wake and on each earlier skill right after the next
     wake, the share of the gap between them that SR, wake-only and replay close; the baselines EWC, LwF and
@@ -728,7 +726,6 @@ def test_the_mt5_references_recompute(text):
     fell = max(base[k]["success_matrix"][3][2] for k in back)
     assert f"in each of the {len(back)} runs that end above 0 on it, it had fallen to at most {fell:.2f} at the " \
            "window-close wake" in text
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     assert f"MT-Joint {np.mean(afsr['mt_joint']):.3f}, sequential BC {np.mean(afsr['sequential_bc']):.3f} (10 " \
            f"seeds each; SR closes {closed['sr']:.0%} of the gap between them, wake-only {closed['wake_only']:.0%})" \
         in readme
@@ -791,11 +788,10 @@ def test_each_calibration_step_s_reading_recomputes_from_its_raw_runs(step, phra
 
 # --- the first look (README): the numbers it states recompute from its archived runs ---------------------------------
 
-def test_the_first_look_s_stated_outcomes_recompute_from_its_runs():
+def test_the_first_look_s_stated_outcomes_recompute_from_its_runs(readme):
     """README's "A first look" states, for the preset as it is (30 epochs per wake), the final success per skill of
     training seeds 0-4 and of the preset's own seed 1000, and that every skill reached >= 0.80 right after its own
     wake on seeds 0-4; each archived run was made with the preset's settings."""
-    readme = re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
     preset = json.loads((DOCS.parent / "configs" / "needle_try.json").read_text())["train"]
     finals = {}
     for seed in (0, 1, 2, 3, 4, 1000):
