@@ -574,6 +574,13 @@ def test_the_sac_follow_up_rows_so_far_recompute(text, readme):
         sr, wake = (" / ".join(f"{pairs[s][i]:.3f}" for s in seeds) for i in (0, 1))
         assert (f"seeds 0-{seeds[-1]}'s pairs are in (SR {sr}, wake-only {wake}; descriptive until all five pairs "
                 "are)") in text
+    distill = sorted(s for v, s in final_afsr if v == "reset_distill")
+    if distill and len(distill) < 5:  # README's SAC bullet and the headline: Reset & Distill's seeds so far beside SR's
+        assert distill == list(range(len(distill)))
+        so_far = "; ".join(f"seed {s} {final_afsr[('reset_distill', s)]:.3f} (SR {final_afsr[('sr', s)]:.3f})"
+                           for s in distill)
+        sentence = f"Reset & Distill (descriptive) so far, final AFSR: {so_far}"
+        assert sentence in readme and sentence in text
 
 
 G1 = "G1=sr>wake_only@0-4"
