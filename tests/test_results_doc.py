@@ -581,6 +581,14 @@ def test_the_sac_follow_up_rows_so_far_recompute(text, readme):
                            for s in distill)
         sentence = f"Reset & Distill (descriptive) so far, final AFSR: {so_far}"
         assert sentence in readme and sentence in text
+    elif distill:  # all five: README's SAC bullet and RESULTS give its mean beside SR's and wake-only's
+        assert distill == list(range(5))
+        rd, sr, wake = ([final_afsr[(v, s)] for s in distill] for v in ("reset_distill", "sr", "wake_only"))
+        diff = np.subtract(rd, sr)
+        sentence = (f"Reset & Distill (descriptive, seeds 0-4), final AFSR {_mean_se(rd)} against SR {_mean_se(sr)} "
+                    f"and wake-only {_mean_se(wake)}; Reset & Distill - SR {np.mean(diff):+.3f} +- "
+                    f"{np.std(diff, ddof=1) / np.sqrt(len(diff)):.3f} (pairs {' / '.join(f'{d:+.3f}' for d in diff)})")
+        assert sentence in readme and text.count(sentence) == 2  # RESULTS: the headline and the dated closing paragraph
 
 
 G1 = "G1=sr>wake_only@0-4"
