@@ -586,8 +586,8 @@ def test_the_sac_follow_up_rows_so_far_recompute(text, readme):
         rd, sr, wake = ([final_afsr[(v, s)] for s in distill] for v in ("reset_distill", "sr", "wake_only"))
         diff = np.subtract(rd, sr)
         sentence = (f"Reset & Distill (descriptive, seeds 0-4), final AFSR {_mean_se(rd)} against SR {_mean_se(sr)} "
-                    f"and wake-only {_mean_se(wake)}; Reset & Distill - SR {np.mean(diff):+.3f} +- "
-                    f"{np.std(diff, ddof=1) / np.sqrt(len(diff)):.3f} (pairs {' / '.join(f'{d:+.3f}' for d in diff)})")
+                    f"and wake-only {_mean_se(wake)}; Reset & Distill - SR {_signed(diff)} "
+                    f"(pairs {' / '.join(f'{d:+.3f}' for d in diff)})")
         assert sentence in readme and text.count(sentence) == 2  # RESULTS: the headline and the dated closing paragraph
 
 
