@@ -34,6 +34,10 @@ PY
 )
 venv="${SR_VENV:-${XDG_CACHE_HOME:-$HOME/.cache}/sr_imitation/venv-$key}"
 venv="$(mkdir -p "$(dirname "$venv")" && cd "$(dirname "$venv")" && pwd)/$(basename "$venv")"
+# One build at a time: a second clone (or worktree) starting while the first builds waits here instead of deleting
+# the half-built environment under it.
+exec 9>"$venv.lock"
+flock 9
 if [ ! -f "$venv/.sr_complete" ]; then
   echo "[venv] building $venv (pins changed or first run)" >&2
   rm -rf "$venv"
@@ -52,6 +56,7 @@ else
   echo "[venv] reusing $venv" >&2
   "$venv/bin/python" -I .ci/overlay.py purge "$venv" "$root"
 fi
+flock -u 9
 overlay="$root/.venv"
 stamp="$key $venv $(stat -c %Y "$venv/.sr_complete") $root $(cat pyproject.toml policies/*/pyproject.toml .ci/venv.sh \
   .ci/overlay.py | sha256sum | cut -c1-16)"

@@ -7,9 +7,15 @@ import logging
 
 import pytest
 
-from sr_imitation.experiments.archive import archive_run, archived_run
+from sr_imitation.experiments.archive import (
+    WEIGHTS_FILE,
+    archive_run,
+    archived_run,
+    verify_weights,
+    weight_store,
+)
 from sr_imitation.infra.fingerprint import SettingsMismatchError, settings_fingerprint, write_fingerprint
-from sr_imitation.io import CorruptFileError
+from sr_imitation.io import CorruptFileError, read_checked_json
 
 SETTINGS = {"seed": 0, "sleep": {"lr": 1e-5, "enabled": True}, "output_dir": "x"}
 ALLOW = ("output_dir",)
@@ -74,3 +80,35 @@ def test_archiving_copies_the_report_files_and_replaces_an_older_copy(tmp_path):
     with pytest.raises(ValueError, match=r"sr_seed0: not replaced by the archived run: it holds notes.md"):
         archive_run(run, tmp_path / "archive", "sr_seed0")
     assert (kept / "notes.md").read_text() == "mine" and (kept / "results.json").is_file()
+
+
+def test_a_kept_run_stores_its_weights_beside_the_archive_with_checksums_in_it(tmp_path):
+    run = _run(tmp_path / "runs" / "sr_seed0")
+    (run / "stages" / "01_reach" / "wake").mkdir(parents=True)
+    (run / "stages" / "01_reach" / "wake" / "agent.safetensors").write_bytes(b"actor after wake")
+    (run / "stages" / "01_reach" / "memory.safetensors").write_bytes(b"memory")
+    (run / "videos").mkdir()
+    (run / "videos" / "reach.mp4").write_bytes(b"video")
+    (run / "log.jsonl").write_text("{}\n")
+    (run / "stages" / "01_reach" / ".agent.safetensors.1.tmp").write_bytes(b"half")
+    kept = archive_run(run, tmp_path / "archive", "sr_seed0", keep_weights=True)
+    store = weight_store(tmp_path / "archive") / "sr_seed0"
+    assert store == tmp_path / "archive.weights" / "sr_seed0"
+    listing = read_checked_json(kept / WEIGHTS_FILE)
+    assert sorted(listing["files"]) == ["model.safetensors", "progress.json", "results.json",
+                                        "settings_fingerprint.json", "stages/01_reach/memory.safetensors",
+                                        "stages/01_reach/wake/agent.safetensors"]  # no video, log or temp file
+    assert listing["files"]["stages/01_reach/memory.safetensors"]["bytes"] == 6
+    assert (store / "stages/01_reach/wake/agent.safetensors").read_bytes() == b"actor after wake"
+    assert verify_weights(kept) == store
+    # A damaged or missing stored file is named; the tracked list is what it is checked against.
+    (store / "stages/01_reach/memory.safetensors").write_bytes(b"memorY")
+    with pytest.raises(CorruptFileError, match=r"memory.safetensors.*differs from its checksum in .*weights.json"):
+        verify_weights(kept)
+    (store / "stages/01_reach/memory.safetensors").unlink()
+    with pytest.raises(CorruptFileError, match=r"memory.safetensors.*missing from the weight store"):
+        verify_weights(kept)
+    # Archiving again replaces the store as a whole; no temporary or old folder is left beside it.
+    archive_run(run, tmp_path / "archive", "sr_seed0", keep_weights=True)
+    assert verify_weights(kept) == store
+    assert sorted(p.name for p in (tmp_path / "archive.weights").iterdir()) == ["sr_seed0"]

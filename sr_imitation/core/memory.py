@@ -141,6 +141,13 @@ class Memory(ABC):
     def loss(self, policy: Any, batch: Mapping[str, Tensor]) -> Tensor:
         """L_i(theta) on a sampled ``batch`` for the current ``policy``: a differentiable scalar."""
 
+    def scale(self, policy: Any, generator: torch.Generator) -> float:
+        """How much L_i can change for this memory, for ``policy`` now (> 0): what a sleep with
+        ``early_stop_scale=memory_scale`` measures its plateau rule against. Memory kinds whose loss level is that
+        scale need not define it; the others (a frozen critic's value) do."""
+        raise ValueError(f"sleep.early_stop_scale=memory_scale: a {self.kind!r} memory has no scale of its own; use "
+                         "early_stop_scale=window")
+
     def segment_losses(self, policy: Any, joint_batch: Mapping[str, Tensor], segments: int) -> Tensor | None:
         """Losses of ``segments`` equal consecutive parts of a concatenated batch from one policy call.
 

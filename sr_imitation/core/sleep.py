@@ -32,6 +32,10 @@ from sr_imitation.progress import Progress
 logger = logging.getLogger(__name__)
 
 
+EARLY_STOP_SCALES = ("window", "memory_scale")
+"""The values of :attr:`SleepConfig.early_stop_scale`."""
+
+
 class NonFiniteSleepError(FloatingPointError):
     """Sleep met too many consecutive non-finite losses or gradients; the policy was not updated by them."""
 
@@ -65,6 +69,12 @@ class SleepConfig:
     early_stop_relative: bool = True
     """Compare the change of window means relative to the previous window mean (true) or absolutely (false); the
     paper does not say (our choice - keeps the rule meaningful for the small imitation losses)."""
+    early_stop_scale: str = "window"
+    """What the plateau rule's change is measured against: ``window`` - the previous window's mean (or nothing, with
+    ``early_stop_relative=false``), as the paper's rule reads; ``memory_scale`` - the mean over the sleep's memories
+    of each memory's own scale at the sleep's start (:meth:`Memory.scale`: a frozen critic's action gap), for
+    objectives whose level says nothing of how much they can still change (a critic's value of -892 moving by 0.5
+    is 0.06 % of its level; issue 59, our choice)."""
     anchor_strength: float = 1e-2
     """lambda of the proximal anchor (Eq. 2); 0 is the no-anchor ablation."""
     anchor_tau: float | None = 150.0
@@ -96,6 +106,7 @@ class SleepConfig:
             "anchor_strength": (">= 0", self.anchor_strength >= 0),
             "anchor_tau": ("> 0 or null", self.anchor_tau is None or self.anchor_tau > 0),
             "max_nonfinite_steps": (">= 1", self.max_nonfinite_steps >= 1),
+            "early_stop_scale": (f"one of {list(EARLY_STOP_SCALES)}", self.early_stop_scale in EARLY_STOP_SCALES),
         }
         # the key as the command line names it (--sleep.<key>): every stream config holds it under ``sleep``
         bad = [f"sleep.{k} must be {rule}, got {getattr(self, k)!r}" for k, (rule, ok) in checks.items() if not ok]
@@ -138,9 +149,14 @@ class SleepResult:
     solver_iterations: list[int] = field(default_factory=list)
     solver_status: dict[str, int] = field(default_factory=dict)
     skipped_steps: list[dict[str, Any]] = field(default_factory=list)
+    early_stop_scale: float | None = None
+    """The memories' scale the plateau rule was measured against (``early_stop_scale=memory_scale``); else none."""
 
     def to_dict(self) -> dict[str, Any]:
-        return asdict(self)
+        out = asdict(self)
+        if self.early_stop_scale is None:  # the records of every sleep measured against its window stay as they were
+            del out["early_stop_scale"]
+        return out
 
     def summary(self) -> dict[str, Any]:
         """Compact view for logs and results tables."""
@@ -156,6 +172,7 @@ class SleepResult:
             "final_memory_losses": last(self.memory_losses),
             "skipped_steps": len(self.skipped_steps),
             "solver_status": dict(self.solver_status),
+            **({} if self.early_stop_scale is None else {"early_stop_scale": self.early_stop_scale}),
         }
 
 
@@ -288,15 +305,27 @@ def _update_direction(weights: np.ndarray, jac: Tensor, params: Sequence[Tensor]
     return grads, reg_value
 
 
-def _plateaued(history: Sequence[float], config: SleepConfig) -> bool:
+def _plateaued(history: Sequence[float], config: SleepConfig, scale: float | None = None) -> bool:
     """Step 7: the early stop (Table 6): every ``early_stop_window`` iterations, the mean objective of the last window
-    against the one before changed by less than ``early_stop_tol`` (relative, or absolute)."""
+    against the one before changed by less than ``early_stop_tol`` (relative to the previous window's mean, or
+    absolute; with ``scale``, relative to it: :attr:`SleepConfig.early_stop_scale`)."""
     window = config.early_stop_window
     if len(history) < 2 * window or len(history) % window:
         return False
     cur, prev = float(np.mean(history[-window:])), float(np.mean(history[-2 * window : -window]))
-    change = abs(cur - prev) / max(abs(prev), 1e-12) if config.early_stop_relative else abs(cur - prev)
+    if scale is not None:
+        change = abs(cur - prev) / max(scale, 1e-12)
+    else:
+        change = abs(cur - prev) / max(abs(prev), 1e-12) if config.early_stop_relative else abs(cur - prev)
     return change < config.early_stop_tol
+
+
+def memory_scale(memories: Sequence[Memory], policy: Any, seed: int) -> float:
+    """The mean of the memories' own scales (:meth:`Memory.scale`) for ``policy`` now, drawn from ``seed``: what
+    ``early_stop_scale=memory_scale`` measures the plateau rule against."""
+    generator = torch.Generator().manual_seed(int(seed) % (2**63) + 7)
+    with torch.no_grad():
+        return float(np.mean([m.scale(policy, generator) for m in memories]))
 
 
 def sleep_consolidate(
@@ -364,6 +393,10 @@ def sleep_consolidate(
     optimizer = torch.optim.Adam(params, lr=config.lr, fused=device.type in ("cpu", "cuda"))
     jac = torch.zeros(k, sum(p.numel() for p in params), device=device, dtype=params[0].dtype)
     result = SleepResult(skills, lam, distances, stop_iteration=0, stop_reason="max_iterations")
+    scale = memory_scale(memories, policy, config.seed) if config.early_stop_scale == "memory_scale" else None
+    if scale is not None:
+        result.early_stop_scale = scale
+        logger.info("plateau rule measured against the memories' scale %.4g", scale)
     consecutive_bad = 0
     bar = Progress(config.max_iterations, f"sleep k={k}", logger, enabled=progress)
     logger.info("sleep over %s: lambda=%g (distances %s), %s", skills, lam,
@@ -411,7 +444,7 @@ def sleep_consolidate(
         result.stop_iteration = it + 1
         if progress and it % 10 == 0:
             bar.set_postfix(obj=f"{objective:.4g}", worst=f"{max(losses):.4g}")
-        if _plateaued(result.sleep_objective, config):  # (7)
+        if _plateaued(result.sleep_objective, config, scale):  # (7)
             result.stop_reason = "plateau"
             break
     bar.close()

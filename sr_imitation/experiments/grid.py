@@ -158,6 +158,10 @@ class GridConfig:
     """A folder of finished runs' raw outputs (:mod:`sr_imitation.experiments.archive`): runs it holds with the same
     settings are skipped and summarized from there, runs finished now are copied into it. ``None``: only
     ``output_root``."""
+    keep_weights: bool = True
+    """With ``archive``: also keep each archived run's checkpoints and memories in the git-ignored
+    ``<archive>.weights/<run>/``, their checksums in the archived ``weights.json`` (what a re-sleep of a stored stage
+    reads: :mod:`sr_imitation.rl.resleep`, ``sr-sleep``)."""
     runner: str = "ray"
     """``ray``: every run a Ray task, as many at once as the cluster's resources allow; ``loop``: one after another
     in this process."""
@@ -332,7 +336,7 @@ def run_grid(cfg: GridConfig, substrate: GridSubstrate | None = None) -> dict[st
     def on_finished(key: RunKey, info: dict[str, Any]) -> None:
         out = Path(plan[key].output_dir)
         if cfg.archive is not None:
-            archive_run(out, cfg.archive, out.name)
+            archive_run(out, cfg.archive, out.name, cfg.keep_weights)
         done.append(key)
         logger.info(_finished_line(key, {**info, "run_dir": out}, len(done), len(todo), time.monotonic() - start))
 
@@ -343,7 +347,7 @@ def run_grid(cfg: GridConfig, substrate: GridSubstrate | None = None) -> dict[st
         out = Path(run.output_dir)
         kept = archived[key]
         if kept is None and cfg.archive is not None:  # finished now (archived above) or earlier here (now)
-            kept = cfg.archive / out.name if key in done else archive_run(out, cfg.archive, out.name)
+            kept = cfg.archive / out.name if key in done else archive_run(out, cfg.archive, out.name, cfg.keep_weights)
         runs.setdefault(key[0], {})[str(key[1])] = kept or out
     return substrate.summarize(runs, cfg.output_root)
 

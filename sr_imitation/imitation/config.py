@@ -306,6 +306,7 @@ SETTINGS_ADDED: dict[str, Any] = {
     "eval.env_options": {},
     "stream.stats": "first",
     "stream.reexpress_inputs": True,
+    "sleep.early_stop_scale": "window",  # 2026-11-29 (issue 59)
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
 (the needle environment): a stored fingerprint without one of them resumes with that value and is refused

@@ -310,6 +310,9 @@ class RLTrainConfig(RunConfig):
         from sr_imitation.stream import method_class
 
         method_class(self.method, "sac")  # what the method asks of the substrate: checked when the run is built
+        if self.sleep.early_stop_scale == "memory_scale" and self.method_options.get("expert_memory") == "instead":
+            raise ValueError("sleep.early_stop_scale=memory_scale measures the plateau rule on the frozen critics' "
+                             "scale; method_options expert_memory=instead keeps none (use early_stop_scale=window)")
 
     @property
     def stream_skills(self) -> list[str]:
@@ -329,7 +332,15 @@ class RLTrainConfig(RunConfig):
         from sr_imitation.stream import method_config
 
         return settings_fingerprint(self, RESUME_ALLOW_LIST,
-                                    {"method_config": method_config(self.method, self.method_options)})
+                                    {"method_config": method_config(self.method, self.method_options)},
+                                    added=SETTINGS_ADDED)
+
+
+SETTINGS_ADDED: dict[str, Any] = {
+    "sleep.early_stop_scale": "window",  # 2026-11-29 (issue 59): every earlier run measured against the window
+}
+"""Settings added after SAC runs were first fingerprinted, with the value every run that predates them had: such a
+run resumes with that value and is refused with another (:attr:`SettingsFingerprint.added`)."""
 
 
 RESUME_ALLOW_LIST: dict[str, str] = {

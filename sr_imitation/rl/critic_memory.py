@@ -105,6 +105,22 @@ class CriticMemory(Memory):
             raise ValueError(f"memory {self.skill!r}: policy returned actions of shape {tuple(actions.shape)}")
         return -self.q_value(states, actions).mean()
 
+    ACTIONS_PER_STATE: int = 16
+    """Uniform actions per state of :meth:`scale`."""
+
+    @torch.no_grad()
+    def scale(self, policy: Callable[[Tensor], Tensor], generator: torch.Generator) -> float:
+        """The critic's action gap for ``policy``: | E_s [ Q_i(s, pi(s)) - E_{a ~ U[-1,1]^A} Q_i(s, a) ] | over the
+        whole state buffer, 16 uniform actions per state drawn from ``generator``: the scale on which this critic
+        tells the policy's action from a random one (``sleep.early_stop_scale=memory_scale``; issue 59, our
+        choice)."""
+        states = self.tensors["state"]
+        n, a = states.shape[0], int(self.config["act_dim"])
+        random_actions = torch.rand(n * self.ACTIONS_PER_STATE, a, generator=generator) * 2 - 1
+        repeated = states.repeat_interleave(self.ACTIONS_PER_STATE, dim=0)
+        random_q = float(self.q_value(repeated, random_actions).mean())
+        return abs(self.value(policy) - random_q)
+
     @torch.no_grad()
     def value(self, policy: Callable[[Tensor], Tensor], batch_size: int = 1000) -> float:
         """E_{s in B_i} Q_i(nu_i(s), pi(s)) over the whole buffer: the frozen-critic value diagnostic."""

@@ -340,13 +340,15 @@ class SACSubstrate:
             # Eq. 3 at the sleep rate, from the actor's activity on a batch of every memory's states
             if rate <= 0.0:
                 return
-            states = torch.cat([m.sample(sleep_cfg.batch_size, gen)["state"] for m in memories])
+            batches = [m.sample(sleep_cfg.batch_size, gen) for m in memories]  # expert memories: "input.state"
+            states = torch.cat([b["state"] if "state" in b else b["input.state"] for b in batches])
             with torch.no_grad():
                 agent.policy_fn(states)
             update_excitability(agent.actor, rate)
 
         def critic_values() -> dict[str, Any]:
-            return {"frozen_critic_value": [m.value(agent.policy_fn) for m in memories]}  # type: ignore[attr-defined]
+            # the frozen critics' values (SR's expert memories, --method_options={expert_memory: ...}, have none)
+            return {"frozen_critic_value": [m.value(agent.policy_fn) for m in memories if isinstance(m, CriticMemory)]}
 
         return SleepProblem(agent.actor_parameters(), agent.policy_fn, sleep_cfg, excitability_step, critic_values)
 

@@ -64,9 +64,10 @@ class RunConfig:
     """Continual method, by its registry name - one file each in sr_imitation/stream/methods (sr is Sleeping Robots);
     a method runs on every substrate that provides what it requires, and a name that does not run here is answered
     with the list of those that do."""
-    method_options: dict[str, float] = field(default_factory=dict)
-    """Values for the method's own settings, e.g. --method_options='{lam: 100}' for EWC's lambda (each method's
-    file lists them)."""
+    method_options: dict[str, bool | float | str] = field(default_factory=dict)
+    """Values for the method's own settings, e.g. --method_options='{lam: 100}' for EWC's lambda or
+    --method_options='{expert_memory: beside, reset_wake: true}' for SR's options (each method's file lists them;
+    true/false are read as booleans, numbers as floats, anything else as text)."""
     output_dir: Path = Path("outputs/stream")
     """Run directory (refused if it exists, unless --resume or --overwrite)."""
     seed: int = 0

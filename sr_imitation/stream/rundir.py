@@ -71,7 +71,7 @@ TEMPORARY_PATTERNS = (".*.tmp", ".*.tmp.*", ".wake.*", ".sleep.*")
 checkpoints): removed on resume, never read."""
 RUN_ENTRIES = (FINGERPRINT_FILE, RUN_CONFIG_FILE, *LEGACY_CONFIG_FILES, PROGRESS_FILE, *REGENERATED_FILES,
                "results.md", "*.png", "log.jsonl", "wandb", "videos", LAST_POINTER, "memories", "stages",
-               "skill_*_*", "stream_stats.safetensors", "agent.safetensors", "expert_suture.mp4")
+               "skill_*_*", "stream_stats.safetensors", "agent.safetensors", "expert_suture.mp4", "resleep.json")
 """What a run of this package writes at its top level (fnmatch patterns: the stream engine's files, the ACT
 substrate's ``skill_<k>_<skill>`` stage folders, ``memories/``, statistics and ``last`` link, the SAC substrate's
 ``stages/``, the oracles' ``agent.safetensors``, ``sr-main``'s expert video), besides :data:`TEMPORARY_PATTERNS`.

@@ -63,7 +63,8 @@ CHOICES: dict[str, list[Any]] = {
     "policy.normalization_mapping.ACTION": MAPPING,
     "stream.pairs": ["surgicai", "mt5", "all", "adjacent"],
     "stream.stats": ["first", "seen", "union"],
-    "method_options": [{"lam": 100.0}],
+    "method_options": [{"lam": 100.0}, {"expert_memory": "beside"}],
+    "sleep.early_stop_scale": ["memory_scale"],
     "wake.restore": ["best", "last"],
     "stream.video_backend": ["pyav", "torchcodec"],
     "eval.thresholds": sorted(THRESHOLD_PRESETS),
@@ -191,6 +192,10 @@ def fake_env_cli(monkeypatch):
     monkeypatch.setattr(cli, "train_stream", lambda cfg: train_stream(cfg, fake_env_factory))
 
 
+SR_OPTIONS = {"method_config.expert_memory", "method_config.reset_wake"}
+"""SR's own settings with their defaults, from --method and --method_options (stream/methods/sleeping_robots.py)."""
+
+
 def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
     out, saved = stored
     assert saved["output_dir"] == "." and "resume" not in saved and "overwrite" not in saved
@@ -199,9 +204,9 @@ def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
     assert not any(is_allowed(k, RESUME_ALLOW_LIST) for k in settings)
     expected = {".".join(p) for p, _ in leaves(saved) if not is_allowed(".".join(p), RESUME_ALLOW_LIST)}
     inputs = {f"inputs.datasets.{skill}" for skill in STREAM}  # each dataset's content digest
-    assert set(settings) == expected | {"method_config"} | inputs  # + the method's own settings (sr: none)
+    assert set(settings) == expected | SR_OPTIONS | inputs  # + the method's own settings (sr: its options)
     assert all(len(settings[k]) == 64 for k in inputs)
-    assert settings["method_config"] == {}
+    assert settings["method_config.expert_memory"] == "off" and settings["method_config.reset_wake"] is False
     assert {"sleep.batch_size", "policy.n_action_steps", "sleep.anchor_tau", "policy.dim_feedforward",
             "policy.optimizer_lr", "sleep.fw_iterations", "policy.distill_batch_size", "sleep.enabled",
             "memory.buffer_size", "substrate"} <= set(settings)
@@ -248,7 +253,7 @@ def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stor
     # every fingerprinted setting was visited; method_config is derived from --method and the method's defaults
     # (tests/rl/test_baselines.py::test_a_methods_own_defaults_are_fingerprinted)
     inputs = {k for k in stored_settings if k.startswith("inputs.datasets.")}  # test_inputs.py changes them
-    assert covered | {"method_config"} | inputs == set(stored_settings) and len(inputs) == len(STREAM)
+    assert covered | SR_OPTIONS | inputs == set(stored_settings) and len(inputs) == len(STREAM)
     assert set(SKIP) <= covered and len(refused) == len(covered) - len(SKIP) >= 60
 
 

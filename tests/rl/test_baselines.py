@@ -84,7 +84,8 @@ def test_a_methods_own_defaults_are_fingerprinted(tmp_path, monkeypatch):
     assert settings["method_config.lam"] == 1.0 and settings["method_config.fisher_states"] == 2000
     options = tiny_config(tmp_path / "run", method="ewc", method_options={"lam": 100}).resume_fingerprint()
     assert options.settings["method_config.lam"] == 100
-    assert tiny_config(tmp_path / "sr").resume_fingerprint().settings["method_config"] == {}  # no settings of its own
+    sr = tiny_config(tmp_path / "sr").resume_fingerprint().settings  # SR's options, off by default
+    assert sr["method_config.expert_memory"] == "off" and sr["method_config.reset_wake"] is False
     SACTrainer(tiny_config(tmp_path / "run", method="ewc")).run_dir.prepare()  # writes the fingerprint
     monkeypatch.setattr(EWC, "config", EWCConfig(lam=100.0))
     with pytest.raises(SettingsMismatchError, match=r"settings_fingerprint.json: .*method_config.lam: 1.0 -> 100.0"):

@@ -47,7 +47,7 @@ def test_every_capability_a_method_reaches_for_is_declared(name):
         if klass in (ContinualMethod, object):
             continue
         used |= set(re.findall(r"capability\(\w+, (\w+)\)", inspect.getsource(klass)))
-    assert used <= {c.__name__ for c in cls.requires}, (name, used)
+    assert used <= {c.__name__ for c in (*cls.requires, *cls.option_requires)}, (name, used)
 
 
 def test_capabilities_are_small_and_documented():

@@ -148,6 +148,9 @@ class ContinualMethod:
     name: ClassVar[str] = ""
     substrates: ClassVar[frozenset[str] | None] = None
     requires: ClassVar[tuple[type, ...]] = ()
+    option_requires: ClassVar[tuple[type, ...]] = ()
+    """Capabilities the method asks for only with some of its options (``--method_options``): an instance lists
+    those its options need in its own ``requires``, which the engine checks (SR's expert memories and fresh wakes)."""
     stores_memories: ClassVar[bool] = False
     memory_name: ClassVar[str] = "memory"
     """The file name a method's own memory kind is saved under (``memory``: the substrate's, SR's M_k)."""

@@ -50,7 +50,7 @@ def refusal(method: type[ContinualMethod] | ContinualMethod, substrate: Any) -> 
     cls = method if isinstance(method, type) else type(method)
     if cls.substrates is not None and substrate.name not in cls.substrates:
         return _restricted(cls, substrate.name)
-    lacking = missing_capabilities(substrate, cls.requires)
+    lacking = missing_capabilities(substrate, method.requires)  # an instance's: its options may add some
     if lacking:
         return (f"{cls.name!r} needs a substrate with {', '.join(lacking)} (sr_imitation.stream.capabilities); "
                 f"the {substrate.name} substrate does not provide it")
