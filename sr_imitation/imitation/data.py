@@ -23,10 +23,12 @@ wake instead of 0.93 with regrasp's own statistics (docs/RESULTS.md, "Why the ba
 
 from __future__ import annotations
 
+import json
 import logging
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -38,7 +40,7 @@ from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
 from lerobot_policy_act_sr.actor_memory import images_to_uint8
-from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
+from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
 
 logger = logging.getLogger(__name__)
 
@@ -47,6 +49,16 @@ STATS_KEYS = ("mean", "std", "min", "max")
 
 class DatasetMismatchError(ValueError):
     """A stream dataset is missing, empty, or its features do not match the policy."""
+
+
+class DamagedDatasetError(DatasetMismatchError, CorruptFileError):
+    """A dataset file that does not read through (truncated, damaged, a NaN in an observation or action): one line
+    naming the file. Also a :class:`~sr_imitation.io.CorruptFileError`, so that the command line prints this line
+    and not the Arrow, JSON or FFmpeg error it was raised from, which names no file
+    (:mod:`sr_imitation.infra.cli_errors`)."""
+
+    def __init__(self, path: str | Path, problem: str) -> None:
+        CorruptFileError.__init__(self, path, problem)
 
 
 def dataset_info_path(root: Path) -> Path:
@@ -88,6 +100,7 @@ def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
         missing.append("meta/episodes/*/*.parquet")
     if missing:
         raise DatasetMismatchError(f"{root}: incomplete LeRobot dataset, missing {', '.join(missing)}")
+    read_meta_through(root)
     try:
         meta = LeRobotDatasetMetadata(repo_id, root=root)
     except Exception as exc:  # noqa: BLE001 - LeRobot raises anything from Arrow/JSON/Hub errors here
@@ -97,59 +110,194 @@ def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
     return meta
 
 
+DAMAGED_ADVICE = "the dataset is damaged: record or copy it again"
+"""The end of every message about a damaged dataset file."""
+
+
+def read_meta_through(root: Path) -> None:
+    """Parse every ``meta/*.json`` file and read every ``meta/**/*.parquet`` file (tasks, episodes) of the dataset at
+    ``root`` through (:func:`read_through`): a truncated or damaged metadata file is one :class:`DamagedDatasetError`
+    naming it, instead of LeRobot's message that names neither the file nor the dataset ("Unterminated string",
+    "Parquet magic bytes not found in footer")."""
+    meta_dir = Path(root) / "meta"
+    for path in sorted(meta_dir.glob("*.json")):
+        try:
+            json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, UnicodeDecodeError, ValueError) as exc:
+            raise DamagedDatasetError(path, f"unreadable JSON file ({type(exc).__name__}: {exc}); "
+                                            f"{DAMAGED_ADVICE}") from exc
+    for path in sorted(meta_dir.rglob("*.parquet")):
+        read_through(path)
+
+
+def finite_columns(meta: LeRobotDatasetMetadata) -> list[str]:
+    """The numeric observation and action columns of a dataset (``action``, ``observation.*`` with a float dtype):
+    those a NaN or an infinity in would reach the policy (other columns, a reward or a user's own, are not read by
+    it and are not checked)."""
+    return [key for key, feature in meta.features.items()
+            if (key == ACTION or key.startswith("observation."))
+            and str(feature.get("dtype", "")).startswith("float")]
+
+
 def check_data_files(meta: LeRobotDatasetMetadata) -> None:
-    """Every data (parquet) and video file the episodes reference exists, is non-empty and reads through
-    (:func:`read_through`): a corrupt or truncated file is one :class:`DatasetMismatchError` naming it, before the
-    first gradient, instead of a traceback when its skill's stage begins."""
+    """Every data (parquet) and video file the episodes reference exists, is non-empty and reads through: every
+    parquet page decoded, with no NaN or infinity in an observation or action (:func:`read_through`), and every
+    frame of every video decoded, covering every frame its episodes use (:func:`read_video_through`). A corrupt or
+    truncated file is one :class:`DatasetMismatchError` naming it (and the episode, frame and column where it
+    applies), before the first gradient and before an earlier run is replaced (``--overwrite``), instead of a
+    traceback when its skill's stage begins; the videos are read whether or not the policy uses images, since
+    LeRobot decodes them for every item either way."""
     data = {meta.get_data_file_path(e) for e in range(meta.total_episodes)}
-    videos: set[Path] = set()
+    videos: dict[Path, list[tuple[int, float, int]]] = {}  # file -> (episode, its start in s, its frames)
+    ends, begins = meta.episodes["dataset_to_index"], meta.episodes["dataset_from_index"]
     for key in meta.video_keys:
-        videos |= {meta.get_video_file_path(e, key) for e in range(meta.total_episodes)}
-    paths = data | videos
+        starts = meta.episodes[f"videos/{key}/from_timestamp"]
+        for e in range(meta.total_episodes):
+            videos.setdefault(meta.get_video_file_path(e, key), []).append(
+                (e, float(starts[e]), int(ends[e]) - int(begins[e])))
+    paths = data | set(videos)
     missing = sorted(str(p) for p in paths if not (meta.root / p).is_file() or (meta.root / p).stat().st_size == 0)
     if missing:
         raise DatasetMismatchError(f"{meta.root}: missing or empty data files {missing}")
-    frames = sum(read_through(meta.root / p) for p in sorted(data))
+    columns = finite_columns(meta)
+    frames = sum(read_through(meta.root / p, columns) for p in sorted(data))
     if frames != meta.total_frames:
         raise DatasetMismatchError(f"{dataset_info_path(meta.root)}: declares {meta.total_frames} frames, its data "
                                    f"files hold {frames}")
     for path in sorted(videos):
-        read_video_through(meta.root / path)
+        read_video_through(meta.root / path, videos[path], meta.fps)
 
 
-def read_through(path: Path) -> int:
+def read_through(path: Path, finite: Sequence[str] = ()) -> int:
     """Decode every column of the parquet file ``path`` once (every page decompressed and decoded, so flipped bytes
-    in compressed data and a truncated file are found); returns its number of rows. :class:`DatasetMismatchError`
-    naming the file if it does not read."""
+    in compressed data and a truncated file are found); returns its number of rows. :class:`DamagedDatasetError`
+    naming the file if it does not read, or if a column of ``finite`` holds a NaN or an infinity (naming the
+    column, the episode and the frame: :func:`check_finite`)."""
     import pyarrow.parquet as pq
 
+    rows = 0
     try:
         with pq.ParquetFile(path) as reader:
-            return sum(batch.num_rows for batch in reader.iter_batches())
+            for batch in reader.iter_batches():
+                check_finite(path, batch, finite, rows)
+                rows += batch.num_rows
+    except DamagedDatasetError:
+        raise
     except Exception as exc:  # noqa: BLE001 - Arrow raises OSError, ArrowInvalid and others for a damaged file
         first = str(exc).splitlines()[0] if str(exc) else ""
-        raise DatasetMismatchError(f"{path}: unreadable parquet file ({type(exc).__name__}: {first}); the dataset is "
-                                   "damaged: record or copy it again") from exc
+        raise DamagedDatasetError(path, f"unreadable parquet file ({type(exc).__name__}: {first}); "
+                                        f"{DAMAGED_ADVICE}") from exc
+    return rows
 
 
-def read_video_through(path: Path) -> None:
-    """Demultiplex every packet of the video file ``path`` once (a truncated or damaged container is found without
-    decoding every frame); :class:`DatasetMismatchError` naming the file if it does not read or holds no video."""
+def check_finite(path: Path, batch: Any, columns: Sequence[str], first_row: int = 0) -> None:
+    """:class:`DamagedDatasetError` naming ``path``, the column (and the element of a vector), the episode and the
+    frame of the first NaN or infinity in ``columns`` of the Arrow record ``batch`` (rows ``first_row...`` of the
+    file); columns the batch lacks or that hold no floats are skipped."""
+    for name in columns:
+        if name not in batch.schema.names:
+            continue
+        found = first_non_finite(batch.column(name))
+        if found is None:
+            continue
+        row, element, value = found
+        where = f"{name}[{element}]" if element is not None else name
+        episode = _cell(batch, "episode_index", row)
+        frame = _cell(batch, "frame_index", row)
+        raise DamagedDatasetError(path, f"{value} in column {where!r} at episode {episode}, frame {frame} (row "
+                                        f"{first_row + row} of the file); a non-finite observation or action makes "
+                                        "the losses NaN: fix or record the dataset again")
+
+
+def _cell(batch: Any, name: str, row: int) -> Any:
+    return batch.column(name)[row].as_py() if name in batch.schema.names else "?"
+
+
+def first_non_finite(column: Any) -> tuple[int, int | None, float] | None:
+    """``(row, element, value)`` of the first NaN or infinity in an Arrow float column (``element``: the index
+    into the flattened vector of that row, ``None`` for a scalar column), or ``None``; a null counts as NaN. A column
+    of lists is flattened, keeping each value's row."""
+    import pyarrow as pa
+    import pyarrow.compute as pc
+
+    values, rows = column, None
+    while pa.types.is_list(values.type) or pa.types.is_large_list(values.type) or \
+            pa.types.is_fixed_size_list(values.type):
+        parents = np.asarray(pc.list_parent_indices(values))
+        values = pc.list_flatten(values)
+        rows = parents if rows is None else rows[parents]
+    if not pa.types.is_floating(values.type):
+        return None
+    array = values.to_numpy(zero_copy_only=False)
+    bad = np.flatnonzero(~np.isfinite(array))
+    if len(bad) == 0:
+        return None
+    i = int(bad[0])
+    if rows is None:
+        return i, None, float(array[i])
+    row = int(rows[i])
+    return row, i - int(np.searchsorted(rows, row)), float(array[i])
+
+
+def read_video_through(path: Path, episodes: Sequence[tuple[int, float, int]] = (), fps: float = 0.0,
+                       tolerance_s: float = 1e-4) -> int:
+    """Decode every frame of the video file ``path`` once (with PyAV: torchcodec does not load everywhere), and check
+    that it holds every frame its ``episodes`` use: ``(episode index, its start in the video in s, its number of
+    frames)``, frame i at ``start + i / fps`` within ``tolerance_s`` (LeRobot's default tolerance, what it asks the
+    decoder for). Returns the number of frames. :class:`DamagedDatasetError` naming the file if it does not decode
+    (with the first episode and frame it lacks), holds no video, or lacks a frame: a truncated video (LeRobot writes
+    its index at the front) opens and demultiplexes, and LeRobot fails with a traceback when an item past the cut
+    is drawn."""
     import av
 
+    times: list[float] = []
+    error: Exception | None = None
     try:
         with av.open(str(path)) as container:
             if not container.streams.video:
-                raise DatasetMismatchError(f"{path}: holds no video stream")
-            packets = sum(1 for packet in container.demux(container.streams.video[0]) if packet.size)
-    except DatasetMismatchError:
+                raise DamagedDatasetError(path, f"holds no video stream; {DAMAGED_ADVICE}")
+            stream = container.streams.video[0]
+            stream.thread_type = "AUTO"
+            for frame in container.decode(stream):
+                if frame.time is not None:
+                    times.append(float(frame.time))
+    except DamagedDatasetError:
         raise
     except Exception as exc:  # noqa: BLE001 - PyAV raises its own error classes per FFmpeg error code
-        first = str(exc).splitlines()[0] if str(exc) else ""
-        raise DatasetMismatchError(f"{path}: unreadable video file ({type(exc).__name__}: {first}); the dataset is "
-                                   "damaged: record or copy it again") from exc
-    if packets == 0:
-        raise DatasetMismatchError(f"{path}: the video holds no frames")
+        error = exc
+    lacking = missing_frame(np.sort(np.asarray(times)), episodes, fps, tolerance_s)
+    if error is not None:
+        first = str(error).splitlines()[0] if str(error) else ""
+        raise DamagedDatasetError(path, f"unreadable video file ({type(error).__name__}: {first}) after "
+                                        f"{len(times)} frames{f': {lacking}' if lacking else ''}; "
+                                        f"{DAMAGED_ADVICE}") from error
+    if not times:
+        raise DamagedDatasetError(path, f"the video holds no frames; {DAMAGED_ADVICE}")
+    if lacking:
+        raise DamagedDatasetError(path, f"{lacking} (truncated or damaged); {DAMAGED_ADVICE}")
+    return len(times)
+
+
+def missing_frame(times: np.ndarray, episodes: Sequence[tuple[int, float, int]], fps: float, tolerance_s: float
+                  ) -> str | None:
+    """Which frame of ``episodes`` (:func:`read_video_through`) comes first that no decoded frame time of ``times``
+    (sorted) lies within ``tolerance_s`` of, in words (its episode, frame and time, and what the video holds); ``None``
+    if every frame is there."""
+    for episode, start, length in episodes:
+        wanted = start + np.arange(length) / fps
+        if len(times) == 0:
+            missing = np.arange(length)
+        else:
+            right = np.clip(np.searchsorted(times, wanted), 0, len(times) - 1)
+            left = np.clip(right - 1, 0, len(times) - 1)
+            distance = np.minimum(np.abs(times[right] - wanted), np.abs(times[left] - wanted))
+            missing = np.flatnonzero(distance >= tolerance_s)
+        if len(missing):
+            i = int(missing[0])
+            held = f"from {times[0]:.3f} to {times[-1]:.3f} s" if len(times) else "none"
+            return (f"episode {episode}, frame {i} (at {wanted[i]:.3f} s) is not in the video, which decodes "
+                    f"{len(times)} frames ({held})")
+    return None
 
 
 def check_stream_datasets(stream, use_images: bool) -> tuple[LeRobotDatasetMetadata, dict, dict]:

@@ -32,3 +32,12 @@ def state_datasets(tmp_path_factory) -> Path:
     for i, skill in enumerate(SKILLS):
         make_skill_dataset(root, skill, i, image=False)
     return root
+
+
+@pytest.fixture(scope="session")
+def video_datasets(tmp_path_factory) -> Path:
+    """The first two skills with their camera as video (``sr-record --video=true``)."""
+    root = tmp_path_factory.mktemp("needle_videos")
+    for i, skill in enumerate(SKILLS[:2]):
+        make_skill_dataset(root, skill, i, video=True)
+    return root

@@ -19,27 +19,31 @@ STATE_DIM = 6
 ACTION_DIM = 7
 
 
-def features(image: bool = True, state_dim: int = STATE_DIM, action_dim: int = ACTION_DIM) -> dict:
+def features(image: bool = True, state_dim: int = STATE_DIM, action_dim: int = ACTION_DIM,
+             video: bool = False) -> dict:
     out = {
         "observation.state": {"dtype": "float32", "shape": (state_dim,), "names": None},
         "action": {"dtype": "float32", "shape": (action_dim,), "names": None},
     }
     if image:
-        out["observation.images.wrist"] = {"dtype": "image", "shape": (IMAGE, IMAGE, 3),
+        out["observation.images.wrist"] = {"dtype": "video" if video else "image", "shape": (IMAGE, IMAGE, 3),
                                            "names": ["height", "width", "channels"]}
     return out
 
 
 def make_skill_dataset(root: Path, skill: str, index: int, episodes: int = 3, frames: int = 10,
                        image: bool = True, state_dim: int = STATE_DIM, action_dim: int = ACTION_DIM,
-                       constant: dict[str, dict[int, float]] | None = None, offset: float | None = None) -> Path:
+                       constant: dict[str, dict[int, float]] | None = None, offset: float | None = None,
+                       video: bool = False) -> Path:
     """A dataset whose action is a fixed linear function of the state, different per skill; ``constant`` holds
     dimensions of ``observation.state`` / ``action`` at a fixed value (a gripper that never moves: std 0),
-    ``offset`` shifts the state (default ``index``)."""
+    ``offset`` shifts the state (default ``index``); ``video``: the camera stored as an h264 video, as
+    ``sr-record --video=true`` stores it (the episodes of a skill in one mp4 file)."""
     rng = np.random.default_rng(index)
     weights = rng.normal(size=(state_dim, action_dim)).astype(np.float32) * 0.3
     ds = LeRobotDataset.create(repo_id=f"local/sr_needle_{skill}", fps=10, root=root / skill, robot_type="sim",
-                               use_videos=False, features=features(image, state_dim, action_dim))
+                               use_videos=video, features=features(image, state_dim, action_dim, video),
+                               **({"vcodec": "h264"} if video else {}))
     for _ in range(episodes):
         for _ in range(frames):
             state = rng.normal(size=state_dim).astype(np.float32) + (index if offset is None else offset)
@@ -53,6 +57,18 @@ def make_skill_dataset(root: Path, skill: str, index: int, episodes: int = 3, fr
         ds.save_episode()
     ds.finalize()
     return root / skill
+
+
+def damage(path: Path, how: str) -> None:
+    """Damage a file as a failing disk or a bad copy does: ``inverted``, 64 bytes in the middle; ``truncated``, its
+    last third cut off."""
+    data = bytearray(path.read_bytes())
+    if how == "inverted":
+        mid = len(data) // 2
+        data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
+    else:
+        data = data[: len(data) * 2 // 3]
+    path.write_bytes(bytes(data))
 
 
 class FakeNeedleEnv(gym.Env):

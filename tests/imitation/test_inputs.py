@@ -12,7 +12,7 @@ import pytest
 
 from sr_imitation.imitation.data import DatasetMismatchError
 from sr_imitation.imitation.trainer import train_stream
-from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
+from tests.imitation.helpers import damage, fake_env_factory, make_skill_dataset, tiny_stream_config
 
 SKILLS = ["approach", "place", "insert"]
 
@@ -244,16 +244,6 @@ def test_push_to_hub_is_checked_before_training_and_pushes_the_final_policy(stat
     assert {"model.safetensors", "config.json", "README.md"} <= set(uploads[0][1])
 
 
-def _damage(path: Path, how: str) -> None:
-    data = bytearray(path.read_bytes())
-    if how == "inverted":  # 64 bytes in the middle, as a failing disk or a bad copy does
-        mid = len(data) // 2
-        data[mid : mid + 64] = bytes(b ^ 0xFF for b in data[mid : mid + 64])
-    else:
-        data = data[: len(data) * 2 // 3]
-    path.write_bytes(bytes(data))
-
-
 @pytest.mark.parametrize("how", ["inverted", "truncated"])
 def test_a_damaged_parquet_of_a_later_skill_is_named_before_anything_is_written(state_datasets, tmp_path, monkeypatch,
                                                                                how):
@@ -261,7 +251,7 @@ def test_a_damaged_parquet_of_a_later_skill_is_named_before_anything_is_written(
     "Parquet magic bytes not found") that did not name the file."""
     root = _copy(state_datasets, tmp_path / "d")
     parquet = next((root / "insert" / "data").rglob("*.parquet"))
-    _damage(parquet, how)
+    damage(parquet, how)
     _fails_before_writing(root, tmp_path / "out", re.escape(str(parquet)) + ": unreadable parquet file", monkeypatch)
 
 
@@ -272,6 +262,99 @@ def test_a_damaged_video_is_named_before_anything_is_written(tmp_path):
     video = tmp_path / "episode.mp4"
     write_mp4(video, [np.full((16, 16, 3), i, dtype=np.uint8) for i in range(8)], fps=10)
     read_video_through(video)
-    _damage(video, "truncated")
+    damage(video, "truncated")
     with pytest.raises(DatasetMismatchError, match=re.escape(str(video)) + ": "):
         read_video_through(video)
+
+
+def _sr_train(capsys, root: Path, out: Path, skills: list[str], *flags: str) -> str:
+    """``sr-train`` on the command line, refused: its one stderr line (exit status 2)."""
+    from sr_imitation.imitation.cli import train_main
+    from sr_imitation.infra.cli_errors import run_cli
+
+    capsys.readouterr()
+    with pytest.raises(SystemExit) as info:
+        run_cli("sr-train", train_main, [f"--stream.dataset_root={root}", f"--stream.skills=[{','.join(skills)}]",
+                                         f"--output_dir={out}", "--eval.env=none", "--policy.use_images=false",
+                                         "--policy.device=cpu", "--progress=false", *flags])
+    assert info.value.code == 2
+    lines = capsys.readouterr().err.strip().splitlines()
+    assert len(lines) == 1, lines
+    return lines[0]
+
+
+def _video(root: Path, skill: str) -> Path:
+    return next((root / skill / "videos").rglob("*.mp4"))
+
+
+def test_a_truncated_video_is_refused_before_the_first_phase_even_without_images(video_datasets, tmp_path,
+                                                                                 monkeypatch, capsys):
+    """Before: a truncated mp4 (``sr-record --video=true``; its index at the front, so it opens and demultiplexes)
+    passed the check and 1-8 phases trained, also with ``--policy.use_images=false`` (LeRobot decodes every camera
+    for each item), then ``IndexError: min(): Expected reduction dim 1``. Now every frame is decoded first: one line
+    naming the file and the first episode and frame it lacks; nothing written."""
+    root = tmp_path / "d"
+    shutil.copytree(video_datasets, root)
+    video = _video(root, "place")
+    damage(video, "truncated")
+    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    out = tmp_path / "out"
+    line = _sr_train(capsys, root, out, ["approach", "place"])
+    assert re.match(rf"sr-train: error: {re.escape(str(video))}: (unreadable video file \(.*\) after \d+ frames: )?"
+                    r"episode \d, frame \d+ \(at [\d.]+ s\) is not in the video, which decodes \d+ frames", line), line
+    assert not out.exists()
+
+
+def _set_value(parquet: Path, column: str, row: int, element: int, value: float) -> None:
+    """Write ``value`` into element ``element`` of ``column`` at ``row`` of a LeRobot data parquet (its schema, with
+    LeRobot's metadata, kept)."""
+    import pyarrow as pa
+    import pyarrow.parquet as pq
+
+    table = pq.read_table(parquet)
+    values = np.stack(table.column(column).to_numpy(zero_copy_only=False)).astype(np.float32)
+    values[row, element] = value
+    index = table.schema.get_field_index(column)
+    field = table.schema.field(index)
+    table = table.set_column(index, field, pa.array(list(values), type=field.type))
+    pq.write_table(table, parquet)
+
+
+@pytest.mark.parametrize("column, element, value", [("action", 3, float("nan")),
+                                                    ("observation.state", 0, float("-inf"))])
+def test_a_non_finite_number_is_refused_before_training_naming_file_episode_frame_and_column(
+        state_datasets, tmp_path, monkeypatch, column, element, value):
+    """Before: a NaN in one action of skill 3's parquet trained 8 phases, then two tracebacks
+    (``NonFiniteLossError``). Now: one line naming the file, the column and its element, the episode and the
+    frame, before anything is written."""
+    root = _copy(state_datasets, tmp_path / "d")
+    parquet = next((root / "insert" / "data").rglob("*.parquet"))
+    _set_value(parquet, column, 14, element, value)  # 10 frames per episode: episode 1, frame 4
+    message = (f"{parquet}: {value} in column '{column}[{element}]' at episode 1, frame 4 (row 14 of the file); "
+               "a non-finite observation or action makes the losses NaN")
+    _fails_before_writing(root, tmp_path / "out", "^" + re.escape(message), monkeypatch)
+
+
+@pytest.mark.parametrize("relative, how", [("data", "truncated"), ("meta/episodes", "truncated"),
+                                           ("meta/info.json", "truncated"), ("meta/stats.json", "truncated"),
+                                           ("data", "footer")])
+def test_a_damaged_file_is_named_on_the_command_line(state_datasets, tmp_path, monkeypatch, capsys, relative, how):
+    """Before: refused, but the line ``sr-train`` printed was the innermost error, the parser's, which names no file
+    ("Parquet magic bytes not found in footer", "Unterminated string starting at: line 65", "Expecting value").
+    Now the line names the damaged file; nothing written."""
+    root = _copy(state_datasets, tmp_path / "d")
+    target = root / "place" / relative
+    if target.is_dir():
+        target = next(target.rglob("*.parquet"))
+    if how == "footer":  # the footer's length and magic bytes
+        data = bytearray(target.read_bytes())
+        data[-8:-4] = b"\xff\xff\x00\x00"
+        target.write_bytes(bytes(data))
+    else:
+        damage(target, how)
+    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    out = tmp_path / "out"
+    line = _sr_train(capsys, root, out, SKILLS)
+    kind = "JSON" if target.suffix == ".json" else "parquet"
+    assert line.startswith(f"sr-train: error: {target}: unreadable {kind} file ("), line
+    assert not out.exists()

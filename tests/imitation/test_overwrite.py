@@ -7,6 +7,7 @@ LeRobot dataset": the recorded datasets were gone."""
 
 from __future__ import annotations
 
+import re
 import shutil
 from pathlib import Path
 
@@ -14,7 +15,7 @@ import pytest
 
 from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.stream.rundir import REPLACED_MARK, OverwriteRefusedError
-from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+from tests.imitation.helpers import damage, fake_env_factory, tiny_stream_config
 from tests.infra.test_fingerprint import tree_state
 
 STREAM = ["approach", "place"]
@@ -70,5 +71,26 @@ def test_overwrite_replaces_an_act_run_and_restores_it_when_the_new_one_fails(da
     _no_training(monkeypatch)
     with pytest.raises(AssertionError, match="training started"):
         _trainer(datasets, out).run(stop_after=1)
+    assert tree_state(out) == before
+    assert not [p for p in tmp_path.iterdir() if REPLACED_MARK in p.name]
+
+
+def test_overwrite_keeps_the_earlier_run_when_a_video_of_the_new_one_is_truncated(video_datasets, tmp_path):
+    """Before: ``--overwrite=true`` over a finished run, on video datasets with one skill's mp4 truncated: the earlier
+    run was deleted once stage 1 was recorded, then ``IndexError: min(): Expected reduction dim 1`` at stage 2. Now
+    every input is read through before the old run is set aside: one line naming the mp4, the earlier run
+    byte-identical and nothing set aside."""
+    from sr_imitation.imitation.data import DatasetMismatchError
+
+    datasets = tmp_path / "data"
+    shutil.copytree(video_datasets, datasets)
+    out = tmp_path / "run"
+    _trainer(datasets, out, overwrite=False).run()
+    before = tree_state(out)
+    video = next((datasets / "place" / "videos").rglob("*.mp4"))
+    damage(video, "truncated")
+    with pytest.raises(DatasetMismatchError, match=f"^{re.escape(str(video))}: .*episode \\d, frame ") as info:
+        _trainer(datasets, out).run()
+    assert "\n" not in str(info.value)
     assert tree_state(out) == before
     assert not [p for p in tmp_path.iterdir() if REPLACED_MARK in p.name]
