@@ -18,8 +18,11 @@ Only settings a re-sleep may change are accepted (:data:`CHANGEABLE`: the sleep'
 evaluation videos); anything else differing from the source's stored settings is refused in one line before
 anything is written. With ``--archived`` the source's files are first checked against the archive's
 ``weights.json`` (:func:`~sr_imitation.experiments.archive.verify_weights`). What was re-slept from what is
-recorded in ``resleep.json`` (sealed) beside the run's own files. With the source's settings unchanged the re-sleep
-repeats the source's sleep bit for bit on the same CPU type (a resume's guarantee; tested).
+recorded in ``resleep.json`` (sealed; written last, once the new run holds everything it takes from the source)
+beside the run's own files. The same command again continues a killed re-sleep (or rewrites a finished one's
+report); a start killed before ``resleep.json`` exists is redone with ``--overwrite=true``. With the source's
+settings unchanged the re-sleep repeats the source's sleep bit for bit on the same CPU type (a resume's guarantee;
+tested).
 """
 
 from __future__ import annotations
@@ -127,13 +130,26 @@ def seed_run(cfg: ResleepConfig, run_cfg: Any, trainer: Any) -> dict[str, Any]:
                 raise FileNotFoundError(f"{src}: missing from the source (no weights stored for stage {i + 1})")
             ignore = shutil.ignore_patterns(*REDONE) if i == k else None
             shutil.copytree(src, substrate.stage_dir(i), ignore=ignore, dirs_exist_ok=False)
-        record = {"source": str(source), "archived": None if cfg.archived is None else str(cfg.archived),
-                  "stage": stage, "changed": check_changes(source, run_cfg.resume_fingerprint()),
-                  "changes": list(cfg.changes),
-                  "source_settings_sha256": settings_digest(read_fingerprint(source / FINGERPRINT_FILE))}
-        write_checked_json(rd.path / RESLEEP_FILE, record)
         rd.mark_all(keep)
+        record = seeding_record(cfg, run_cfg, stage)
+        write_checked_json(rd.path / RESLEEP_FILE, record)  # last: the seeded run is complete once it exists
     return record
+
+
+def seeding_record(cfg: ResleepConfig, run_cfg: Any, stage: int) -> dict[str, Any]:
+    """What ``resleep.json`` records: the source (and its settings' sha256), the stage, the changes."""
+    source = Path(cfg.source)
+    return {"source": str(source), "archived": None if cfg.archived is None else str(cfg.archived), "stage": stage,
+            "changed": check_changes(source, run_cfg.resume_fingerprint()), "changes": list(cfg.changes),
+            "source_settings_sha256": settings_digest(read_fingerprint(source / FINGERPRINT_FILE))}
+
+
+def _check_same_resleep(cfg: ResleepConfig, run_cfg: Any, record: dict[str, Any], path: Path) -> None:
+    want = seeding_record(cfg, run_cfg, record.get("stage", 0))
+    differ = [k for k in ("source", "stage", "changes", "source_settings_sha256") if record.get(k) != want[k]]
+    if differ:
+        raise ValueError(f"{path}: a re-sleep of another source or with other changes ({', '.join(differ)} differ); "
+                         "choose another output_dir or pass --overwrite=true")
 
 
 def resleep(cfg: ResleepConfig) -> dict[str, Any]:
@@ -152,8 +168,14 @@ def resleep(cfg: ResleepConfig) -> dict[str, Any]:
     run_cfg = parse([f"--config_path={config_file}", f"--output_dir={cfg.output_dir}",
                      f"--overwrite={str(cfg.overwrite).lower()}", "--resume=false", *cfg.changes])
     changed = check_changes(source, run_cfg.resume_fingerprint())  # before anything is written
-    logger.info("re-sleeping %s: settings changed %s", source, changed or "none (a repeat of its sleep)")
-    record = seed_run(cfg, run_cfg, SACTrainer(run_cfg))
+    seeded = Path(cfg.output_dir) / RESLEEP_FILE
+    if seeded.is_file() and not cfg.overwrite:  # the same re-sleep, killed or finished: continue it
+        record = read_checked_json(seeded)
+        _check_same_resleep(cfg, run_cfg, record, seeded)
+        logger.info("continuing the re-sleep in %s", cfg.output_dir)
+    else:
+        logger.info("re-sleeping %s: settings changed %s", source, changed or "none (a repeat of its sleep)")
+        record = seed_run(cfg, run_cfg, SACTrainer(run_cfg))
     run_cfg.resume, run_cfg.overwrite = True, False
     results = SACTrainer(run_cfg).run()
     logger.info("re-slept stage %d of %s: final AFSR %s; results in %s", record["stage"], source,

@@ -78,3 +78,34 @@ def test_what_a_resleep_may_not_change_is_refused_before_anything_is_written(tmp
     finally:
         damaged.write_bytes(data)
     assert not out.exists()
+
+
+def test_a_killed_resleep_continues_with_the_same_command_and_another_is_refused(tmp_path, stored):
+    archived, store, source = stored
+    out = tmp_path / "killed"
+    cfg = ResleepConfig(source=store, output_dir=out, changes=["--sleep.lr=0.05"])
+    full = resleep(ResleepConfig(source=store, output_dir=tmp_path / "full", changes=["--sleep.lr=0.05"]))
+
+    class KillError(RuntimeError):
+        pass
+
+    def kill(k, phase):
+        if phase == "sleep":
+            raise KillError
+
+    import sr_imitation.rl.trainer as trainer
+
+    original = trainer.SACTrainer.__init__
+
+    def killing(self, run_cfg, after_stage=None, after_phase=None):
+        original(self, run_cfg, after_stage, kill if run_cfg.resume else None)
+
+    monkeypatch = pytest.MonkeyPatch()
+    monkeypatch.setattr(trainer.SACTrainer, "__init__", killing)
+    with pytest.raises(KillError):
+        resleep(cfg)
+    monkeypatch.undo()
+    assert (out / RESLEEP_FILE).is_file() and not (out / "results.json").exists()
+    assert resleep(cfg)["metrics"] == full["metrics"]
+    with pytest.raises(ValueError, match=r"resleep.json: a re-sleep of another source or with other changes \(changes"):
+        resleep(ResleepConfig(source=store, output_dir=out, changes=["--sleep.lr=0.01"]))
