@@ -821,3 +821,38 @@ def test_the_first_look_s_stated_outcomes_recompute_from_its_runs(readme):
     assert "at the end " + ", ".join(finals[s] for s in (0, 1, 2, 3)) + ", " + finals[4] + "; the preset's own" \
         in readme, finals
     assert f"ends {finals[1000]}, insert reaching only {finals[1000].split(' / ')[-1]}" in readme
+
+
+WHICH_METHOD = {  # README's "Which method where": row (its preset) -> archive, and each variant's seeds
+    "configs/needle_cpu_m16.json": ("needle_cpu_m16_compare", {"sr": 5, "wake_only": 5, "replay": 5}),
+    "configs/needle_cpu_vision.json": ("needle_cpu_vision_compare", {"sr": 5, "wake_only": 5}),
+    "configs/needle_cpu.json": ("needle_cpu_v2_compare", {"sr": 5, "wake_only": 5}),
+    "configs/metaworld_mt5_imitation.json": ("metaworld_mt5_imitation_compare",
+                                             {"sr": 10, "replay": 10, "wake_only": 10, "sequential_bc": 10}),
+    "configs/sac_mt5_gate.json": ("sac_mt5_gate", {"reset_distill": 5, "sr": 5, "wake_only": 5}),
+}
+NAMES = {"sr": "SR", "wake_only": "wake-only", "replay": "replay", "reset_distill": "Reset & Distill",
+         "sequential_bc": "sequential BC"}
+
+
+def test_the_which_method_where_table_recomputes():
+    """README's table: each row's means +- SE from its archive, and the method it names highest is the highest of
+    those it lists (not of the oracle, which is not a continual method)."""
+    from sr_imitation.experiments.hypotheses import archived_values
+
+    lines = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
+    rows = {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
+    assert set(rows) == set(WHICH_METHOD)
+    for preset, (archive, variants) in WHICH_METHOD.items():
+        cells = rows[preset].split(" | ")
+        values = {}
+        for variant, n in variants.items():
+            got = archived_values(DOCS / "results" / archive, variant, "afsr")
+            assert len(got) == n, (preset, variant)
+            values[variant] = list(got.values())
+            stated = f"{NAMES[variant]} {_mean_se(values[variant])}"
+            if variant == "sr" and not cells[1].startswith("SR"):
+                stated = _mean_se(values[variant])  # SR's own column when another method is the highest
+            assert stated in rows[preset], (preset, stated)
+        best = max(values, key=lambda v: np.mean(values[v]))
+        assert cells[1].startswith(NAMES[best]), (preset, best)
