@@ -320,6 +320,9 @@ class ACTSubstrate:
             for name, obj in files.items():
                 atomic_write_json(tmp / name, obj)
 
+    def policy_file(self, k: int, phase: str, name: str) -> Path:
+        return self.checkpoint_dir(k, phase) / name
+
     def _checked_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
         """The checkpoint's weights after checking every file of it against its ``checksums.json``."""
         directory = self.checkpoint_dir(k, phase)

@@ -46,11 +46,33 @@ def process_code_version() -> dict[str, Any]:
 
 def log_code_version(logger: logging.Logger) -> dict[str, Any]:
     """Take :func:`process_code_version` at the start of a run (so results.json names the code this process
-    imported, not a later checkout) and log it; every runner calls this before its first phase."""
+    imported, not a later checkout) and log it with the CPU (:func:`cpu_signature`); every runner calls this before
+    its first phase."""
     code = process_code_version()
-    logger.info("code: commit %s%s", code["commit"] or "unknown (not a git checkout)",
-                " with uncommitted changes" if code["dirty"] else "")
+    logger.info("code: commit %s%s; CPU: %s", code["commit"] or "unknown (not a git checkout)",
+                " with uncommitted changes" if code["dirty"] else "", cpu_signature()["name"])
     return code
+
+
+@functools.lru_cache(maxsize=1)
+def cpu_signature() -> dict[str, Any]:
+    """The CPU this process computes on, as far as bit-identical results depend on it: ``{"name": <model name,
+    family, model, vector extensions>, "avx512": bool}`` from ``/proc/cpuinfo`` (Linux; ``"unknown"`` elsewhere).
+    Runs are bit-identical only on one CPU type: an AMD EPYC with AVX-512 and one without give other floats from the
+    same seed (docs/RESULTS.md), so results.json records it beside the code's commit."""
+    fields: dict[str, str] = {}
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            key, _, value = line.partition(":")
+            if key.strip() in ("model name", "cpu family", "model", "flags") and key.strip() not in fields:
+                fields[key.strip()] = value.strip()
+    except OSError:
+        return {"name": "unknown", "avx512": None}
+    flags = set(fields.get("flags", "").split())
+    vector = [f for f in ("avx512f", "avx2", "fma") if f in flags]
+    name = (f"{fields.get('model name', 'unknown')} (family {fields.get('cpu family', '?')}, model "
+            f"{fields.get('model', '?')}; {', '.join(vector) or 'no AVX2'})")
+    return {"name": name, "avx512": "avx512f" in flags}
 
 
 def _git(root: Path, *args: str) -> str:

@@ -126,6 +126,9 @@ class SACSubstrate:
         for name, obj in files.items():
             write_checked_json(self.stage_dir(k) / phase / name, obj)
 
+    def policy_file(self, k: int, phase: str, name: str) -> Path:
+        return self.stage_dir(k) / phase / name
+
     def _load_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
         path = self._checkpoint(k, phase)
         tensors, header = load_checked_safetensors(path)

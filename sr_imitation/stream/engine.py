@@ -40,7 +40,13 @@ from sr_imitation.io import read_checked_json
 from sr_imitation.stream.methods import ContinualMethod
 from sr_imitation.stream.methods.registry import refusal
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
-from sr_imitation.stream.substrate import Substrate, check_substrate, phase_seed
+from sr_imitation.stream.substrate import (
+    Substrate,
+    SubstrateProtocolError,
+    check_hook_calls,
+    check_substrate,
+    phase_seed,
+)
 
 logger = logging.getLogger(__name__)
 
@@ -193,11 +199,14 @@ class StreamEngine:
         if phase == "wake":
             memories, weight = self.method.wake_memories(k + 1, self.memories)
             self.method.begin_wake(k, self.memories, self.substrate)
+            self.method.hook_calls = None
             record, files = self.substrate.wake(k, memories, weight, self.method)
-            self.substrate.save_policy(k, "wake", files)
+            check_hook_calls(self.substrate, self.method)  # a declared hook the wake left out changes nothing
+            self._save_policy(k, "wake", files)
             return record
         if phase == "memory":
             memory = self.method.make_memory(k, self.substrate)
+            self._check_memory_saved(k)
             self.memories.append(memory)
             return {"bytes": memory.nbytes(), "size": memory.size}
         if phase == "wake.eval":
@@ -237,8 +246,28 @@ class StreamEngine:
             after = problem.diagnostics()
             record.update({f"{key}_before": value for key, value in before.items()})
             record.update({f"{key}_after": value for key, value in after.items()})
-        self.substrate.save_policy(k, "sleep", {"sleep_diagnostics.json": result.to_dict()})
+        self._save_policy(k, "sleep", {"sleep_diagnostics.json": result.to_dict()})
         return record
+
+    # -- what a substrate could otherwise leave out silently ----------------------------------------------------
+    def _save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
+        """The substrate's checkpoint, then every extra file there (:meth:`Substrate.policy_file`)."""
+        self.substrate.save_policy(k, phase, files)
+        dropped = [name for name in files if not Path(self.substrate.policy_file(k, phase, name)).is_file()]
+        if dropped:
+            where = self.substrate.policy_file(k, phase, dropped[0])
+            raise SubstrateProtocolError(f"{type(self.substrate).__name__}.save_policy did not write {dropped} (at "
+                                         f"{where}): a substrate writes every file the engine hands it")
+
+    def _check_memory_saved(self, k: int) -> None:
+        """M_k is where a resume loads it from: a memory made but not saved fails only when a run resumes."""
+        try:
+            self.substrate.load_memory(k, name=self.method.memory_name)
+        except FileNotFoundError as exc:
+            raise SubstrateProtocolError(
+                f"{type(self.substrate).__name__}: the memory of stage {k + 1} was made but not saved where "
+                f"load_memory(k, name={self.method.memory_name!r}) finds it ({exc}); a resume could not continue "
+                "(make_memory, or the method's save_memory, saves it)") from exc
 
 
 def _scalars(record: dict[str, Any], prefix: str = "", depth: int = 0) -> dict[str, Any]:

@@ -11,6 +11,7 @@ index (skill ``skills[k]``).
 
 from __future__ import annotations
 
+import inspect
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -171,6 +172,10 @@ class Substrate(Protocol):
     def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
         """Checkpoint the policy after ``phase`` (``wake`` or ``sleep``) of stage ``k`` with extra JSON files."""
 
+    def policy_file(self, k: int, phase: str, name: str) -> Path:
+        """Where :meth:`save_policy` writes the extra file ``name`` of the checkpoint after ``phase`` of stage ``k``
+        (the engine checks that every file it handed over is there: a substrate cannot drop one silently)."""
+
     def load_policy(self, k: int, phase: str) -> None:
         """Restore the policy saved by :meth:`save_policy` (checked)."""
 
@@ -193,17 +198,83 @@ class Substrate(Protocol):
         checkpoint ends stage k (``sleep`` or ``wake``)."""
 
 
+class SubstrateProtocolError(TypeError, ValueError):
+    """A substrate that does not keep the :class:`Substrate` protocol, named in one line with every problem found (a
+    user error on the command line: :mod:`sr_imitation.infra.cli_errors` prints it without a traceback)."""
+
+
+DECLARED_TYPES: dict[str, tuple[type, ...]] = {"name": (str,), "seed_scheme": (str,), "wake_hooks": (set, frozenset),
+                                               "extension_keys": (tuple, list), "skills": (list, tuple)}
+"""The protocol's data members and the types their values must have."""
+
+
+def _protocol_problems(substrate: object) -> list[str]:
+    """Everything wrong with ``substrate``'s members besides missing ones: a data member of another type, a method
+    that is not callable or cannot take the protocol's arguments, an unknown seed scheme or wake hook."""
+    kind, problems = type(substrate).__name__, []
+    for name, types in DECLARED_TYPES.items():
+        value = inspect.getattr_static(substrate, name)
+        if not isinstance(value, types):
+            problems.append(f"{kind}.{name} must be a {' or '.join(t.__name__ for t in types)}, got "
+                            f"{type(value).__name__}")
+        elif name in ("wake_hooks", "extension_keys", "skills") and not all(isinstance(v, str) for v in value):
+            problems.append(f"{kind}.{name} must hold names (str)")
+    for name, member in vars(Substrate).items():
+        if name.startswith("_") or not inspect.isfunction(member):
+            continue
+        impl = getattr(substrate, name)  # bound on an instance; on a class, the function with its self
+        if not callable(impl):
+            problems.append(f"{kind}.{name} is not callable")
+            continue
+        wanted = [p for p in inspect.signature(member).parameters if p != "self"]
+        unbound = isinstance(substrate, type) and inspect.isfunction(impl)
+        try:
+            inspect.signature(impl).bind(*([None] * (len(wanted) + unbound)))
+        except TypeError:
+            problems.append(f"{kind}.{name} does not take the protocol's arguments ({', '.join(wanted)})")
+        except ValueError:  # no signature (a builtin): nothing to check
+            pass
+    scheme = inspect.getattr_static(substrate, "seed_scheme")
+    if isinstance(scheme, str) and scheme not in SEED_SCHEMES:
+        problems.append(f"{kind}.seed_scheme: unknown scheme {substrate.seed_scheme!r}; "  # type: ignore[attr-defined]
+                        f"choose from {sorted(SEED_SCHEMES)}")
+    hooks = inspect.getattr_static(substrate, "wake_hooks")
+    if isinstance(hooks, (set, frozenset)) and (unknown := sorted(set(hooks) - set(WAKE_HOOKS))):
+        problems.append(f"{kind}.wake_hooks: unknown hooks {unknown}; choose from {list(WAKE_HOOKS)}")
+    return problems
+
+
 def check_substrate(substrate: object) -> None:
     """Refuse, in one line and before anything is written, an object that is not a :class:`Substrate`: every
-    protocol member it lacks is named, then a ``seed_scheme`` outside :data:`SEED_SCHEMES` and ``wake_hooks``
-    outside :data:`WAKE_HOOKS`. Raises ``TypeError``."""
+    protocol member it lacks is named, then every member of the wrong kind (:data:`DECLARED_TYPES`, a method that is
+    not callable or does not take the protocol's arguments), a ``seed_scheme`` outside :data:`SEED_SCHEMES` and
+    ``wake_hooks`` outside :data:`WAKE_HOOKS`. Raises :class:`SubstrateProtocolError`."""
     kind = type(substrate).__name__
     missing = missing_members(substrate, Substrate)
     if missing:
-        raise TypeError(f"{kind} is not a Substrate (sr_imitation.stream.substrate): it lacks {', '.join(missing)}")
-    if substrate.seed_scheme not in SEED_SCHEMES:  # type: ignore[attr-defined]
-        raise TypeError(f"{kind}.seed_scheme: unknown scheme {substrate.seed_scheme!r}; "  # type: ignore[attr-defined]
-                        f"choose from {sorted(SEED_SCHEMES)}")
-    unknown = sorted(set(substrate.wake_hooks) - set(WAKE_HOOKS))  # type: ignore[attr-defined]
-    if unknown:
-        raise TypeError(f"{kind}.wake_hooks: unknown hooks {unknown}; choose from {list(WAKE_HOOKS)}")
+        raise SubstrateProtocolError(f"{kind} is not a Substrate (sr_imitation.stream.substrate): it lacks "
+                                     f"{', '.join(missing)}")
+    problems = _protocol_problems(substrate)
+    if problems:
+        raise SubstrateProtocolError("; ".join(problems))
+
+
+def check_hook_calls(substrate: object, method: Any) -> None:
+    """After a wake: every wake hook the substrate declares (:attr:`Substrate.wake_hooks`) and the method overrides
+    was called as often as the others, through a :class:`~sr_imitation.stream.methods.WakeHooks`; otherwise a
+    :class:`SubstrateProtocolError` naming them (a hook left out would change nothing, silently). A wake that made no
+    update (resumed at its end) passes."""
+    used = sorted(set(method.wake_hooks_used()) & set(getattr(substrate, "wake_hooks", ())))
+    if not used:
+        return
+    kind = type(substrate).__name__
+    calls = method.hook_calls
+    if calls is None:
+        raise SubstrateProtocolError(f"{kind}.wake did not hand {method.name!r} its wake hooks (no WakeHooks was made; "
+                                     f"it declares {used} in wake_hooks)")
+    declared = getattr(substrate, "wake_hooks", ())
+    counts = {hook: calls.get(hook, 0) for hook in WAKE_HOOKS if hook in declared}
+    if len(set(counts.values())) > 1:
+        raise SubstrateProtocolError(f"{kind}.wake called the wake hooks {counts} times: a substrate calls every hook "
+                                     "it declares in wake_hooks once per policy update (WakeHooks.batch, .loss, "
+                                     ".adjust)")

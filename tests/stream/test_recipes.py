@@ -13,10 +13,13 @@ import torch
 import sr_imitation.stream.methods as methods_package
 import tests.stream.l2_anchor  # registers l2_anchor, as the methods package registers its files
 from sr_imitation import cli
+from sr_imitation.core.memory import OutputDistillationMemory
+from sr_imitation.io import read_checked_json
 from sr_imitation.stream import METHODS, RunDirectory, StreamEngine, make_method, methods_for
 from sr_imitation.stream.capabilities import protocol_members
+from sr_imitation.stream.methods.base import ContinualMethod
 from sr_imitation.stream.run import StreamRun
-from sr_imitation.stream.substrate import Substrate
+from sr_imitation.stream.substrate import MethodSettings, Substrate, SubstrateProtocolError, check_substrate
 from tests.stream import toy
 from tests.stream.conftest import KilledError
 from tests.stream.toy import ToySubstrate
@@ -160,3 +163,121 @@ def test_the_recipes_name_every_protocol_member_and_the_files_they_cite():
     for path in ("tests/stream/toy.py", "tests/stream/l2_anchor.py", "tests/stream/test_recipes.py",
                  "tests/stream/conftest.py"):
         assert path in doc and (Path(__file__).resolve().parents[2] / path).is_file(), path
+
+
+# -- what a substrate could leave out silently (issue 61): each is one line, before the run records anything -------
+def test_method_options_change_the_result_on_the_toy_substrate(tmp_path, sr_train):
+    """The recipe's substrate passes --method_options through: a stronger pull keeps the weights closer to the
+    previous skill's than a weak one (lam 10 against 0.1, by a wide factor; SGD at the toy's lr 0.05 is stable up
+    to lam 40)."""
+    flags = ["--substrate=toy", "--method=l2_anchor", "--stream.skills=[a,b,c]", "--progress=false"]
+    moved = {}
+    for lam in (0.1, 10.0):
+        out = tmp_path / f"lam{lam:g}"
+        result = sr_train([*flags, f"--method_options={{lam: {lam}}}", f"--output_dir={out}"])
+        moved[lam] = _moved_since_wake(out, 1, result)
+    assert moved[10.0] < 0.2 * moved[0.1], moved
+
+
+def _toy_run(tmp_path, substrate_class, *flags, cfg_edit=None):
+    out = tmp_path / "run"
+    cfg = toy.parse(["--stream.skills=[a,b]", "--progress=false", f"--output_dir={out}", *flags])
+    if cfg_edit is not None:
+        cfg_edit(cfg)
+    substrate = substrate_class(out, cfg.stream.skills, options=dict(cfg.method_options))
+    return out, StreamRun(cfg, substrate, fingerprint=toy.fingerprint(cfg), stored_config=toy.stored_config(cfg))
+
+
+class DropsOptions(ToySubstrate):
+    def method_settings(self):
+        return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma)
+
+
+class SkipsAdjust(ToySubstrate):
+    def wake_update(self, k, memories, distill_weight, opt, hooks):
+        x = torch.randn(32, 4)
+        batch = hooks.batch({"obs": x, "y": x @ self.maps[k]})
+        loss = hooks.loss((self.policy(batch["obs"]) - batch["y"]).pow(2).sum(1).mean())
+        opt.zero_grad()
+        loss.backward()
+        opt.step()  # hooks.adjust() left out: a projection like A-GEM's would never happen
+        return loss
+
+
+class Adjusting(ContinualMethod):
+    """A method that changes the wake's gradients (as A-GEM, PCGrad do), not registered: the engine runs it."""
+
+    name = "adjusting"
+
+    def adjust_gradients(self, step):
+        return {"adjusted": 1.0}
+
+
+class DropsFiles(ToySubstrate):
+    def save_policy(self, k, phase, files):
+        super().save_policy(k, phase, {})
+
+
+class ForgetsToSave(ToySubstrate):
+    def make_memory(self, k):
+        return OutputDistillationMemory.from_snapshot(self.skills[k], self.policy_fn, {"x": torch.randn(64, 4)})
+
+
+def test_a_substrate_dropping_the_method_options_is_refused_before_anything_is_written(tmp_path):
+    out = tmp_path / "run"
+    with pytest.raises(SubstrateProtocolError, match=r"^DropsOptions.method_settings\(\) does not pass "
+                                                     r"--method_options through \(options \{\}, the run's "
+                                                     r"\{'lam': 5.0\}\)"):
+        _toy_run(tmp_path, DropsOptions, "--method=l2_anchor", "--method_options={lam: 5}")
+    assert not out.exists()
+
+
+def test_the_shared_settings_are_checked_for_every_substrate(tmp_path):
+    def hand_set_seed(cfg):
+        cfg.sleep.seed = 3  # as a config that never called check_shared_settings would let through
+
+    with pytest.raises(ValueError, match=r"^sleep.seed: set per stage from --seed"):
+        _toy_run(tmp_path, ToySubstrate, cfg_edit=hand_set_seed)
+    assert not (tmp_path / "run").exists()
+
+
+def test_a_declared_wake_hook_the_wake_does_not_call_is_one_line_before_the_wake_is_recorded(tmp_path):
+    out = tmp_path / "run"
+    substrate = SkipsAdjust(out, ["a", "b"])
+    run = RunDirectory(out, toy.fingerprint(toy.parse([])), "config.json", {}, resume=False, overwrite=False)
+    engine = StreamEngine(substrate, Adjusting(substrate.method_settings()), run, progress=False)
+    with pytest.raises(SubstrateProtocolError, match=r"^SkipsAdjust.wake called the wake hooks \{'wake_batch': 30, "
+                                                     r"'wake_loss': 30, 'adjust_gradients': 0\} times: a substrate "
+                                                     r"calls every hook it declares"):
+        engine.run()
+    assert not (out / "progress.json").exists()  # the wake is not recorded
+
+
+@pytest.mark.parametrize(("substrate", "message", "recorded"), [
+    (DropsFiles, r"^DropsFiles.save_policy did not write \['wake_history.json'\] \(at .*stage0/wake."
+                 r"wake_history.json\): a substrate writes every file the engine hands it$", None),
+    (ForgetsToSave, r"^ForgetsToSave: the memory of stage 1 was made but not saved where "
+                    r"load_memory\(k, name='memory'\) finds it", "1.wake"),
+])
+def test_what_a_substrate_leaves_out_silently_is_one_line_before_its_phase_is_recorded(tmp_path, substrate, message,
+                                                                                       recorded):
+    out, run = _toy_run(tmp_path, substrate, "--method=sr")
+    with pytest.raises(SubstrateProtocolError, match=message) as err:
+        run.run()
+    assert "\n" not in str(err.value)
+    done = read_checked_json(out / "progress.json")["completed"] if (out / "progress.json").exists() else {}
+    assert list(done) == ([] if recorded is None else [recorded])  # the failing phase is not recorded
+
+
+def test_members_of_the_wrong_kind_are_named_with_the_missing_ones(tmp_path):
+    class Wrong(ToySubstrate):
+        name = 3
+
+        def save_policy(self, k, phase):  # the protocol's is (k, phase, files)
+            pass
+
+    with pytest.raises(SubstrateProtocolError) as err:
+        check_substrate(Wrong(tmp_path, ["a"]))
+    assert str(err.value) == ("Wrong.name must be a str, got int; Wrong.save_policy does not take the protocol's "
+                              "arguments (k, phase, files)")
+    assert isinstance(err.value, ValueError)  # a user error on the command line: one line, no traceback

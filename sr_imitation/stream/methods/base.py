@@ -73,9 +73,14 @@ class WakeHooks:
         self.updates = 0
         self.sums: dict[str, float] = {}
         self._step: WakeStep | None = None
+        self.calls = dict.fromkeys(WAKE_HOOKS, 0)
+        """How often the substrate's wake called each hook in this process; the engine checks them against the
+        substrate's declared :attr:`~sr_imitation.stream.substrate.Substrate.wake_hooks` after the wake."""
+        method.hook_calls = self.calls
 
     def batch(self, batch: Mapping[str, Tensor]) -> dict[str, Tensor]:
         """The batch this update trains on."""
+        self.calls["wake_batch"] += 1
         self._step = WakeStep(self.stage, self.updates, self.parameters, self.policy, batch, self.generator)
         with self.quiet():
             self._step.batch = dict(self.method.wake_batch(self._step))
@@ -84,12 +89,14 @@ class WakeHooks:
     def loss(self, loss: Tensor) -> Tensor:
         """The loss the update differentiates."""
         assert self._step is not None, "WakeHooks.batch must be called first in every update"
+        self.calls["wake_loss"] += 1
         with self.quiet():
             return self.method.wake_loss(loss, self._step)
 
     def adjust(self) -> None:
         """After the backward pass, before clipping and the optimizer step."""
         assert self._step is not None, "WakeHooks.batch must be called first in every update"
+        self.calls["adjust_gradients"] += 1
         with self.quiet():
             values = self.method.adjust_gradients(self._step)
         for key, value in values.items():
@@ -164,6 +171,8 @@ class ContinualMethod:
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
         self.memories: list[Memory] = []
+        self.hook_calls: dict[str, int] | None = None
+        """Set by the :class:`WakeHooks` of the current wake (how often each hook was called); ``None`` before."""
         if settings.options:
             self.config = with_options(self.name, getattr(type(self), "config", None), settings.options)
 
