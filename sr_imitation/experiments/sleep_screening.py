@@ -53,6 +53,9 @@ MARGIN = 0.05
 TIE = 0.01
 """Rule A: candidates within this of the best mean count as tied (the earlier in :data:`ORDER` wins)."""
 NO_VIDEOS = "--eval.videos_per_skill=0"
+PROTOCOL_SEEDS = (100, 101, 102)
+"""Rule A decides on these calibration seeds together; a screening of fewer (e.g. while a run is still going) is
+reported, not decided."""
 
 
 @dataclass
@@ -69,6 +72,8 @@ class ScreeningConfig:
     """Where the re-slept runs go (``<candidate>_seed<seed>``)."""
     screening: Path | None = Path("docs/results/sac_sleep_screening")
     """Where the re-slept runs' report files and the screening table are archived; ``None``: ``output_root``."""
+    decide_on_any_seeds: bool = False
+    """Apply rule A to whatever seeds are given (tests); by default only to the protocol's seeds 100-102."""
 
     def __post_init__(self) -> None:
         check_choices("candidates", self.candidates, CANDIDATES)
@@ -161,9 +166,10 @@ def rule_a(means: Mapping[str, float]) -> dict[str, Any]:
 
 
 def summarize(rows: Sequence[Mapping[str, Any]], before: Mapping[int, Mapping[str, Any]], candidates: Sequence[str],
-              seeds: Sequence[int]) -> dict[str, Any]:
+              seeds: Sequence[int], decide_on_any_seeds: bool = False) -> dict[str, Any]:
     """Per candidate the mean +- SE over seeds of the final AFSR and its paired difference to the control, the
-    controls' reproduction, and rule A (only when every candidate has every seed)."""
+    controls' reproduction, and rule A (only when every candidate has every seed, and the seeds are the protocol's
+    :data:`PROTOCOL_SEEDS` unless ``decide_on_any_seeds``: tests)."""
     by = {(r["candidate"], r["seed"]): r for r in rows}
     per: dict[str, Any] = {}
     for c in candidates:
@@ -177,8 +183,13 @@ def summarize(rows: Sequence[Mapping[str, Any]], before: Mapping[int, Mapping[st
         per[c] = entry
     complete = all((c, s) in by for c in candidates for s in seeds)
     controls = [by[("control", s)].get("reproduces_archive") for s in seeds if ("control", s) in by]
-    decision = rule_a({c: e["mean"] for c, e in per.items()}) if complete else {
-        "winner": None, "reason": "incomplete: rule A waits for every candidate on every seed"}
+    if not complete:
+        decision = {"winner": None, "reason": "incomplete: rule A waits for every candidate on every seed"}
+    elif tuple(sorted(seeds)) != PROTOCOL_SEEDS and not decide_on_any_seeds:
+        decision = {"winner": None, "reason": f"rule A decides on seeds {list(PROTOCOL_SEEDS)} together; these are "
+                                              f"{list(seeds)}"}
+    else:
+        decision = rule_a({c: e["mean"] for c, e in per.items()})
     if not all(controls):
         decision = {"winner": None, "reason": "a control did not reproduce its archived run: the screening stops"}
     return {"seeds": list(seeds), "candidates": per, "controls_reproduce": controls, "complete": complete,
@@ -229,7 +240,7 @@ def run_screening(cfg: ScreeningConfig) -> dict[str, Any]:
                 archive_run(cfg.output_root / run_name(candidate, seed), cfg.screening, run_name(candidate, seed))
             rows.append(row_of(candidate, seed, results, archived if candidate == "control" else None))
             logger.info("screened %s seed %d: final AFSR %.3f", candidate, seed, rows[-1]["final_afsr"])
-    summary = summarize(rows, before, cfg.candidates, cfg.seeds)
+    summary = summarize(rows, before, cfg.candidates, cfg.seeds, cfg.decide_on_any_seeds)
     write_checked_json(target / "screening.json", summary)
     atomic_write_bytes(target / "screening.md", render(summary).encode())
     logger.info("rule A: %s", summary["rule_a"]["reason"])

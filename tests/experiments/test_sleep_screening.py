@@ -29,6 +29,9 @@ def test_the_screening_of_a_stored_run_reproduces_its_control_and_writes_the_tab
     archive_run(runs / "sr_seed3", tmp_path / "cal", "sr_seed3", keep_weights=True)
     cfg = ScreeningConfig(archive=tmp_path / "cal", seeds=[3], candidates=["control", "a1"],
                           output_root=tmp_path / "out", screening=tmp_path / "screening")
+    waiting = run_screening(cfg)  # seed 3 alone: reported, not decided (rule A decides on seeds 100-102)
+    assert waiting["rule_a"]["reason"] == "rule A decides on seeds [100, 101, 102] together; these are [3]"
+    cfg.decide_on_any_seeds = True
     summary = run_screening(cfg)
     assert summary["controls_reproduce"] == [True] and summary["complete"]
     control, a1 = summary["rows"]

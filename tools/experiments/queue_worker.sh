@@ -9,7 +9,8 @@
 # A queue line is "<name> [@<commit>] <python arguments...>" (e.g. "k3_wo_101 -m sr_imitation.experiments.needle_compare
 # ..."): it runs from the worktree of <commit> if the line names one, else of the worker's <commit>. Blank lines and
 # lines starting with # are skipped. A taken line is moved to <queue file>.taken, and "<name> rc=<exit status>"
-# appended to <queue file>.done when it ends; its output goes to <log folder>/<name>.log. Paths in the arguments
+# appended to <queue file>.done when it ends (its start line names the CPU: runs are bit-identical on one CPU type
+# only); its output goes to <log folder>/<name>.log. Paths in the arguments
 # resolve in the worktree: give output roots and archives as absolute paths. A killed worker's run resumes when its
 # line is queued again (tools/experiments/queue_requeue.sh; the runners skip finished runs and resume killed ones).
 set -uo pipefail
@@ -31,7 +32,8 @@ while true; do
   [ -z "$line" ] && break
   name="${line%% *}"; args="${line#* }"; commit="$default_commit"
   if [[ "$args" == @* ]]; then commit="${args%% *}"; commit="${commit#@}"; args="${args#* }"; fi
-  echo "$(date -u +%FT%TZ) start $name" >> "$queue.done"
+  cpu="$(awk -F": " '/^model name/ {m=$2} /^cpu family/ {f=$2} /^model\t/ {n=$2} /^flags/ {a=($0 ~ /avx512f/) ? "AVX-512" : "no AVX-512"} END {print m ", family " f " model " n ", " a}' /proc/cpuinfo)"
+  echo "$(date -u +%FT%TZ) start $name on $cpu" >> "$queue.done"
   if wt="$(pinned_worktree "$root" "$commit")"; then
     # shellcheck disable=SC2086  (the line's arguments are split as a shell splits them, without globbing)
     (cd "$wt" && set -f && export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr" \
