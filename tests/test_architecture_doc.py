@@ -121,3 +121,12 @@ def test_the_parser_reads_nested_maps():
     assert mapped_paths(text) == {"sr_imitation/stream", "sr_imitation/stream/engine.py",
                                   "sr_imitation/stream/methods", "sr_imitation/stream/methods/ewc.py",
                                   "sr_imitation/stream/methods/der.py", "sr_imitation/rl/sac.py"}
+
+
+def test_the_layer_table_is_the_enforced_one():
+    from tests.test_architecture import ALLOWED
+
+    section = DOC.read_text().split("### Layers", 1)[1].split("\n#", 1)[0]
+    rows = re.findall(r"^\| `([a-z_]+)` \| (.*) \|$", section, flags=re.M)
+    table = {part: set(re.findall(r"`([a-z_]+)`", allowed)) for part, allowed in rows}
+    assert table == ALLOWED
