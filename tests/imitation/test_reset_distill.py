@@ -20,7 +20,7 @@ from sr_imitation.stream.capabilities import ActorSnapshotMemory, ResettableNetw
 from sr_imitation.stream.methods.registry import refusal
 from sr_imitation.stream.methods.reset_distill import ResetDistill
 from tests.imitation.conftest import SKILLS
-from tests.imitation.helpers import tiny_stream_config
+from tests.imitation.helpers import make_skill_dataset, tiny_stream_config
 
 STREAM = SKILLS[:3]
 STAGES = [f"skill_{k + 1}_{skill}" for k, skill in enumerate(STREAM)]
@@ -144,3 +144,25 @@ def test_a_run_killed_after_any_phase_resumes_to_the_same_weights(run, state_dat
         for phase in ("wake", "sleep"):
             assert _same(_weights(out, stage, phase), _weights(reference, stage, phase)), (stage, phase)
     assert resumed["losses"] == results["losses"]
+
+
+def test_load_actor_under_seen_statistics_gives_the_earlier_weights_in_the_statistics_in_use(tmp_path):
+    """SR's ``reset_wake`` option, now on ACT too (``--stream.stats=seen`` supports SR): its sleep starts from the
+    earlier checkpoint's policy, re-expressed into the current stage's statistics as ``parameters_at`` gives it."""
+    root = tmp_path / "data"
+    for i, skill in enumerate(STREAM[:2]):
+        make_skill_dataset(root, skill, i, image=False, offset=3.0 * i)
+    out = tmp_path / "sr_reset"
+    cfg = tiny_stream_config(root, out, STREAM[:2], use_images=False, stats="seen")
+    cfg.method_options = {"reset_wake": True}
+    cfg.eval = EvalConfig(env="none", episodes=0)
+    trainer = ACTTrainer(cfg)
+    trainer.run()
+    substrate = trainer.substrate
+    substrate.load_actor(0, "wake")  # in the second skill's statistics now
+    expected = substrate.parameters_at(0, "wake")
+    loaded = substrate.trainable()
+    assert all(torch.equal(a, b) for a, b in zip(loaded, expected, strict=True))
+    stored = _weights(out, STAGES[0], "wake")
+    names = [n for n, _ in substrate.policy.deployed_named_parameters()]
+    assert any(not torch.equal(stored[n], p) for n, p in zip(names, loaded, strict=True))  # re-expressed
