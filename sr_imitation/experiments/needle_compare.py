@@ -9,7 +9,9 @@ Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (SR without sleep); the paper
 1, ``ewc_lam100``, ``ewc_lam10000``, ``ewc_lam1000000``; the distillation weights: ``lwf`` = 1, ``lwf_w0.1``,
 ``lwf_w0.01``, ``m2distill`` = 1, ``m2distill_w0.1``, ``m2distill_w0.01``); ``replay``, LIBERO's experience replay
 (:mod:`sr_imitation.stream.methods.replay`: behaviour cloning on ``--memory.buffer_size`` stored demonstration frames
-per earlier skill, as many as SR's memories hold, mixed into every wake batch; no sleep); the SR
+per earlier skill, as many as SR's memories hold, mixed into every wake batch; no sleep); ``reset_distill``, Reset &
+Distill on ACT (:mod:`sr_imitation.stream.methods.reset_distill`: a fresh ACT per skill, its action chunks on as many
+frames as SR's memory holds distilled into the shared ACT after every skill, with the presets' sleep budget); the SR
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
 ``sr_mean_normalized`` (mean of normalized gradients), ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
 iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamma_k = 0, so every wake is sequential
@@ -81,6 +83,10 @@ VARIANTS: dict[str, Variant] = {
     "lwf": Variant("lwf", _OFF),
     "m2distill": Variant("m2distill", _OFF),
     "replay": Variant("replay", _OFF),  # LIBERO's ER: --memory.buffer_size demonstration frames per earlier skill
+    # Reset & Distill on ACT: a fresh ACT per skill, its action chunks on --memory.buffer_size frames (SR's memory)
+    # distilled into the shared ACT after every skill; the paper gives no ACT settings: our choice is the presets'
+    # sleep budget (1000 steps, batch 32, lr 1e-5), so that it differs from SR in the method, not the optimizer's budget
+    "reset_distill": Variant("reset_distill", {"enabled": True}, {"iterations": 1000, "batch_size": 32, "lr": 1e-5}),
     "mt_joint": Variant("sequential_bc", _OFF),  # the oracle: run by imitation.mt_joint, not the stream
     # EWC's lambda grid on ACT (ewc above: lambda 1, the paper's MT5 choice); our grid, wider than the paper's MT5
     # {1, 100, 500}: the unit-Frobenius Fisher spreads over ACT's 678k deployed parameters, ~9x the SAC actor's

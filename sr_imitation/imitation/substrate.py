@@ -73,7 +73,7 @@ from sr_imitation.io import (
 )
 from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE
-from sr_imitation.stream.substrate import MethodSettings, SleepProblem, phase_seed
+from sr_imitation.stream.substrate import MethodSettings, SleepProblem, phase_seed, seed_sequence
 
 logger = logging.getLogger(__name__)
 
@@ -340,6 +340,33 @@ class ACTSubstrate:
                                          f"unexpected {unexpected[:5]})")
         self._policy_stage = k  # its weights are in stage k's statistics (seen)
 
+    def reset_networks(self, k: int) -> None:
+        """A freshly initialized policy (every weight, the training-only VAE encoder too) for skill k (Reset &
+        Distill's network per skill), built as :meth:`setup` builds it but seeded from (run seed, k); the statistics
+        and processors are kept, and the global random state is left as it was. The wake then builds its own
+        optimizer, as every wake does."""
+        saved = torch.random.get_rng_state()
+        torch.manual_seed(seed_sequence(self.cfg.seed, k, 20) % (2**63))
+        fresh = type(self.policy)(self.policy.config)
+        torch.random.set_rng_state(saved)
+        self.policy.load_state_dict(fresh.state_dict())
+        self._policy_stage = self._stats_stage  # fresh weights: in the statistics in use (seen)
+
+    def load_actor(self, k: int, phase: str) -> None:
+        """Only the policy's weights of the checkpoint after ``phase`` of stage k (Reset & Distill's shared policy),
+        checked against its checksums; under ``--stream.stats=seen`` re-expressed into the statistics in use (as
+        :meth:`parameters_at` does), so the processors and memories of the current stage stay as they are."""
+        path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"
+        state = self._checked_state(k, phase)
+        if self.cfg.stream.stats == "seen" and k != self._stats_stage:
+            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std,
+                                         self.cfg.stream.reexpress_inputs)
+        missing, unexpected = self.policy.load_state_dict(state, strict=False)
+        if missing or unexpected:
+            raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
+                                         f"unexpected {unexpected[:5]})")
+        self._policy_stage = self._stats_stage
+
     # -- what continual methods ask of the policy -------------------------------------------------------------
     def chunk_policy(self, batch: dict[str, torch.Tensor]) -> torch.Tensor:
         """The deployed action chunk on a preprocessed (normalized) training batch (LwF's output)."""
@@ -452,6 +479,13 @@ class ACTSubstrate:
         return record, {"wake_history.json": history}
 
     def make_memory(self, k: int) -> Memory:
+        return self.actor_memory(k)
+
+    def actor_memory(self, k: int) -> Memory:
+        """M_k: ``--memory.buffer_size`` raw frames of skill k (:func:`~sr_imitation.imitation.data.
+        sample_observation_buffer`, seeded per stage) and the current policy's deployed action chunks on them, frozen
+        now (:class:`ActorMemory`), saved as the stage's memory. SR's memory after its wake; Reset & Distill's expert
+        memory (:class:`~sr_imitation.stream.capabilities.ActorSnapshotMemory`)."""
         data = self._skill_data(k)
         buffer = sample_observation_buffer(data, self.cfg.memory.buffer_size, self.buffer_keys,
                                            self.phase_seed(k, "memory"))

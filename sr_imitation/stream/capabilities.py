@@ -9,15 +9,20 @@ offer, and one adding a substrate sees what each method will ask of it.
 ==========================  ===========  =====================================================================
 capability                  substrates   used by
 ==========================  ===========  =====================================================================
-:class:`LikelihoodPolicy`   act, sac     EWC (Fisher information), Progress & Compress (knowledge-base Fisher)
+:class:`LikelihoodPolicy`   act, sac     EWC (Fisher information), Reset & Distill and Progress & Compress (theta)
 :class:`PolicySnapshots`    act          LwF (the rolling teacher), M2Distill
 :class:`IntermediateFeatures` act        M2Distill (feature distillation)
 :class:`StoredDemonstrations` act        experience replay
-:class:`GaussianActor`      sac          DER, CLEAR, Reset & Distill, Progress & Compress
+:class:`ActorSnapshotMemory` act         Reset & Distill (the expert's memory where there is no Gaussian actor)
+:class:`GaussianActor`      sac          DER, CLEAR, Reset & Distill (the paper's expert memory), Progress &
+                                         Compress, SR's ``expert_memory`` option
 :class:`StoredTransitions`  sac          CLEAR
-:class:`ResettableNetworks` sac          Reset & Distill, Progress & Compress
+:class:`ResettableNetworks` act, sac     Reset & Distill, Progress & Compress, SR's ``reset_wake`` option
 :class:`ReplaceableActor`   sac          CompoNet
 ==========================  ===========  =====================================================================
+
+A method may also require one of several capabilities: an entry ``X | Y`` of its ``requires`` (Reset & Distill's
+``GaussianActor | ActorSnapshotMemory``) is met by a substrate that provides either.
 
 Batches and samples are in the substrate's own layout (ACT: preprocessed LeRobot batches, dicts of tensors; SAC: raw
 state tensors); a method passes them from one member to another without looking inside.
@@ -26,11 +31,14 @@ state tensors); a method passes them from one member to another without looking 
 from __future__ import annotations
 
 import inspect
+import typing
 from collections.abc import Callable, Mapping, Sequence
-from typing import Protocol, TypeVar, runtime_checkable
+from typing import Any, Protocol, TypeVar, runtime_checkable
 
 import torch
 from torch import Tensor, nn
+
+from sr_imitation.core.memory import Memory
 
 Batch = Mapping[str, Tensor]
 """A training batch in the substrate's layout."""
@@ -95,6 +103,18 @@ class StoredDemonstrations(Protocol):
 
 
 @runtime_checkable
+class ActorSnapshotMemory(Protocol):
+    """The substrate's own memory M_k is an actor snapshot: stored inputs of skill k and the policy's outputs on them
+    when the memory was made; its sleep problem distils the deployed policy's outputs towards such memories (SR's ACT
+    memory, and Reset & Distill's expert memory where there is no Gaussian actor)."""
+
+    def actor_memory(self, k: int) -> Memory:
+        """M_k of the current policy, frozen now and saved as the substrate's memory of skill ``k`` (what
+        :meth:`~sr_imitation.stream.substrate.Substrate.make_memory` makes: ACT, the policy's action chunks on
+        ``--memory.buffer_size`` stored frames of the skill)."""
+
+
+@runtime_checkable
 class GaussianActor(Protocol):
     """A Gaussian actor's outputs on raw states and the states a skill's memory keeps (DER's targets)."""
 
@@ -118,10 +138,12 @@ class ResettableNetworks(Protocol):
     """Fresh networks per skill and the actor of an earlier checkpoint (Reset & Distill, Progress & Compress)."""
 
     def reset_networks(self, k: int) -> None:
-        """Freshly initialized networks for skill ``k``, seeded from (run seed, k)."""
+        """Freshly initialized networks for skill ``k``, seeded from (run seed, k); the global random state is left
+        as it was (SAC: actor, critics and temperature; ACT: the whole policy)."""
 
     def load_actor(self, k: int, phase: str) -> None:
-        """Only the actor of the checkpoint after ``phase`` of stage ``k``."""
+        """Only the actor of the checkpoint after ``phase`` of stage ``k`` (SAC: not the critics; ACT: the policy's
+        weights, in the statistics in use)."""
 
 
 @runtime_checkable
@@ -166,6 +188,19 @@ def missing_members(obj: object, protocol: type) -> list[str]:
 _ABSENT = object()
 
 
-def missing_capabilities(substrate: object, required: Sequence[type]) -> list[str]:
-    """The names of the capabilities in ``required`` that ``substrate`` (an instance or a class) lacks."""
-    return [c.__name__ for c in required if missing_members(substrate, c)]
+def alternatives(requirement: Any) -> tuple[type, ...]:
+    """The capabilities a ``requires`` entry accepts: ``(X,)`` for a capability X, ``(X, Y)`` for ``X | Y`` (either
+    meets it)."""
+    return typing.get_args(requirement) or (requirement,)
+
+
+def requirement_name(requirement: Any) -> str:
+    """A ``requires`` entry by name: ``X``, or ``either X or Y`` for ``X | Y``."""
+    names = [c.__name__ for c in alternatives(requirement)]
+    return names[0] if len(names) == 1 else f"either {' or '.join(names)}"
+
+
+def missing_capabilities(substrate: object, required: Sequence[Any]) -> list[str]:
+    """The names (:func:`requirement_name`) of the entries of ``required`` that ``substrate`` (an instance or a class)
+    does not meet: a capability it lacks, or a union ``X | Y`` none of whose capabilities it provides."""
+    return [requirement_name(c) for c in required if all(missing_members(substrate, a) for a in alternatives(c))]

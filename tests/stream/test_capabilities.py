@@ -47,7 +47,8 @@ def test_every_capability_a_method_reaches_for_is_declared(name):
         if klass in (ContinualMethod, object):
             continue
         used |= set(re.findall(r"capability\(\w+, (\w+)\)", inspect.getsource(klass)))
-    assert used <= {c.__name__ for c in (*cls.requires, *cls.option_requires)}, (name, used)
+    declared = {c.__name__ for entry in (*cls.requires, *cls.option_requires) for c in caps.alternatives(entry)}
+    assert used <= declared, (name, used)
 
 
 def test_capabilities_are_small_and_documented():
@@ -85,3 +86,19 @@ def test_capability_returns_the_substrate_typed_or_names_what_is_missing():
     assert missing_capabilities(ToySubstrate, [GaussianActor, PolicySnapshots]) == ["PolicySnapshots"]
     assert missing_capabilities(SACSubstrate, [GaussianActor]) == []
     assert missing_capabilities(ACTSubstrate, [GaussianActor]) == ["GaussianActor"]
+
+
+def test_a_union_requirement_is_met_by_either_of_its_capabilities():
+    either = GaussianActor | caps.ActorSnapshotMemory
+    assert caps.alternatives(either) == (GaussianActor, caps.ActorSnapshotMemory)
+    assert missing_capabilities(SACSubstrate, [either]) == missing_capabilities(ACTSubstrate, [either]) == []
+    assert missing_capabilities(ToySubstrate, [PolicySnapshots | caps.ActorSnapshotMemory, GaussianActor]) == [
+        "either PolicySnapshots or ActorSnapshotMemory"]
+
+
+def test_the_capability_table_says_which_substrates_provide_each_capability():
+    rows = re.findall(r"^:class:`(\w+)`\s+((?:act|sac)(?:, (?:act|sac))*)\s", caps.__doc__ or "", re.MULTILINE)
+    assert {name for name, _ in rows} == set(CAPABILITIES)
+    for name, substrates in rows:
+        provided = {s for s, cls in SUBSTRATES.items() if not caps.missing_members(cls, CAPABILITIES[name])}
+        assert provided == set(substrates.split(", ")), name

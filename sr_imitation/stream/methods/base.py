@@ -148,13 +148,14 @@ class ContinualMethod:
             critics).
         requires: the capabilities (:mod:`sr_imitation.stream.capabilities`) it asks of the substrate beyond the
             :class:`Substrate` protocol; the engine refuses a substrate without them when the run is built, and the
-            method reaches them through :func:`~sr_imitation.stream.capabilities.capability`.
+            method reaches them through :func:`~sr_imitation.stream.capabilities.capability`. An entry ``X | Y``
+            asks for either (:func:`~sr_imitation.stream.capabilities.alternatives`).
         stores_memories: whether a frozen memory M_k is made after each wake (needed by sleep and distillation).
     """
 
     name: ClassVar[str] = ""
     substrates: ClassVar[frozenset[str] | None] = None
-    requires: ClassVar[tuple[type, ...]] = ()
+    requires: ClassVar[tuple[Any, ...]] = ()
     option_requires: ClassVar[tuple[type, ...]] = ()
     """Capabilities the method asks for only with some of its options (``--method_options``): an instance lists
     those its options need in its own ``requires``, which the engine checks (SR's expert memories and fresh wakes)."""

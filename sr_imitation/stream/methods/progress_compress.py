@@ -31,7 +31,7 @@ from typing import Any, ClassVar
 import torch
 
 from sr_imitation.core.memory import Memory
-from sr_imitation.stream.capabilities import LikelihoodPolicy, ResettableNetworks, capability
+from sr_imitation.stream.capabilities import GaussianActor, LikelihoodPolicy, ResettableNetworks, capability
 from sr_imitation.stream.methods.der import state_gaussian
 from sr_imitation.stream.methods.ewc import FisherMemory
 from sr_imitation.stream.methods.registry import register_method
@@ -58,6 +58,8 @@ class ProgressCompress(ResetDistill):
     """An active column per skill, compressed into one knowledge base by distillation under EWC."""
 
     name = "progress_compress"
+    # what Reset & Distill asks, and a Gaussian actor: the compression distils and weighs the Gaussian (SAC only)
+    requires: ClassVar[tuple[Any, ...]] = (*ResetDistill.requires, GaussianActor)
     config: ClassVar[ProgressCompressConfig] = ProgressCompressConfig()  # type: ignore[assignment]
 
     @property
