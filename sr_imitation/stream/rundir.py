@@ -175,6 +175,32 @@ def read_progress(path: Path) -> dict[str, Any]:
     return read_checked_json(path)
 
 
+def check_run_config(run: Path, config_file: str = RUN_CONFIG_FILE, ignore: Sequence[str] | None = None
+                     ) -> dict[str, Any] | None:
+    """``<run>/<config_file>`` (``train_config.json``), checked as a resume checks it, for every reader (resume,
+    ``status``, ``compare``, ``summary``); ``None`` if the run has none (started before the file existed). A sealed
+    one must match its seal; one written before configs were sealed must hold the settings of the run's fingerprint
+    where it has one (an edit there would otherwise be reported as what the run trained with), compared on every
+    setting but ``ignore`` (patterns; by default the allow-list and derived settings the fingerprint file records).
+    :class:`~sr_imitation.io.CorruptFileError` naming the file."""
+    path = Path(run) / config_file
+    if not path.is_file():
+        return None
+    config, sealed = read_config_json(path)
+    fingerprint = Path(run) / FINGERPRINT_FILE
+    if not sealed and fingerprint.is_file():
+        stored = read_fingerprint(fingerprint)
+        if ignore is None:
+            recorded = read_json(fingerprint)
+            ignore = (*recorded.get("allow_list", ()), *recorded.get("derived", ()))
+        written = {k: v for k, v in flatten_settings(config).items() if not is_allowed(k, ignore)}
+        diffs = diff_settings({k: v for k, v in stored.items() if not is_allowed(k, ignore)}, written)
+        if diffs:
+            raise CorruptFileError(path, f"differs from {FINGERPRINT_FILE} in {', '.join(sorted(diffs)[:4])} "
+                                         "(edited since the run started); restore it or start a new run")
+    return config
+
+
 class RunDirectory:
     """One run's output directory.
 
@@ -356,23 +382,9 @@ class RunDirectory:
         check_settings(path, stored, self.fingerprint)
 
     def check_stored_config(self) -> dict[str, Any] | None:
-        """The run's stored config (``train_config.json``), checked before a resume writes anything; ``None`` if the
-        run has none (started before the file existed). A sealed one must match its seal; one written before configs
-        were sealed must hold the settings of the run's fingerprint (an edit there would otherwise be reported in
-        ``results.json`` as what the run trained with). :class:`~sr_imitation.io.CorruptFileError` naming the file."""
-        path = self.path / self.config_file
-        if not path.is_file():
-            return None
-        config, sealed = read_config_json(path)
-        if not sealed:
-            stored = read_fingerprint(self.path / FINGERPRINT_FILE)
-            ignore = (*self.fingerprint.allow, *self.fingerprint.derived)
-            written = {k: v for k, v in flatten_settings(config).items() if not is_allowed(k, ignore)}
-            diffs = diff_settings({k: v for k, v in stored.items() if not is_allowed(k, ignore)}, written)
-            if diffs:
-                raise CorruptFileError(path, f"differs from {FINGERPRINT_FILE} in {', '.join(sorted(diffs)[:4])} "
-                                             "(edited since the run started); restore it or start a new run")
-        return config
+        """The run's stored config (``train_config.json``), checked before a resume writes anything
+        (:func:`check_run_config`, with this run's allow-list and derived settings)."""
+        return check_run_config(self.path, self.config_file, (*self.fingerprint.allow, *self.fingerprint.derived))
 
     def _remove_leftovers(self) -> None:
         for pattern in TEMPORARY_PATTERNS:
