@@ -20,10 +20,15 @@ first. The experiment:
    fall in the same parts of the run (recording, a wake, a sleep, an evaluation, the final writes) however the
    machine's load changes between runs; then the same command with ``--resume=true`` (or, where the kill came before
    the run wrote anything that names it a run, without it), run to its end;
-3. each resumed run compared with the reference: every number either measured
-   (:func:`~sr_imitation.reporting.compare.compare_runs`, tolerance 0) and every tensor of every safetensors file
-   both hold (checkpoints, memories, trajectories; bit for bit), and which such files only one holds (a mid-wake
-   snapshot left behind counts).
+3. the start-up moments (``--startup=true``, the default): the run's first writes (its settings fingerprint, then
+   ``train_config.json``) take milliseconds, too short for a timed kill to hit, so each state a kill -9 can leave
+   there is made from the reference's own start-up files (:func:`start_states`: the empty folder, each file's torn
+   temporary copy, each file complete), then the command is run on it, resumed or plain as above;
+4. each resumed run compared with the reference: every number either measured
+   (:func:`~sr_imitation.reporting.compare.compare_runs`, tolerance 0), every tensor of every safetensors file
+   both hold (checkpoints, memories, trajectories; bit for bit), which such files only one holds (a mid-wake
+   snapshot left behind counts), and the start-up files byte for byte (:data:`START_FILES`: a resumed run without
+   its ``train_config.json`` differs).
 
 Each moment's row says what the kill interrupted (the phases recorded by then, a wake snapshot present), the resume's
 exit status (with its last log line when it failed) and the verdict. Writes ``kill_resume.json`` and
@@ -50,10 +55,11 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.progress import format_duration
 from sr_imitation.reporting.compare import compare_runs
-from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory, read_progress
+from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, RunDirectory, read_progress
 from sr_imitation.stream.substrate import PHASE_IDS
 
 logger = logging.getLogger(__name__)
@@ -62,6 +68,9 @@ POLL_S = 0.05
 """Seconds between two looks at a run's ``progress.json``."""
 SNAPSHOTS = ("wake_snapshot.safetensors", "train_snapshot.safetensors")
 """Mid-wake snapshots: a run's working files, removed when their wake ends (one left behind is a difference)."""
+START_FILES = (FINGERPRINT_FILE, RUN_CONFIG_FILE)
+"""What a run writes at its start, in this order (:meth:`~sr_imitation.stream.rundir.RunDirectory.prepare`),
+compared byte for byte."""
 
 
 @dataclass
@@ -83,11 +92,13 @@ class Moment:
     number_differences: list[str] = field(default_factory=list)
     tensors_compared: int = 0
     tensor_differences: list[str] = field(default_factory=list)
+    file_differences: list[str] = field(default_factory=list)
+    """Start-up files (:data:`START_FILES`) missing from the resumed run or not byte-identical."""
 
     @property
     def agrees(self) -> bool:
         return (self.resume_rc == 0 and self.numbers_compared > 0 and not self.number_differences
-                and not self.tensor_differences)
+                and not self.tensor_differences and not self.file_differences)
 
 
 def resolve(command: list[str]) -> list[str]:
@@ -201,6 +212,33 @@ def compare_tensors(reference: Path, resumed: Path) -> tuple[int, list[str]]:
     return compared, differences
 
 
+def compare_start_files(reference: Path, resumed: Path) -> list[str]:
+    """The start-up files (:data:`START_FILES`) the resumed run lacks or holds with other bytes than the reference."""
+    differences = []
+    for name in START_FILES:
+        a, b = reference / name, resumed / name
+        if a.is_file() != b.is_file():
+            differences.append(f"only in the {'reference' if a.is_file() else 'resumed run'}: {name}")
+        elif a.is_file() and a.read_bytes() != b.read_bytes():
+            differences.append(f"{name}: bytes differ")
+    return differences
+
+
+def start_states(reference: Path) -> list[tuple[str, dict[str, bytes]]]:
+    """What a kill -9 during the run's start-up writes leaves, made from the reference's own start-up files: the
+    empty folder (killed before the first write), then for each of :data:`START_FILES` in order its atomic write's
+    torn temporary file (killed inside the write) and the file itself (killed after it). Each as (where the kill
+    came, {name: bytes})."""
+    states: list[tuple[str, dict[str, bytes]]] = [("after the folder was made", {})]
+    files: dict[str, bytes] = {}
+    for name in START_FILES:
+        data = (reference / name).read_bytes()
+        states.append((f"inside the write of {name}", {**files, f".{name}.killed.tmp": data[:len(data) // 2]}))
+        files[name] = data
+        states.append((f"after {name}", dict(files)))
+    return states
+
+
 def last_line(log: Path) -> str:
     lines = [line for line in log.read_text(errors="replace").splitlines() if line.strip()]
     return lines[-1][:300] if lines else ""
@@ -230,12 +268,30 @@ def run_moment(command: Command, root: Path, reference: Path, index: int, place:
     if out.is_dir():
         moment.completed_at_kill = in_order(recorded_phases(out))
         moment.snapshot_at_kill = snapshots_in(out)
+    return finish_moment(command, out, log, reference, moment)
+
+
+def run_start_moment(command: Command, root: Path, reference: Path, index: int, state: tuple[str, dict[str, bytes]],
+                     name: str) -> Moment:
+    """A start-up moment: the folder as a kill during the start-up writes leaves it (:func:`start_states`), then
+    the command run on it and compared as after a timed kill."""
+    out, log = root / name, root / "logs" / f"{name}.log"
+    where, files = state
+    out.mkdir(parents=True)
+    for file, data in files.items():
+        (out / file).write_bytes(data)
+    return finish_moment(command, out, log, reference, Moment(index, 0.0, f"start-up: {where}", killed=True))
+
+
+def finish_moment(command: Command, out: Path, log: Path, reference: Path, moment: Moment) -> Moment:
+    """Run the command on the killed run to its end and compare the result with the reference."""
     # a kill before the run wrote its settings leaves nothing to resume: the command starts it again
     resumable = RunDirectory.occupied(out)
     moment.resume_rc, _ = run_to_end(command, out, log, resume=resumable)
     if moment.resume_rc != 0:
         moment.resume_tail = last_line(log)
         return moment
+    moment.file_differences = compare_start_files(reference, out)
     report = compare_runs(reference, out, 0.0)
     moment.numbers_compared = report["compared"]
     moment.number_differences = [f"{p}: {a!r} != {b!r}" for p, a, b, _ in report["differences"]]
@@ -269,8 +325,9 @@ def render(command: Command, reference_s: float, moments: list[Moment], cpu: str
                      f"{m.numbers_compared} ({len(m.number_differences)} differ) | {m.tensors_compared} "
                      f"({len(m.tensor_differences)} differ) | {verdict} |")
     for m in moments:
-        if not m.agrees and (m.number_differences or m.tensor_differences):
-            lines += ["", f"Moment {m.index}: " + "; ".join((m.number_differences + m.tensor_differences)[:10])]
+        differences = m.file_differences + m.number_differences + m.tensor_differences
+        if not m.agrees and differences:
+            lines += ["", f"Moment {m.index}: " + "; ".join(differences[:10])]
     return "\n".join(lines) + "\n"
 
 
@@ -293,6 +350,8 @@ def main(args: list[str] | None = None) -> int:
     parser.add_argument("--output_root", type=Path, required=True, help="a new folder for every run and the report")
     parser.add_argument("--output_flag", default="--output_dir", help="the command's flag naming its run folder")
     parser.add_argument("--resume_flag", default="--resume=true", help="the command's flag that resumes a run")
+    parser.add_argument("--startup", type=lambda v: v.lower() in ("1", "true", "yes"), default=True,
+                        help="also the states a kill during the start-up writes leaves (true/false)")
     ns = parser.parse_args(args[:split])
     if ns.moments < 1:
         raise ValueError(f"--moments must be >= 1, got {ns.moments}")
@@ -319,6 +378,10 @@ def main(args: list[str] | None = None) -> int:
         logger.info("moment %d/%d (%s: at %.1f s, after %s): %s", i, ns.moments, moment.anchor, moment.kill_at_s,
                     moment.completed_at_kill[-1] if moment.completed_at_kill else "no phase",
                     "not killed" if not moment.killed else "agrees" if moment.agrees else "DIFFERS")
+    for j, state in enumerate(start_states(reference) if ns.startup else [], 1):
+        moment = run_start_moment(command, root, reference, ns.moments + j, state, f"start_{j:02d}")
+        moments.append(moment)
+        logger.info("moment %d (%s): %s", moment.index, moment.anchor, "agrees" if moment.agrees else "DIFFERS")
     cpu = cpu_name()
     write_checked_json(root / "kill_resume.json", {
         "command": asdict(command), "cpu": cpu, "reference_seconds": reference_s,

@@ -14,11 +14,14 @@ measured, not how long they took:
 
 Numbers agree when ``|a - b| <= tol`` (0: exactly); anything else must be equal. The settings both runs recorded
 (``settings_fingerprint.json``: the names of those that differ) and their code commits (``results.json``) are printed
-as context, not compared: two
-runs of different settings may agree. Prints the differing values (the first ``--show``), a count and the largest
-numeric difference; exits 0 when the runs agree, 1 when they do not (a user error, such as a folder without
-``progress.json`` or a ``results.json`` that does not match its seal, is one line and exit 2; one of a schema before
-seals is read as the summaries read it and marked unsealed). Reads only; writes nothing.
+as context, not compared: two runs of different settings may agree. Every seal is checked as a resume checks it: a
+fingerprint or a ``train_config.json`` that does not match its seal, or an unsealed ``train_config.json`` that
+differs from its run's fingerprint (:func:`~sr_imitation.stream.rundir.check_run_config`), refuses the comparison.
+Prints the differing values (the first ``--show``), a count and the largest numeric difference; exits 0 when the runs
+agree, 1 when they do not (a user error, such as a folder without ``progress.json``, an edited ``train_config.json``
+or a ``results.json`` that does not match its seal, is one line naming the file and exit 2; one of a schema before
+seals is read as the summaries read it and marked unsealed, or refused when it does not read as its schema). Reads
+only; writes nothing.
 """
 
 from __future__ import annotations
@@ -31,10 +34,11 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, read_fingerprint
 from sr_imitation.io import read_json
 from sr_imitation.reporting.results import read_results_file
 from sr_imitation.reporting.status import find_runs, is_run  # the same run search as status (one or two levels down)
-from sr_imitation.stream.rundir import PROGRESS_FILE, read_progress
+from sr_imitation.stream.rundir import PROGRESS_FILE, check_run_config, read_progress
 
 RESULTS_KEYS = ("success_matrix", "success_matrix_per_unit", "success_after_own_wake",
                 "success_after_own_wake_per_unit", "metrics", "memory_bytes", "skills", "stages")
@@ -59,6 +63,9 @@ def measured(run: Path) -> dict[str, Any]:
     """What ``run`` measured (see the module docstring), keyed by source file and path."""
     if not is_run(run):
         raise FileNotFoundError(f"{run}: not a run directory (no {PROGRESS_FILE})")
+    if (run / FINGERPRINT_FILE).is_file():
+        read_fingerprint(run / FINGERPRINT_FILE)  # its seal
+    check_run_config(run)  # its seal, or (unsealed) the fingerprint's settings: an edited config is refused
     progress = run / PROGRESS_FILE  # a run that has started and recorded no phase has measured nothing yet
     completed = (read_progress(progress).get("completed") or {}) if progress.is_file() else {}
     found = [(f"progress:{p}", v) for p, v in leaves(completed)]
@@ -111,10 +118,10 @@ def run_commit(run: Path) -> str:
 def settings_differences(run_a: Path, run_b: Path) -> list[str] | None:
     """The recorded settings (``settings_fingerprint.json``) whose values differ between the runs; None when a run
     recorded none."""
-    paths = [r / "settings_fingerprint.json" for r in (run_a, run_b)]
+    paths = [r / FINGERPRINT_FILE for r in (run_a, run_b)]
     if not all(p.is_file() for p in paths):
         return None
-    a, b = (read_json(p).get("settings") or {} for p in paths)
+    a, b = (read_fingerprint(p) for p in paths)
     return sorted(k for k in a.keys() | b.keys() if a.get(k, "<unset>") != b.get(k, "<unset>"))
 
 

@@ -439,6 +439,9 @@ def unsealed_problem(data: Mapping[str, Any]) -> str | None:
         results = upgrade_results(data)
     except (ValueError, KeyError, TypeError, IndexError) as exc:
         return f"does not read as its schema ({type(exc).__name__}: {exc})"
+    shape = schema_problem(results)
+    if shape is not None:
+        return f"does not read as its schema ({shape})"
     matrix = results.get("success_matrix")
     afsr = (results.get("metrics") or {}).get("afsr") or {}
     if not isinstance(matrix, list) or afsr.get("final") is None:
@@ -457,6 +460,55 @@ def unsealed_problem(data: Mapping[str, Any]) -> str | None:
     if expected and expected[-1] is not None and abs(float(afsr["final"]) - expected[-1]) > 1e-6:
         return f"its final AFSR ({afsr['final']}) is not its success matrix's ({expected[-1]:.6f})"
     return _bwt_problem(results, full)
+
+
+def _is_number(value: Any) -> bool:
+    return isinstance(value, (int, float)) and not isinstance(value, bool)
+
+
+def _numbers_problem(values: Any, where: str) -> str | None:
+    """Why ``values`` is not a list of numbers or nulls (``None`` if it is)."""
+    if not isinstance(values, list):
+        return f"{where} is {type(values).__name__}, not a list"
+    for i, value in enumerate(values):
+        if value is not None and not _is_number(value):
+            return f"{where}[{i}] is {type(value).__name__}, not a number"
+    return None
+
+
+def schema_problem(results: Mapping[str, Any]) -> str | None:
+    """Why an upgraded results dictionary (:func:`upgrade_results`) does not hold what the reports read where they
+    read it (``None`` if it does): the skills, the success matrix and after-wake success as numbers or nulls, each
+    metric's final value and curve as numbers or nulls. A file of another schema relabelled with an older
+    ``results_version`` (``metrics.afsr.final`` a dictionary under version 3) is named so, never a traceback."""
+    if not isinstance(results.get("skills"), list):
+        return "skills is not a list"
+    matrix = results.get("success_matrix")
+    if not isinstance(matrix, list):
+        return f"success_matrix is {type(matrix).__name__}, not a list of rows"
+    for k, row in enumerate(matrix):
+        problem = _numbers_problem(row, f"success_matrix[{k}]")
+        if problem is not None:
+            return problem
+    problem = _numbers_problem(results.get("success_after_own_wake"), "success_after_own_wake")
+    if problem is not None:
+        return problem
+    metrics = results.get("metrics")
+    if not isinstance(metrics, Mapping):
+        return f"metrics is {type(metrics).__name__}, not an object"
+    for name in METRICS:
+        metric = metrics.get(name)
+        if metric is None:
+            continue
+        if not isinstance(metric, Mapping):
+            return f"metrics.{name} is {type(metric).__name__}, not an object"
+        final = metric.get("final")
+        if final is not None and not _is_number(final):
+            return f"metrics.{name}.final is {type(final).__name__}, not a number"
+        problem = _numbers_problem(metric.get("curve", []), f"metrics.{name}.curve")
+        if problem is not None:
+            return problem
+    return None
 
 
 def _bwt_problem(results: Mapping[str, Any], matrix: np.ndarray) -> str | None:

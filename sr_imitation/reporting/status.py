@@ -26,10 +26,10 @@ from typing import Any
 import numpy as np
 
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE
-from sr_imitation.io import JSON_CHECKSUM, CorruptFileError, read_checked_json
+from sr_imitation.io import JSON_CHECKSUM, CorruptFileError
 from sr_imitation.progress import format_duration
 from sr_imitation.reporting.results import final_headline, load_results, variant_label
-from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, read_progress
+from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, check_run_config, read_progress
 from sr_imitation.stream.substrate import PHASE_IDS
 
 
@@ -104,9 +104,10 @@ def run_status(run: Path, now: float | None = None) -> dict[str, Any]:
 
 
 def _read_config(path: Path) -> tuple[dict[str, Any], str | None]:
-    """A run's stored config for the labels, and why it is not trusted (``None`` if it is): a sealed file whose seal
-    does not match, or one that does not read, gives no labels (variant and seed "?"); a file written before seals
-    is read as it is."""
+    """A run's stored config for the labels, and why it is not trusted (``None`` if it is): one that fails the
+    resume's check (:func:`~sr_imitation.stream.rundir.check_run_config`: a sealed file whose seal does not match, one
+    written before seals that differs from the run's fingerprint), or one that does not read, gives no labels
+    (variant and seed "?")."""
     try:
         data = json.loads(path.read_text())
     except FileNotFoundError:
@@ -115,11 +116,11 @@ def _read_config(path: Path) -> tuple[dict[str, Any], str | None]:
         return {}, f"{path.name} unreadable ({type(exc).__name__})"
     if not isinstance(data, dict):
         return {}, f"{path.name} is not a JSON object"
-    if JSON_CHECKSUM in data:
-        try:
-            read_checked_json(path)
-        except CorruptFileError as exc:
-            return {}, f"{path.name} not trusted ({exc.problem})"
+    try:
+        check_run_config(path.parent, path.name)
+    except CorruptFileError as exc:
+        where = "" if exc.path.name == path.name else f"{exc.path.name}: "
+        return {}, f"{path.name} not trusted ({where}{exc.problem})"
     return {k: v for k, v in data.items() if k != JSON_CHECKSUM}, None
 
 

@@ -35,7 +35,7 @@ from sr_imitation.reporting.results import (
     final_loss,
     load_results,
 )
-from sr_imitation.stream.rundir import read_progress
+from sr_imitation.stream.rundir import check_run_config, read_progress
 
 SHORT = {"afsr": "AFSR", "prs": "PRS", "bwt": "BWT", "bwt_wake": "BWT_wake", "spi": "SPI"}
 DEFAULT_BASELINE = "wake_only"
@@ -75,7 +75,10 @@ def group_runs(runs: Sequence[str | Path]) -> dict[str, dict[str, dict[str, Any]
 
 
 def _load_run(run: str | Path) -> dict[str, Any]:
-    """A run's results with its directory (``run``) and compute time (``phase_seconds``)."""
+    """A run's results with its directory (``run``) and compute time (``phase_seconds``). Its stored config is
+    checked as a resume checks it first (:func:`~sr_imitation.stream.rundir.check_run_config`): a run whose
+    ``train_config.json`` was edited is refused, naming the file."""
+    check_run_config(Path(run))
     return {**load_results(Path(run)), "run": str(run), "phase_seconds": phase_seconds(run)}
 
 

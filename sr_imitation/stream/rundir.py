@@ -1,9 +1,14 @@
 """A run directory that cannot change silently: settings fingerprint, stored config, progress, leftovers.
 
 Fresh run: the directory is created, the settings fingerprint (:mod:`sr_imitation.infra.fingerprint`) and the stored
-config are written once. Resume: the requested settings are checked against the fingerprint *before anything is
-written* (a refused resume leaves the directory byte-identical), ``progress.json`` is read, and temporary files
-left by a killed atomic write are removed. Nothing stored at the start is ever rewritten.
+config are written once, in that order: the fingerprint is the start's commit point. Resume: the requested settings
+are checked against the fingerprint *before anything is written* (a refused resume leaves the directory
+byte-identical), ``progress.json`` is read, and temporary files left by a killed atomic write are removed. Nothing
+stored at the start is ever rewritten; a start killed after its fingerprint and before its config (no phase
+recorded) gets its config on resume, from the settings that have just matched the fingerprint
+(:meth:`RunDirectory.start_unfinished`). A kill at any moment of the start thus leaves an empty directory or one
+holding only the fingerprint's temporary file (a plain rerun starts there: :meth:`RunDirectory.occupied`), or a
+fingerprinted run that resumes to the files of an uninterrupted one.
 
 ``progress.json`` records every completed phase under ``"<stage>.<phase>"`` (1-based stage), written atomically
 after the phase's files, so a phase is either recorded with all its outputs or redone.
@@ -170,6 +175,32 @@ def read_progress(path: Path) -> dict[str, Any]:
     return read_checked_json(path)
 
 
+def check_run_config(run: Path, config_file: str = RUN_CONFIG_FILE, ignore: Sequence[str] | None = None
+                     ) -> dict[str, Any] | None:
+    """``<run>/<config_file>`` (``train_config.json``), checked as a resume checks it, for every reader (resume,
+    ``status``, ``compare``, ``summary``); ``None`` if the run has none (started before the file existed). A sealed
+    one must match its seal; one written before configs were sealed must hold the settings of the run's fingerprint
+    where it has one (an edit there would otherwise be reported as what the run trained with), compared on every
+    setting but ``ignore`` (patterns; by default the allow-list and derived settings the fingerprint file records).
+    :class:`~sr_imitation.io.CorruptFileError` naming the file."""
+    path = Path(run) / config_file
+    if not path.is_file():
+        return None
+    config, sealed = read_config_json(path)
+    fingerprint = Path(run) / FINGERPRINT_FILE
+    if not sealed and fingerprint.is_file():
+        stored = read_fingerprint(fingerprint)
+        if ignore is None:
+            recorded = read_json(fingerprint)
+            ignore = (*recorded.get("allow_list", ()), *recorded.get("derived", ()))
+        written = {k: v for k, v in flatten_settings(config).items() if not is_allowed(k, ignore)}
+        diffs = diff_settings({k: v for k, v in stored.items() if not is_allowed(k, ignore)}, written)
+        if diffs:
+            raise CorruptFileError(path, f"differs from {FINGERPRINT_FILE} in {', '.join(sorted(diffs)[:4])} "
+                                         "(edited since the run started); restore it or start a new run")
+    return config
+
+
 class RunDirectory:
     """One run's output directory.
 
@@ -265,6 +296,7 @@ class RunDirectory:
             # every sealed file, before anything is written (the fingerprint: checked above by read_fingerprint)
             verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, *LEGACY_CONFIG_FILES, FINGERPRINT_FILE))
             self._remove_leftovers()
+            self._finish_start()
             return
         with self.undo_on_error():
             try:
@@ -275,6 +307,24 @@ class RunDirectory:
                 leftover.unlink()
             write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
             write_checked_json(self.path / self.config_file, self.stored_config)
+
+    def start_unfinished(self) -> bool:
+        """Whether the run's start was killed after its fingerprint and before its stored config was in place: it
+        holds no config of any name (:data:`LEGACY_CONFIG_FILES` included) and has recorded no phase. A run that
+        recorded a phase without a config is one from before the file existed, and keeps its layout."""
+        configs = (self.config_file, *LEGACY_CONFIG_FILES)
+        return not any((self.path / c).is_file() for c in configs) and not (self.path / PROGRESS_FILE).exists()
+
+    def _finish_start(self) -> None:
+        """Write the stored config a start killed before it left out (:meth:`start_unfinished`), from this resume's
+        settings, which have just matched the fingerprint: the fingerprint is the start's commit point, and the
+        config holds nothing the fingerprint does not fix but the allow-listed, per-invocation settings, so the run
+        ends with the same files as an uninterrupted one resumed with the same flags."""
+        if not self.start_unfinished():
+            return
+        logger.warning("%s: its start was interrupted before %s was written; writing it now from the resumed "
+                       "settings (they match %s)", self.path, self.config_file, FINGERPRINT_FILE)
+        write_checked_json(self.path / self.config_file, self.stored_config)
 
     def _set_aside(self) -> None:
         """Rename the old run to a hidden sibling (:data:`REPLACED_MARK`), kept until the new run records a phase."""
@@ -332,23 +382,9 @@ class RunDirectory:
         check_settings(path, stored, self.fingerprint)
 
     def check_stored_config(self) -> dict[str, Any] | None:
-        """The run's stored config (``train_config.json``), checked before a resume writes anything; ``None`` if the
-        run has none (started before the file existed). A sealed one must match its seal; one written before configs
-        were sealed must hold the settings of the run's fingerprint (an edit there would otherwise be reported in
-        ``results.json`` as what the run trained with). :class:`~sr_imitation.io.CorruptFileError` naming the file."""
-        path = self.path / self.config_file
-        if not path.is_file():
-            return None
-        config, sealed = read_config_json(path)
-        if not sealed:
-            stored = read_fingerprint(self.path / FINGERPRINT_FILE)
-            ignore = (*self.fingerprint.allow, *self.fingerprint.derived)
-            written = {k: v for k, v in flatten_settings(config).items() if not is_allowed(k, ignore)}
-            diffs = diff_settings({k: v for k, v in stored.items() if not is_allowed(k, ignore)}, written)
-            if diffs:
-                raise CorruptFileError(path, f"differs from {FINGERPRINT_FILE} in {', '.join(sorted(diffs)[:4])} "
-                                             "(edited since the run started); restore it or start a new run")
-        return config
+        """The run's stored config (``train_config.json``), checked before a resume writes anything
+        (:func:`check_run_config`, with this run's allow-list and derived settings)."""
+        return check_run_config(self.path, self.config_file, (*self.fingerprint.allow, *self.fingerprint.derived))
 
     def _remove_leftovers(self) -> None:
         for pattern in TEMPORARY_PATTERNS:

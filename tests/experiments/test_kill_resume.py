@@ -19,7 +19,8 @@ TOY_TRAIN = ["python", "-c", "from sr_imitation import cli; "
 
 def test_runs_killed_with_sigkill_and_resumed_agree_with_the_uninterrupted_one(tmp_path):
     root = tmp_path / "kill"
-    assert kill_resume.main(["--moments=2", f"--output_root={root}", "--", *TOY_TRAIN]) == 0
+    # (the start-up moments: test_the_start_up_moments_are_run_again_and_compared_file_by_file)
+    assert kill_resume.main(["--moments=2", "--startup=false", f"--output_root={root}", "--", *TOY_TRAIN]) == 0
     report = read_checked_json(root / "kill_resume.json")
     moments = report["moments"]
     killed = [m for m in moments if m["killed"]]
@@ -67,3 +68,34 @@ def test_a_reference_time_is_placed_after_the_phases_recorded_by_then():
     assert timeline.place(1.0) == (0, 0.0, 1.0)  # before the first phase: from the start
     assert timeline.place(6.0) == (3, 5.0, 1.0)
     assert timeline.place(11.0) == (4, 9.0, 2.0)  # after the last phase: the final writes
+
+
+def test_the_start_up_moments_are_run_again_and_compared_file_by_file(tmp_path, monkeypatch):
+    """Each state a kill during the start-up writes leaves (:func:`kill_resume.start_states`) is run again (resumed
+    where the folder holds a run) and compared with the reference, ``train_config.json`` byte for byte; the command
+    runs in this process here (the toy's ``sr-train`` entry) to keep it to seconds. Before: the moments after the
+    fingerprint resumed without a ``train_config.json``."""
+    from tests.stream import toy
+
+    command = kill_resume.Command(["--stream.skills=[a,b]", "--progress=false", "--wake_steps=10"])
+    calls = []
+
+    def in_process(command, out, log, resume):
+        calls.append(resume)
+        toy.main(command.on(out, resume))
+        return 0, kill_resume.Timeline((), 0.0)
+
+    monkeypatch.setattr(kill_resume, "run_to_end", in_process)
+    reference = tmp_path / "reference"
+    in_process(command, reference, None, False)
+    moments = [kill_resume.run_start_moment(command, tmp_path, reference, 10 + j, state, f"start_{j:02d}")
+               for j, state in enumerate(kill_resume.start_states(reference), 1)]
+    assert calls == [False, False, False, True, True, True]  # reference, then plain, plain, resume x3
+    assert [m.file_differences for m in moments] == [[]] * 5
+    assert all(m.agrees and m.numbers_compared > 0 for m in moments)
+    md = kill_resume.render(command, 1.0, moments, "cpu")
+    assert "**5 of 5 killed runs agree**" in md and "start-up: inside the write of train_config.json" in md
+    # a resumed run without the file is a difference, named in the report
+    (tmp_path / "start_05" / "train_config.json").unlink()
+    assert kill_resume.compare_start_files(reference, tmp_path / "start_05") == [
+        "only in the reference: train_config.json"]

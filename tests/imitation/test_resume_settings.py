@@ -364,6 +364,23 @@ def test_a_run_without_fingerprint_is_refused_naming_the_file(stored, tmp_path):
         ACTTrainer(_parse(saved, tmp_path, run)).run_dir.prepare()
 
 
+def test_a_start_killed_while_writing_train_config_gets_it_on_resume(stored, state_datasets, tmp_path):
+    """A kill inside the atomic write of train_config.json leaves the fingerprint and a torn temporary file: the
+    resume (the same command with --resume=true; its settings match the fingerprint) writes the config an
+    uninterrupted start writes, byte for byte. Before: the run resumed to its end without one, and results.json took
+    its config from the resuming invocation."""
+    out, _ = stored
+    run = tmp_path / "killed"
+    shutil.copytree(out, run)
+    (run / "train_config.json").unlink()
+    (run / ".train_config.json.k2.tmp").write_bytes((out / "train_config.json").read_bytes()[:100])
+    cfg = tiny_stream_config(state_datasets, run, STREAM, use_images=False)
+    cfg.resume = True
+    ACTTrainer(cfg).run_dir.prepare()
+    assert sorted(p.name for p in run.iterdir()) == [FINGERPRINT_FILE, "train_config.json"]
+    assert (run / "train_config.json").read_bytes() == (out / "train_config.json").read_bytes()
+
+
 @pytest.mark.parametrize("damage", ["flip", "truncate", "config"])
 def test_a_damaged_checkpoint_is_refused_naming_the_file_before_training_on_it(after_stage_1, state_datasets, tmp_path,
                                                                                damage):

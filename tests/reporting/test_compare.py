@@ -137,3 +137,30 @@ def test_the_code_that_wrote_each_run_is_named(runs, tmp_path):
     assert run_commit(runs["a"]) == "unknown commit"  # the toy writes no results.json
     (tmp_path / "results.json").write_text(json.dumps({"code": {"commit": "0123456789abcdef", "dirty": True}}))
     assert run_commit(tmp_path) == "commit 0123456789 (dirty)"
+
+
+def test_a_run_whose_train_config_was_edited_is_refused_not_compared(tmp_path, capsys):
+    """Every seal a resume checks, compare checks: a ``train_config.json`` edited after it was sealed, or an unsealed
+    one (renamed seal) that differs from the run's fingerprint, is one line naming the file, exit 2. Before:
+    "settings: the same" and "the runs agree", exit 0."""
+    from sr_imitation.infra.cli_errors import run_cli
+    from tests.stream import toy
+
+    for name in ("a", "b"):
+        toy.main(["--stream.skills=[a,b]", "--progress=false", "--wake_steps=10", f"--output_dir={tmp_path / name}"])
+    assert main([str(tmp_path / "a"), str(tmp_path / "b")]) == 0
+    assert "settings: the same" in capsys.readouterr().out
+    path = tmp_path / "b" / "train_config.json"
+    sealed = path.read_text()
+    assert '"wake_steps": 10' in sealed
+    unsealed = {k: v for k, v in json.loads(sealed).items() if k != "sha256"} | {"wake_steps": 11}
+    edits = {"sealed": sealed.replace('"wake_steps": 10', '"wake_steps": 11'),  # the seal no longer matches
+             "unsealed": json.dumps(unsealed)}  # as if written before seals, then edited
+    for what, text in edits.items():
+        path.write_text(text)
+        with pytest.raises(SystemExit) as exc:
+            run_cli("sr_imitation.reporting.compare", main, [str(tmp_path / "a"), str(tmp_path / "b")])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and err.count("\n") == 1 and f"{path}: " in err, what
+        assert ("contents do not match its sha256" if what == "sealed" else
+                "differs from settings_fingerprint.json in wake_steps") in err, what

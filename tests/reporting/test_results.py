@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -298,3 +299,50 @@ def test_summary_states_the_binomial_noise_of_one_seed_s_per_skill_success(tmp_p
     assert "a rate over 10 episodes (binomial SE up to 0.158 at 0.5 success). The SE" in alone
     unknown = render_markdown_summary(summarize(group_runs([_write_run(tmp_path, "u", _results(config={}))])))
     assert "Evaluation noise" not in unknown  # unknown episode count: nothing claimed
+
+
+def test_an_unsealed_file_of_another_schema_relabelled_older_is_one_line_in_every_reader(tmp_path, capsys):
+    """A current file without its seal and with ``results_version: 3`` (whose metrics are bare numbers) is refused
+    naming the file by status, compare and summary. Before: ``TypeError: float() argument must be ... not 'dict'``
+    with a traceback in all three."""
+    from sr_imitation.reporting import compare, status
+    from sr_imitation.stream.rundir import PROGRESS_FILE
+
+    run = _write_run(tmp_path, "run", _results())
+    write_checked_json(run / PROGRESS_FILE, {"version": 2, "completed": {"1.wake": {"seconds": 1.0}}})
+    data = {k: v for k, v in json.loads((run / "results.json").read_text()).items() if k != "sha256"}
+    (run / "results.json").write_text(json.dumps(data | {"results_version": 3}))
+    expected = "results.json: unsealed (results_version 3) and does not read as its schema (metrics.afsr.final is dict"
+    with pytest.raises(CorruptFileError, match=re.escape(expected)):
+        load_results(run)
+    for prog, command, args in (("summary", main, [str(run)]), ("compare", compare.main, [str(run), str(run)])):
+        with pytest.raises(SystemExit) as exc:
+            run_cli(f"sr_imitation.reporting.{prog}", command, args)
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and err.count("\n") == 1 and f"{run / 'results.json'}: unsealed" in err, prog
+    row = status.run_status(run)  # status shows the run, its result not trusted
+    assert row["final"].startswith("results.json not trusted (unsealed (results_version 3)")
+
+
+def test_summary_refuses_a_run_whose_train_config_was_edited(tmp_path, capsys):
+    """As a resume does: an edited sealed ``train_config.json``, or an unsealed one that differs from the run's
+    fingerprint, is one line naming it. Before: a normal table."""
+    from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, settings_fingerprint, write_fingerprint
+
+    run = _write_run(tmp_path, "run", _results())
+    config = {"method": "sr", "seed": 0, "sleep": {"enabled": True}, "output_dir": "."}
+    write_fingerprint(run / FINGERPRINT_FILE, settings_fingerprint(config, ("output_dir",)))
+    write_checked_json(run / "train_config.json", config)
+    assert summarize(group_runs([run]))["variants"]["sr"]["runs"] == {"0": str(run)}
+    path = run / "train_config.json"
+    sealed = path.read_text()
+    edits = {"contents do not match its sha256": sealed.replace('"seed": 0', '"seed": 1'),
+             "differs from settings_fingerprint.json in seed": json.dumps(config | {"seed": 1})}  # unsealed
+    for problem, text in edits.items():
+        path.write_text(text)
+        with pytest.raises(CorruptFileError, match=re.escape(f"{path}: {problem}")):
+            group_runs([run])
+        with pytest.raises(SystemExit) as exc:
+            run_cli("sr_imitation.reporting.summary", main, [str(run)])
+        err = capsys.readouterr().err
+        assert exc.value.code == 2 and err.count("\n") == 1 and f"{path}: {problem}" in err

@@ -283,3 +283,33 @@ def test_every_sealed_file_is_verified_before_a_resume_writes(tmp_path, uninterr
         with pytest.raises(CorruptFileError, match=re.escape(name)):
             SACTrainer(tiny_config(run, resume=True, **cfg)).run()
         assert tree_state(run) == before, name
+
+
+def test_a_start_killed_while_writing_train_config_resumes_to_the_uninterrupted_files(tmp_path, uninterrupted,
+                                                                                       monkeypatch):
+    """Killed inside the atomic write of ``train_config.json`` (its torn temporary file left, the fingerprint
+    complete): the resume writes the config from its own (fingerprint-checked) settings, byte-identical to an
+    uninterrupted run's, and continues. Before: it finished without one."""
+    from sr_imitation.stream import rundir
+
+    cfg = dict(eval=EvalConfig(episodes=2, videos_per_skill=0))
+    run, real = tmp_path / "killed", rundir.write_checked_json
+
+    def killed_inside_the_config_write(path, obj):
+        if Path(path).name != "train_config.json":
+            return real(path, obj)
+        (Path(path).parent / ".train_config.json.x1.tmp").write_text('{"output_dir": ".", "se')  # what a kill leaves
+        raise SimulatedKillError
+
+    with monkeypatch.context() as patch:
+        patch.setattr(rundir, "write_checked_json", killed_inside_the_config_write)
+        with pytest.raises(SimulatedKillError):
+            SACTrainer(tiny_config(run, **cfg)).run()
+    assert sorted(p.name for p in run.iterdir()) == [".train_config.json.x1.tmp", "settings_fingerprint.json"]
+    with pytest.raises(SimulatedKillError):  # resumed, and stopped again after its first phase
+        SACTrainer(tiny_config(run, resume=True, **cfg),
+                   after_phase=lambda k, p: (_ for _ in ()).throw(SimulatedKillError)).run()
+    full_out, _ = uninterrupted
+    for name in ("train_config.json", "settings_fingerprint.json"):
+        assert (run / name).read_bytes() == (full_out / name).read_bytes(), name
+    assert not list(run.glob(".*.tmp"))
