@@ -25,9 +25,7 @@ result spans are recorded with it in docs/RESULTS.md). Keys it has with another 
 
 from __future__ import annotations
 
-import fnmatch
 import logging
-import os
 import shutil
 import tempfile
 from collections.abc import Callable, Mapping
@@ -41,7 +39,14 @@ from sr_imitation.infra.fingerprint import (
     diff_settings,
     read_fingerprint,
 )
-from sr_imitation.io import CorruptFileError, file_digest, read_checked_json, write_checked_json
+from sr_imitation.infra.weight_store import (  # noqa: F401 (verify_weights: re-exported for the drivers)
+    WEIGHTS_FILE,
+    replace_dir,
+    store_weights,
+    verify_weights,
+    weight_store,
+)
+from sr_imitation.io import write_checked_json
 from sr_imitation.stream.rundir import OverwriteRefusedError, few_names
 
 logger = logging.getLogger(__name__)
@@ -49,16 +54,9 @@ logger = logging.getLogger(__name__)
 RunKey = tuple[str, int]
 """(variant, training seed)."""
 
-WEIGHTS_FILE = "weights.json"
-"""In an archived run: the weight store's file list (relative path -> bytes and sha256), sealed."""
-WEIGHTS_FORMAT = "sr_imitation.weights"
 ARCHIVED_FILES = ("results.json", "results.md", "progress.json", "settings_fingerprint.json", "train_config.json",
                   "config.json", "metrics.png", "success_matrix.png", WEIGHTS_FILE)
 """The files of a run directory the archive keeps (those present): what the summaries and docs/RESULTS.md read."""
-NOT_STORED = ("videos", "wandb", "log.jsonl", "*.png", "*.md", "*.mp4", ".*", "wake_snapshot.safetensors")
-"""What the weight store leaves out of a run (fnmatch on each path part): nothing a resume or a re-sleep reads."""
-
-
 def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerprint) -> Path | None:
     """``archive / name`` if it holds a finished run with ``fingerprint``'s settings, else ``None``.
 
@@ -77,67 +75,6 @@ def archived_run(archive: Path | None, name: str, fingerprint: SettingsFingerpri
         logger.warning("%s predates the settings %s (added to the code since it ran); counted as finished",
                        run, ", ".join(sorted(added)))
     return run
-
-
-def weight_store(archive: Path) -> Path:
-    """The git-ignored folder beside ``archive`` that keeps its runs' weights: ``<archive>.weights``."""
-    archive = Path(archive)
-    return archive.with_name(f"{archive.name}.weights")
-
-
-def _stored(relative: Path) -> bool:
-    return not any(fnmatch.fnmatchcase(part, pattern) for part in relative.parts for pattern in NOT_STORED)
-
-
-def store_weights(run: Path, store: Path) -> dict[str, Any]:
-    """Copy what a resume or a re-sleep of ``run`` reads (everything but :data:`NOT_STORED`; links are not followed)
-    into ``store`` (replaced atomically) and return its file list: ``{"format", "store", "files": {path: {"bytes",
-    "sha256"}}}``, ``store`` relative to the archive's parent."""
-    run, store = Path(run), Path(store)
-    files = sorted(p for p in run.rglob("*") if p.is_file() and not p.is_symlink() and _stored(p.relative_to(run)))
-    store.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{store.name}.", suffix=".tmp", dir=store.parent))
-    listing: dict[str, dict[str, Any]] = {}
-    try:
-        for path in files:
-            rel = path.relative_to(run)
-            (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
-            shutil.copy2(path, tmp / rel)
-            listing[rel.as_posix()] = {"bytes": (tmp / rel).stat().st_size, "sha256": file_digest(tmp / rel)}
-        _replace_dir(tmp, store)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return {"format": WEIGHTS_FORMAT, "store": f"{store.parent.name}/{store.name}", "files": listing}
-
-
-def verify_weights(archived: Path, store: Path | None = None) -> Path:
-    """Check an archived run's weight store against its ``weights.json``: every listed file present with its size and
-    sha256 (:class:`CorruptFileError` naming the first that is not). ``store``: where the files are (default: the
-    archive's ``.weights`` sibling). Returns the store."""
-    archived = Path(archived)
-    listing = read_checked_json(archived / WEIGHTS_FILE)
-    if store is None:
-        store = weight_store(archived.parent) / archived.name
-    for rel, want in listing["files"].items():
-        path = Path(store) / rel
-        if not path.is_file():
-            raise CorruptFileError(path, f"missing from the weight store (listed in {archived / WEIGHTS_FILE})")
-        if path.stat().st_size != want["bytes"] or file_digest(path) != want["sha256"]:
-            raise CorruptFileError(path, f"differs from its checksum in {archived / WEIGHTS_FILE}")
-    return Path(store)
-
-
-def _replace_dir(tmp: Path, target: Path) -> None:
-    """Rename ``tmp`` to ``target``, the old ``target`` (if any) set aside first and removed after."""
-    old = None
-    if target.exists():
-        old = target.with_name(f".{target.name}.old")
-        shutil.rmtree(old, ignore_errors=True)
-        os.replace(target, old)
-    os.replace(tmp, target)
-    if old is not None:
-        shutil.rmtree(old)
 
 
 def archive_run(run: Path, archive: Path, name: str, keep_weights: bool = False) -> Path:
@@ -160,7 +97,7 @@ def archive_run(run: Path, archive: Path, name: str, keep_weights: bool = False)
                 shutil.copy2(run / file, tmp / file)
         if keep_weights:
             write_checked_json(tmp / WEIGHTS_FILE, store_weights(run, weight_store(archive) / name))
-        _replace_dir(tmp, target)
+        replace_dir(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise

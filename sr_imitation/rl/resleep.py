@@ -17,7 +17,7 @@ would be the source's).
 Only settings a re-sleep may change are accepted (:data:`CHANGEABLE`: the sleep's, SR's method options, the
 evaluation videos); anything else differing from the source's stored settings is refused in one line before
 anything is written. With ``--archived`` the source's files are first checked against the archive's
-``weights.json`` (:func:`~sr_imitation.experiments.archive.verify_weights`). What was re-slept from what is
+``weights.json`` (:func:`~sr_imitation.infra.weight_store.verify_weights`). What was re-slept from what is
 recorded in ``resleep.json`` (sealed; written last, once the new run holds everything it takes from the source)
 beside the run's own files. The same command again continues a killed re-sleep (or rewrites a finished one's
 report); a start killed before ``resleep.json`` exists is redone with ``--overwrite=true``. With the source's
@@ -154,7 +154,7 @@ def _check_same_resleep(cfg: ResleepConfig, run_cfg: Any, record: dict[str, Any]
 
 def resleep(cfg: ResleepConfig) -> dict[str, Any]:
     """Redo the sleep (see the module docstring); returns the new run's results."""
-    from sr_imitation.experiments.archive import verify_weights
+    from sr_imitation.infra.weight_store import verify_weights
     from sr_imitation.rl.cli import parse
     from sr_imitation.rl.trainer import SACTrainer
 
