@@ -57,6 +57,7 @@ from __future__ import annotations
 import dataclasses
 import logging
 import math
+import re
 import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -100,7 +101,7 @@ from sr_imitation.imitation.substrate import (
     save_pretrained_model,
     seed_everything,
 )
-from sr_imitation.infra.fingerprint import to_jsonable
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, to_jsonable
 from sr_imitation.io import (
     MANIFEST,
     CorruptFileError,
@@ -111,7 +112,7 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
-from sr_imitation.stream.rundir import OverwriteRefusedError, few_names
+from sr_imitation.stream.rundir import RUN_CONFIG_FILE, OverwriteRefusedError, check_run_config, few_names
 
 logger = logging.getLogger(__name__)
 
@@ -379,6 +380,43 @@ def snapshot_directory(path: Path, memory: ActorMemory) -> Path | None:
     return None
 
 
+STAGE_REFERENCE = re.compile(r"(?:^|/)skill_(\d+)_")
+"""An ``sr-train`` memory's snapshot reference, ``skill_<k>_<skill>/wake``: the stage k it was written at."""
+RUN_SEARCH_DEPTH = 4
+"""Folders above ``--policy.path`` searched for the ``sr-train`` run holding it (``<run>/skill_k_<skill>/<phase>/
+pretrained_model``)."""
+
+
+def policy_run_skills(policy_path: Path) -> tuple[Path, list[str]] | None:
+    """The ``sr-train`` run holding the policy (a folder above it with the run's settings fingerprint and
+    ``train_config.json``, checked as a resume checks it) and its skill order, or ``None``."""
+    for folder in list(Path(policy_path).resolve().parents)[:RUN_SEARCH_DEPTH]:
+        if (folder / FINGERPRINT_FILE).is_file() and (folder / RUN_CONFIG_FILE).is_file():
+            config = check_run_config(folder) or {}
+            skills = (config.get("stream") or {}).get("skills")
+            return (folder, [str(x) for x in skills]) if isinstance(skills, list) else None
+    return None
+
+
+def check_memory_order(paths: Sequence[Path], memories: Sequence[ActorMemory], policy_path: Path) -> None:
+    """The memories are in skill order, the newest last, as far as the memories or the policy's run record it: the
+    stage each memory's snapshot names (``skill_<k>_...``), else the run's ``stream.skills`` for the memories' skills.
+    A sleep weighs and gates memories by their position (M_k is the newest skill; the gate of Eq. 2 uses the wake
+    snapshots of M_1..M_{k-1}), so another order is refused in one line naming the expected order."""
+    stages = [STAGE_REFERENCE.search(str(m.config.get("snapshot", ""))) for m in memories]
+    if all(stages):
+        keys, source = [int(match.group(1)) for match in stages], "their snapshots' stages"
+    else:
+        found = policy_run_skills(policy_path)
+        if found is None or not all(m.skill in found[1] for m in memories):
+            return  # nothing records an order (stock memories beside a deployed checkpoint)
+        keys, source = [found[1].index(m.skill) for m in memories], f"the skill order of {found[0] / RUN_CONFIG_FILE}"
+    if keys != sorted(keys):
+        expected = [str(path) for _, path in sorted(zip(keys, paths, strict=True), key=lambda pair: pair[0])]
+        raise ValueError(f"memories: given as skills {[m.skill for m in memories]}, not in skill order by {source}; "
+                         f"give them oldest first: --memories=[{','.join(expected)}]")
+
+
 def expected_observations(config: ACTSRConfig, stored: Sequence[str]) -> dict[str, tuple[int, ...]]:
     """The raw observations (key -> shape per sample) a memory must hold for the policy: its input features, less
     the environment state that state-only ACT-SR feeds from the robot state when it is not stored."""
@@ -581,6 +619,7 @@ def check_inputs(cfg: OfflineSleepConfig, custom_env: bool = False) -> SleepInpu
         check_eval_envs(cfg.eval)
     loaded = load_policy(Path(cfg.policy.path), cfg.policy.device)
     read = [read_actor_memory(path, loaded) for path in cfg.memories]
+    check_memory_order(cfg.memories, [r.memory for r in read], Path(cfg.policy.path))
     statistics = settle_statistics(loaded, [r.snapshot_stats for r in read], cfg.min_std)
     memories = [express_targets(r, loaded) for r in read]
     anchor = None

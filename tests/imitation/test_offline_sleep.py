@@ -323,3 +323,23 @@ def test_the_console_script_answers_a_missing_memory_in_one_line(run, tmp_path):
     assert proc.returncode == 2, proc.stderr[-2000:]
     assert proc.stderr.strip() == (f"sr-sleep: error: {missing}: no such file (--debug shows the traceback)")
     assert not (tmp_path / "slept").exists()
+
+
+def test_memories_out_of_skill_order_are_refused_naming_the_order(run, tmp_path, capsys):
+    """Newest-first memories are refused in one line naming the order to give, by the stages the memories record
+    (their snapshots' ``skill_<k>_...``) or, for memories that record none, by the policy's run's skill order.
+    Before: accepted, and slept with the newest skill as M_1."""
+    out, _ = run
+    policy, (m1, m2) = _stage(out, 2, "wake"), _memories(out, 2)
+    args = [f"--policy.path={policy}", f"--output_dir={tmp_path / 'slept'}", "--progress=false"]
+    err = _one_line_error(capsys, [*args, f"--memories=[{m2},{m1}]"])
+    assert "not in skill order by their snapshots' stages" in err and f"--memories=[{m1},{m2}]" in err
+    # memories without a stage of their own (as stock lerobot-train writes them): the policy's run decides
+    unstaged = []
+    for path in (m1, m2):
+        memory = load_memory(path)
+        unstaged.append(tmp_path / path.name)
+        ActorMemory(memory.skill, dict(memory.tensors), {**memory.config, "snapshot": "."}).save(unstaged[-1])
+    err = _one_line_error(capsys, [*args, f"--memories=[{unstaged[1]},{unstaged[0]}]"])
+    assert f"not in skill order by the skill order of {out.resolve() / 'train_config.json'}" in err
+    assert f"--memories=[{unstaged[0]},{unstaged[1]}]" in err and not (tmp_path / "slept").exists()

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import pytest
 
+from sr_imitation.infra.fingerprint import settings_fingerprint, write_fingerprint
 from sr_imitation.io import write_checked_json
 from sr_imitation.reporting.status import find_runs, main, run_status
 
@@ -63,8 +64,9 @@ def test_a_run_that_has_started_and_recorded_no_phase_is_listed_as_started(tmp_p
     """An MT-Joint oracle's one wake records nothing for an hour: its settings fingerprint says it exists."""
     run = tmp_path / "grid" / "mt_joint_0" / "mt_joint_seed0"
     run.mkdir(parents=True)
-    (run / "settings_fingerprint.json").write_text("{}")
-    (run / "train_config.json").write_text(json.dumps({"mt_joint": True, "seed": 0, "stream": {"skills": SKILLS}}))
+    config = {"mt_joint": True, "seed": 0, "stream": {"skills": SKILLS}}
+    write_fingerprint(run / "settings_fingerprint.json", settings_fingerprint(config))  # (status checks it)
+    (run / "train_config.json").write_text(json.dumps(config))
     assert find_runs([tmp_path / "grid"]) == [run]
     status = run_status(run)
     assert (status["done"], status["stages"], status["last_phase"], status["variant"]) == (0, 1, None, "mt_joint")
