@@ -9,6 +9,7 @@ fail.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import shutil
@@ -134,8 +135,10 @@ ALLOWED_CHANGES: dict[str, Any] = {
 
 
 def check_resume(cfg, fingerprint) -> None:
-    """The resume check of a run directory against ``fingerprint`` (what a resume of ``cfg`` runs first)."""
-    run = ACTTrainer(cfg).run_dir
+    """The resume check of a run directory against ``fingerprint`` (what a resume of ``cfg`` runs first). The run is
+    built without ``overwrite`` (a command line cannot ask for both, and StreamRun refuses the pair); ``fingerprint``
+    is still ``cfg``'s."""
+    run = ACTTrainer(dataclasses.replace(cfg, overwrite=False)).run_dir
     run.fingerprint = fingerprint
     run.check_settings_against_run()
 

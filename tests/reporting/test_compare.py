@@ -124,9 +124,11 @@ def test_two_folders_of_runs_are_compared_run_by_run(runs, tmp_path, capsys):
 
 
 def test_runs_that_have_measured_nothing_yet_do_not_agree(tmp_path, capsys):
+    from sr_imitation.infra.fingerprint import settings_fingerprint, write_fingerprint
+
     for name in ("a", "b"):
         (tmp_path / name).mkdir()
-        (tmp_path / name / "settings_fingerprint.json").write_text("{}")
+        write_fingerprint(tmp_path / name / "settings_fingerprint.json", settings_fingerprint({"seed": 0}))
     assert main([str(tmp_path / "a"), str(tmp_path / "b")]) == 1
     assert "0 measured values compared: nothing measured yet" in capsys.readouterr().out
 
