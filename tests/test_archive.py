@@ -7,14 +7,9 @@ import logging
 
 import pytest
 
-from sr_imitation.experiments.archive import (
-    WEIGHTS_FILE,
-    archive_run,
-    archived_run,
-    verify_weights,
-    weight_store,
-)
+from sr_imitation.experiments.archive import archive_run, archived_run
 from sr_imitation.infra.fingerprint import SettingsMismatchError, settings_fingerprint, write_fingerprint
+from sr_imitation.infra.weight_store import WEIGHTS_FILE, verify_weights, weight_store
 from sr_imitation.io import CorruptFileError, read_checked_json
 
 SETTINGS = {"seed": 0, "sleep": {"lr": 1e-5, "enabled": True}, "output_dir": "x"}

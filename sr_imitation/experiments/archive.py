@@ -39,13 +39,7 @@ from sr_imitation.infra.fingerprint import (
     diff_settings,
     read_fingerprint,
 )
-from sr_imitation.infra.weight_store import (  # noqa: F401 (verify_weights: re-exported for the drivers)
-    WEIGHTS_FILE,
-    replace_dir,
-    store_weights,
-    verify_weights,
-    weight_store,
-)
+from sr_imitation.infra.weight_store import WEIGHTS_FILE, replace_dir, store_weights, weight_store
 from sr_imitation.io import write_checked_json
 from sr_imitation.stream.rundir import OverwriteRefusedError, few_names
 

@@ -27,11 +27,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
-from sr_imitation.experiments.archive import archive_run, verify_weights, weight_store
+from sr_imitation.core.metrics import mean_sem
+from sr_imitation.experiments.archive import archive_run
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.weight_store import verify_weights, weight_store
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.stream.config import check_choices
 
@@ -115,15 +115,10 @@ def before_sleep(cfg: ScreeningConfig, seed: int) -> dict[str, Any]:
     substrate.load_policy(last, "wake")
     rows, _ = substrate.evaluate_rows(last, list(range(last + 1)), videos=False, trajectories=False)
     record = {"seed": seed, "stage": last + 1, "checkpoint": f"{substrate.stage_dir(last).name}/wake",
-              "skills": [canonical(s) for s in substrate.skills], "success": [r["success_rate"] for r in rows]}
+              "skills": [substrate.memory_skill(i) for i in range(last + 1)],
+              "success": [r["success_rate"] for r in rows]}
     write_checked_json(path, record)
     return record
-
-
-def canonical(skill: str) -> str:
-    from sr_imitation.envs.metaworld.tasks import canonical_skill
-
-    return canonical_skill(skill)
 
 
 def row_of(candidate: str, seed: int, results: Mapping[str, Any], archived: Mapping[str, Any] | None
@@ -143,9 +138,10 @@ def row_of(candidate: str, seed: int, results: Mapping[str, Any], archived: Mapp
 
 
 def mean_se(values: Sequence[float]) -> dict[str, float | None]:
-    """Mean and standard error over seeds (``se`` none for one seed)."""
-    v = np.asarray(values, dtype=float)
-    return {"mean": float(v.mean()), "se": float(v.std(ddof=1) / math.sqrt(len(v))) if len(v) > 1 else None}
+    """Mean and standard error over seeds (:func:`~sr_imitation.core.metrics.mean_sem`; ``se`` none for one seed,
+    so that the JSON holds no NaN)."""
+    mean, sem = mean_sem(values)
+    return {"mean": mean, "se": None if math.isnan(sem) else sem}
 
 
 def rule_a(means: Mapping[str, float]) -> dict[str, Any]:

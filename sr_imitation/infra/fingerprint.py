@@ -233,13 +233,18 @@ def check_settings(path: str | os.PathLike[str], stored: Mapping[str, Any], curr
     run's stored config, see :func:`settings_from_config`) is not counted; a key under one of ``current.derived``
     that ``stored`` lacks is taken as equal (the run predates it: its code did not record it), and a key of
     ``current.added`` that ``stored`` lacks as holding its value there."""
+    diffs = resume_differences(stored, current)
+    if diffs:
+        raise SettingsMismatchError(path, diffs)
+
+
+def resume_differences(stored: Mapping[str, Any], current: SettingsFingerprint) -> dict[str, tuple[Any, Any]]:
+    """What :func:`check_settings` refuses: the keys whose values differ between ``stored`` and ``current`` after its
+    allow-list, derived and added settings are accounted for (see there)."""
     stored = {k: v for k, v in stored.items() if not is_allowed(k, current.allow)}
     predates = {k: v for k, v in current.settings.items() if k not in stored and is_allowed(k, current.derived)}
     older = {k: v for k, v in current.added.items() if k not in stored and not is_allowed(k, current.allow)}
-    stored = {**stored, **predates, **older}
-    diffs = diff_settings(stored, current.settings)
-    if diffs:
-        raise SettingsMismatchError(path, diffs)
+    return diff_settings({**stored, **predates, **older}, current.settings)
 
 
 def write_fingerprint(path: str | os.PathLike[str], fingerprint: SettingsFingerprint) -> Path:

@@ -39,9 +39,8 @@ from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
-    diff_settings,
-    is_allowed,
     read_fingerprint,
+    resume_differences,
     settings_digest,
 )
 from sr_imitation.io import read_checked_json, write_checked_json
@@ -89,10 +88,7 @@ def check_changes(source: Path, fingerprint: SettingsFingerprint) -> list[str]:
     """The settings keys that differ from the source's fingerprint (compared as a resume compares them:
     :func:`~sr_imitation.infra.fingerprint.check_settings`); ``ValueError`` naming the first ones a re-sleep may
     not change."""
-    stored = {k: v for k, v in read_fingerprint(source / FINGERPRINT_FILE).items()
-              if not is_allowed(k, fingerprint.allow)}
-    predates = {k: v for k, v in fingerprint.settings.items() if k not in stored and is_allowed(k, fingerprint.derived)}
-    changed = sorted(diff_settings({**stored, **predates}, fingerprint.settings))
+    changed = sorted(resume_differences(read_fingerprint(source / FINGERPRINT_FILE), fingerprint))
     refused = [k for k in changed if k.startswith(WAKE_OPTIONS) or not k.startswith(CHANGEABLE)]
     if refused:
         raise ValueError(f"changes: a re-sleep may change the sleep's settings only; {', '.join(refused[:4])} would "
@@ -100,7 +96,7 @@ def check_changes(source: Path, fingerprint: SettingsFingerprint) -> list[str]:
     return changed
 
 
-def seed_run(cfg: ResleepConfig, run_cfg: Any, trainer: Any) -> dict[str, Any]:
+def seed_run(cfg: ResleepConfig, run_cfg: Any, trainer: Any, changed: list[str]) -> dict[str, Any]:
     """Make ``output_dir`` the source run killed after the re-slept stage's wake evaluation: its fingerprint and
     config (the new settings), the stages before (every file), the stage's own wake files, and the records of
     those phases except the memory phases (redone from the stored wakes). Returns the ``resleep.json`` record."""
@@ -131,21 +127,21 @@ def seed_run(cfg: ResleepConfig, run_cfg: Any, trainer: Any) -> dict[str, Any]:
             ignore = shutil.ignore_patterns(*REDONE) if i == k else None
             shutil.copytree(src, substrate.stage_dir(i), ignore=ignore, dirs_exist_ok=False)
         rd.mark_all(keep)
-        record = seeding_record(cfg, run_cfg, stage)
+        record = seeding_record(cfg, changed, stage)
         write_checked_json(rd.path / RESLEEP_FILE, record)  # last: the seeded run is complete once it exists
     return record
 
 
-def seeding_record(cfg: ResleepConfig, run_cfg: Any, stage: int) -> dict[str, Any]:
+def seeding_record(cfg: ResleepConfig, changed: list[str], stage: int) -> dict[str, Any]:
     """What ``resleep.json`` records: the source (and its settings' sha256), the stage, the changes."""
     source = Path(cfg.source)
     return {"source": str(source), "archived": None if cfg.archived is None else str(cfg.archived), "stage": stage,
-            "changed": check_changes(source, run_cfg.resume_fingerprint()), "changes": list(cfg.changes),
+            "changed": changed, "changes": list(cfg.changes),
             "source_settings_sha256": settings_digest(read_fingerprint(source / FINGERPRINT_FILE))}
 
 
-def _check_same_resleep(cfg: ResleepConfig, run_cfg: Any, record: dict[str, Any], path: Path) -> None:
-    want = seeding_record(cfg, run_cfg, record.get("stage", 0))
+def _check_same_resleep(cfg: ResleepConfig, changed: list[str], record: dict[str, Any], path: Path) -> None:
+    want = seeding_record(cfg, changed, record.get("stage", 0))
     differ = [k for k in ("source", "stage", "changes", "source_settings_sha256") if record.get(k) != want[k]]
     if differ:
         raise ValueError(f"{path}: a re-sleep of another source or with other changes ({', '.join(differ)} differ); "
@@ -171,11 +167,11 @@ def resleep(cfg: ResleepConfig) -> dict[str, Any]:
     seeded = Path(cfg.output_dir) / RESLEEP_FILE
     if seeded.is_file() and not cfg.overwrite:  # the same re-sleep, killed or finished: continue it
         record = read_checked_json(seeded)
-        _check_same_resleep(cfg, run_cfg, record, seeded)
+        _check_same_resleep(cfg, changed, record, seeded)
         logger.info("continuing the re-sleep in %s", cfg.output_dir)
     else:
         logger.info("re-sleeping %s: settings changed %s", source, changed or "none (a repeat of its sleep)")
-        record = seed_run(cfg, run_cfg, SACTrainer(run_cfg))
+        record = seed_run(cfg, run_cfg, SACTrainer(run_cfg), changed)
     run_cfg.resume, run_cfg.overwrite = True, False
     results = SACTrainer(run_cfg).run()
     logger.info("re-slept stage %d of %s: final AFSR %s; results in %s", record["stage"], source,
