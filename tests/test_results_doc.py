@@ -373,7 +373,7 @@ def test_only_tests_stated_before_any_run_are_labelled_pre_registered_in_an_arch
 def test_every_mt5_test_run_ran_the_recorded_test_preset():
     """Each archived test run of the MT5 imitation stream is ``configs/metaworld_mt5_imitation.json`` with exactly
     the ``--extra`` flags of RESULTS' dated test-preset line (08:49 UTC), on a training seed 0-9 (calibration seeds
-    never enter a test)."""
+    never enter a test); ``configs/metaworld_mt5_imitation_test.json`` is that preset as a file of its own."""
     line = re.search(r"the test preset \(recorded before any test-seed run\).*?\n\n\s+(--extra=\[.*?\])\n",
                      (DOCS / "RESULTS.md").read_text(), re.S)
     assert line is not None
@@ -383,6 +383,8 @@ def test_every_mt5_test_run_ran_the_recorded_test_preset():
     preset = _flat(json.loads((DOCS.parent / "configs" / "metaworld_mt5_imitation.json").read_text()))
     expected = {k: v for k, v in preset.items() if k not in ("output_dir", "seed", "method")}
     expected.update({k: type(preset[k])(v) if k in preset else v for k, v in flags.items()})
+    test_preset = _flat(json.loads((DOCS.parent / "configs" / "metaworld_mt5_imitation_test.json").read_text()))
+    assert {k: v for k, v in test_preset.items() if k not in ("output_dir", "seed", "method")} == expected
     from sr_imitation.experiments.needle_compare import VARIANTS as NEEDLE_VARIANTS
 
     runs = sorted((DOCS / "results" / "metaworld_mt5_imitation_compare").glob("*_seed*"))

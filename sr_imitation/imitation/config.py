@@ -24,6 +24,7 @@ from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.imitation.data import STATS_SOURCES, cached_dataset_path
 from sr_imitation.imitation.dataset_identity import check_inputs, dataset_inputs
 from sr_imitation.imitation.evaluate import EvalConfig
+from sr_imitation.imitation.report import PAIR_LISTS
 from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.infra.fingerprint import (
     RUN_DIRECTORY,
@@ -117,6 +118,8 @@ class StreamConfig(StreamSettings):
         if len(set(self.skills)) != len(self.skills):
             repeated = sorted({s for s in self.skills if self.skills.count(s) > 1})
             raise ValueError(f"stream.skills must be distinct, got {self.skills} ({repeated} more than once)")
+        if self.pairs not in PAIR_LISTS:
+            raise ValueError(f"stream.pairs must be one of {PAIR_LISTS}, got {self.pairs!r}")
         if self.stats not in STATS_SOURCES:
             raise ValueError(f"stream.stats must be one of {STATS_SOURCES}, got {self.stats!r}")
         if not self.reexpress_inputs and self.stats != "seen":

@@ -42,6 +42,10 @@ from sr_imitation.reporting.results import (
 from sr_imitation.stream.substrate import PHASES
 
 
+PAIR_LISTS = ("surgicai", "mt5", "all", "adjacent")
+"""The names ``--stream.pairs`` takes (:func:`pair_list`)."""
+
+
 def pair_list(name: str, skills: Sequence[str]) -> list[tuple[str, str]]:
     """``surgicai`` (the paper's 7 pairs), ``mt5`` (the paper's 6 MT5 pairs, matched by Meta-World skill identity:
     ``reach-v3`` is ``reach``), each restricted to the skills in the stream, ``all`` or ``adjacent``."""
@@ -55,7 +59,16 @@ def pair_list(name: str, skills: Sequence[str]) -> list[tuple[str, str]]:
         return list(all_pairs(list(skills)))
     if name == "adjacent":
         return list(zip(skills[:-1], skills[1:], strict=True))
-    raise ValueError(f"unknown pair list {name!r}; choose surgicai, mt5, all or adjacent")
+    raise ValueError(f"unknown pair list {name!r}; choose one of {PAIR_LISTS}")
+
+
+def no_pairs_warning(name: str, skills: Sequence[str]) -> str | None:
+    """Why PRS will be n/a on this stream, when the pair list ``name`` holds no pair of its ``skills`` (e.g. the
+    default ``surgicai`` on Meta-World skills); ``None`` when it holds one, or the stream has one skill."""
+    if len(skills) < 2 or pair_list(name, skills):
+        return None
+    return (f"--stream.pairs={name} names no pair of the skills {list(skills)}: PRS (Eq. 5) will be n/a; "
+            "--stream.pairs=mt5 (Meta-World's MT5 skills), all or adjacent give it pairs")
 
 
 def _load_eval(phase_dir: Path) -> dict[str, Any]:

@@ -57,7 +57,7 @@ from sr_imitation.imitation.normalization import (
     retarget,
     same_stats,
 )
-from sr_imitation.imitation.report import TRAJECTORIES_FILE, write_report
+from sr_imitation.imitation.report import TRAJECTORIES_FILE, no_pairs_warning, write_report
 from sr_imitation.imitation.wake import validation_l1, wake_train
 from sr_imitation.infra import distributed
 from sr_imitation.infra.threads import set_torch_threads
@@ -172,6 +172,8 @@ class ACTSubstrate:
     # -- set-up ------------------------------------------------------------------------------------------
     def setup(self) -> None:
         set_torch_threads(self.cfg.torch_threads, logger)
+        if (why := no_pairs_warning(self.cfg.stream.pairs, self.skills)) is not None:
+            logger.warning(why)
         first_meta = load_metadata(self.cfg.stream.dataset_path(0), self.cfg.stream.repo_id(0))
         inputs, outputs = policy_features(first_meta, self.policy_cfg.use_images)
         self.policy_cfg.input_features, self.policy_cfg.output_features = inputs, outputs

@@ -253,6 +253,7 @@ def render_markdown(results: Mapping[str, Any]) -> str:
         m = results["metrics"][name]
         curve = ", ".join("-" if x is None else f"{x:.3f}" for x in m["curve"])
         lines.append(f"| {LABELS[name]} | {_fmt(m['final'], m['final_sem'])} | {curve} |")
+    lines += _prs_note(results)
     lines += ["", "Success S[k][i] (rows: after stage k; mean over evaluation units):", "",
               "| after \\ skill | " + " | ".join(skills) + " |", "|---" * (len(skills) + 1) + "|"]
     for k, row in enumerate(results["success_matrix"]):
@@ -263,6 +264,20 @@ def render_markdown(results: Mapping[str, Any]) -> str:
     if code.get("commit"):
         lines += [f"Code: commit {code['commit']}" + (" with uncommitted changes" if code.get("dirty") else ""), ""]
     return "\n".join(lines)
+
+
+def _prs_note(results: Mapping[str, Any]) -> list[str]:
+    """Why PRS is n/a, where it is: one skill, or a pair list holding no pair of the stream's skills."""
+    if results["metrics"]["prs"]["final"] is not None:
+        return []
+    if len(results["skills"]) < 2:
+        return ["", "PRS is n/a: it needs two skills (Eq. 5)."]
+    if not results.get("pairs"):
+        chosen = ((results.get("config") or {}).get("stream") or {}).get("pairs")
+        flag = f" (--stream.pairs={chosen})" if chosen else ""
+        return ["", f"PRS is n/a: the pair list{flag} holds no pair of this stream's skills; --stream.pairs=mt5 "
+                    "(Meta-World's MT5 skills), all or adjacent give it pairs."]
+    return []
 
 
 def _losses_markdown(results: Mapping[str, Any]) -> list[str]:

@@ -138,7 +138,8 @@ class StreamEngine:
                         self.memories.append(self.substrate.load_memory(k, name=self.method.memory_name))
                     continue
                 if pending_load is not None:
-                    logger.info("resuming from stage %d %s", pending_load[0] + 1, pending_load[1])
+                    logger.info("resuming at stage %d (%s) %s, from the policy of stage %d %s", k + 1, self.skills[k],
+                                phase, pending_load[0] + 1, pending_load[1])
                     self.substrate.load_policy(*pending_load)
                     pending_load = None
                 self.substrate.begin_phase(k, phase, self.phase_seed(k, phase))

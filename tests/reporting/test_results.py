@@ -78,6 +78,16 @@ def test_labels_and_an_unmeasured_after_wake_reference():
     assert r["metrics"]["bwt_wake"]["final"] is None and r["metrics"]["bwt"]["final"] is not None
 
 
+def test_results_md_says_why_prs_is_not_available():
+    """A pair list with no pair of the stream's skills (the default ``surgicai`` on Meta-World skills) leaves PRS n/a;
+    results.md says so and names the flag, instead of a bare "n/a"; with pairs there is no such line."""
+    assert "PRS is n/a" not in render_markdown(_results())
+    r = _results(pairs=[], config={"eval": {"episodes": 5}, "stream": {"pairs": "surgicai"}})
+    assert r["metrics"]["prs"]["final"] is None
+    assert ("PRS is n/a: the pair list (--stream.pairs=surgicai) holds no pair of this stream's skills; "
+            "--stream.pairs=mt5") in render_markdown(r)
+
+
 def test_written_files_agree(tmp_path):
     r = _results()
     write_results(tmp_path, r)

@@ -211,13 +211,16 @@ def test_a_method_needing_a_wake_hook_the_substrate_does_not_call_is_refused(tmp
         METHODS.pop("batch_mixer")
 
 
-def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(tmp_path):
+def test_the_run_log_has_every_phase_and_sleep_iteration_and_survives_a_resume(tmp_path, caplog):
     from sr_imitation.infra.runlog import read_log
 
     out = tmp_path / "r"
     with pytest.raises(KilledError):
         make_engine(out, after_phase=lambda k, p: _raise() if (k, p) == (1, "sleep") else None).run()
-    make_engine(out, resume=True).run()
+    with caplog.at_level("INFO", logger="sr_imitation.stream.engine"):
+        make_engine(out, resume=True).run()
+    resumed = [r.getMessage() for r in caplog.records if r.getMessage().startswith("resuming")]
+    assert resumed == ["resuming at stage 2 (b) sleep.eval, from the policy of stage 2 sleep"]  # names where it goes on
     records = read_log(out / "log.jsonl")
     phases = [(r["stage"], r["phase"]) for r in records if r["kind"] == "phase"]
     assert phases == [(k + 1, p) for k in range(3) for p in make_engine(tmp_path / "x").phases(k)]
