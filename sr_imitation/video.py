@@ -69,6 +69,14 @@ class Mp4Writer:
             self.discard()
 
 
+def quiet_encoder_logs() -> None:
+    """Keep FFmpeg's own messages below errors out of this process's output: libx264 prints about 13 lines of
+    statistics for every video it closes (LeRobot's ``encode_video_frames`` does not keep them back), which buried
+    ``sr-record --video=true``'s own lines. Errors still print."""
+    av.logging.set_level(av.logging.ERROR)
+    av.logging.set_libav_level(av.logging.ERROR)  # the native level, used once LeRobot restores the default callback
+
+
 def write_mp4(path: str | os.PathLike[str], frames: Iterable[np.ndarray], fps: float = 30, codec: str = "h264") -> Path:
     """Encode uint8 (H, W, 3) frames (H and W even) to ``path`` atomically; returns the path."""
     with Mp4Writer(path, fps, codec) as writer:

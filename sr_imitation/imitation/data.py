@@ -25,6 +25,7 @@ from __future__ import annotations
 
 import json
 import logging
+import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -43,6 +44,12 @@ from lerobot_policy_act_sr.actor_memory import images_to_uint8
 from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
 
 logger = logging.getLogger(__name__)
+
+TORCHVISION_VIDEO_NOTICE = "The video decoding and encoding capabilities of torchvision are deprecated"
+"""The start of torchvision 0.25's notice on its video decoding, which LeRobot's ``pyav`` backend goes through: it
+printed once in every process that decodes (each DataLoader worker), and there is nothing a user can do about it
+here (torchcodec does not load on these machines), so it is kept out of the output (our choice)."""
+warnings.filterwarnings("ignore", message=TORCHVISION_VIDEO_NOTICE, category=UserWarning)  # workers fork with it
 
 STATS_KEYS = ("mean", "std", "min", "max")
 

@@ -41,7 +41,6 @@ from sr_imitation.reporting.results import (
 )
 from sr_imitation.stream.substrate import PHASES
 
-
 PAIR_LISTS = ("surgicai", "mt5", "all", "adjacent")
 """The names ``--stream.pairs`` takes (:func:`pair_list`)."""
 

@@ -9,10 +9,12 @@ import sys
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.recorders.needle import main as record_needle
 from sr_imitation.recorders.needle import report_recorded
+from sr_imitation.video import quiet_encoder_logs
 
 
 def main(args: list[str] | None = None) -> None:
     argv = list(sys.argv[1:] if args is None else args)
+    quiet_encoder_logs()
     if "--env=metaworld" not in argv:
         record_needle(argv)
         return

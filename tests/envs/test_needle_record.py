@@ -65,6 +65,18 @@ def test_record_video_mode_and_episode_videos(tmp_path):
     ]
 
 
+def test_sr_record_with_video_prints_its_own_lines_not_the_encoders(tmp_path, capfd):
+    """libx264 prints about 13 lines of statistics per video it closes (297 lines for a user's needle datasets);
+    ``sr-record`` keeps FFmpeg below errors out of the output (captured at the file descriptor: FFmpeg writes there)."""
+    from sr_imitation.recorders.cli import main
+
+    main([f"--root={tmp_path / 'needle'}", "--skills=[regrasp]", "--num_episodes=1", f"--image_size={SIZE}",
+          "--video=true"])
+    out, err = capfd.readouterr()
+    assert "wrote " in out and (tmp_path / "needle" / "regrasp" / "videos").is_dir()
+    assert "libx264" not in out + err and "kb/s" not in err, err[-2000:]
+
+
 def test_same_seed_same_data(tmp_path):
     for name in ("a", "b"):
         rec.record(

@@ -312,3 +312,17 @@ def test_chunk_and_features_returns_every_modality_and_the_encoder_output_in_one
     sum(f.pow(2).mean() for f in feats.values()).backward()
     assert policy.model.encoder_robot_state_input_proj.weight.grad.abs().sum() > 0
     assert all(not m._forward_hooks for m in policy.model.modules())
+
+
+def test_a_config_without_a_device_picks_one_quietly(caplog):
+    """LeRobot answers ``device=None`` with a warning ("Device 'None' is not available. Switching to 'cpu'.") on every
+    ``sr-train`` without a config; ACT-SR picks LeRobot's device order itself; a named, absent device still warns."""
+    from lerobot_policy_act_sr.configuration_act_sr import default_device
+
+    with caplog.at_level("WARNING"):
+        cfg = ACTSRConfig()
+    assert cfg.device == default_device() and not [r for r in caplog.records if "is not available" in r.getMessage()]
+    if not torch.cuda.is_available():
+        with caplog.at_level("WARNING"):
+            assert ACTSRConfig(device="cuda").device == default_device()
+        assert any("Device 'cuda' is not available" in r.getMessage() for r in caplog.records)

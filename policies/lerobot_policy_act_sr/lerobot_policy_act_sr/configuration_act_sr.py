@@ -19,8 +19,20 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import torch
 from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.act.configuration_act import ACTConfig
+
+
+def default_device() -> str:
+    """The device of a config that names none: ``cuda``, else ``mps``, else ``cpu`` (LeRobot's own order), chosen
+    quietly; a device that is named but absent still gets LeRobot's warning and the same fallback."""
+    if torch.cuda.is_available():
+        return "cuda"
+    if torch.backends.mps.is_available():
+        return "mps"
+    return "cpu"
+
 
 BACKBONE_NORMS = ("auto", "frozen_batch", "group")
 """Choices of :attr:`ACTSRConfig.backbone_norm`."""
@@ -97,6 +109,8 @@ class ACTSRConfig(ACTConfig):
     """Observations in that memory (null - 1024, the paper's |B_k|); on sr-train the same as --memory.buffer_size."""
 
     def __post_init__(self) -> None:
+        if self.device is None:  # LeRobot would pick the same device with a warning "Device 'None' is not available"
+            self.device = default_device()
         super().__post_init__()
         bad = [] if self.distill_batch_size > 0 else [f"distill_batch_size={self.distill_batch_size}"]
         non_negative = {"distill_weight_second": self.distill_weight_second,
