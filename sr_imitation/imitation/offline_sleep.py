@@ -112,6 +112,7 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
+from sr_imitation.progress import format_duration
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, OverwriteRefusedError, check_run_config, few_names
 
 logger = logging.getLogger(__name__)
@@ -771,14 +772,21 @@ def check_moved(memories: Sequence[LoadedMemory], before: Sequence[float], after
         "nothing was written")
 
 
-def _progress_logger(config: SleepConfig) -> Callable[[int, dict[str, Any]], None]:
-    """A log line every tenth of the iteration budget (our choice; the bar shows every iteration)."""
-    every = max(1, config.max_iterations // 10)
+def _progress_logger(config: SleepConfig, clock: Callable[[], float] = time.monotonic
+                     ) -> Callable[[int, dict[str, Any]], None]:
+    """A log line every tenth of the iteration budget (our choice; the bar shows every iteration), with the time
+    spent and the time the rest of the budget takes at this pace (at most: the plateau rule may stop earlier)."""
+    every, start = max(1, config.max_iterations // 10), clock()
 
     def on_iteration(iteration: int, values: dict[str, Any]) -> None:
-        if (iteration + 1) % every == 0:
-            logger.info("sleep iteration %d/%d: objective %.4g, memory losses %s", iteration + 1,
-                        config.max_iterations, values["objective"], [round(x, 5) for x in values["memory_losses"]])
+        done = iteration + 1
+        if done % every == 0:
+            elapsed = clock() - start
+            left = elapsed * (config.max_iterations - done) / done
+            logger.info("sleep iteration %d/%d (%.0f%%), %s elapsed, at most ~%s left: objective %.4g, memory "
+                        "losses %s", done, config.max_iterations, 100 * done / config.max_iterations,
+                        format_duration(elapsed), format_duration(left), values["objective"],
+                        [round(x, 5) for x in values["memory_losses"]])
 
     return on_iteration
 

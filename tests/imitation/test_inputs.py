@@ -373,3 +373,23 @@ def test_torchvisions_video_notice_is_kept_out_of_the_output():
             "warnings.warn('another notice', UserWarning, stacklevel=1)\n")
     err = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stderr
     assert "another notice" in err and "torchvision" not in err, err
+
+
+def test_a_state_only_dataset_under_the_image_default_is_one_line_naming_the_file_and_the_flag(state_datasets,
+                                                                                              tmp_path, capsys):
+    """LeRobot's own ACT refuses inputs without a camera or an environment state ("You must provide at least one
+    image ..."), so a LeRobot user expects an error, not a silent switch: ``sr-train`` on state-only datasets
+    without ``--policy.use_images=false`` is one line naming the dataset's info.json and the flag, nothing written."""
+    import sr_imitation.imitation.cli as imitation_cli
+    from sr_imitation.infra.cli_errors import run_cli
+
+    out = tmp_path / "run"
+    with pytest.raises(SystemExit) as info:
+        run_cli("sr-train", imitation_cli.train_main, [f"--stream.dataset_root={state_datasets}",
+                                                       "--stream.skills=[approach,place]", f"--output_dir={out}"])
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if line.startswith("sr-train: error:")]
+    assert info.value.code == 2 and len(lines) == 1 and "Traceback" not in err, err
+    assert lines[0].startswith(f"sr-train: error: {state_datasets / 'approach' / 'meta' / 'info.json'}: no camera "
+                               "feature; use --policy.use_images=false for state-only ACT"), lines[0]
+    assert not out.exists()

@@ -343,3 +343,21 @@ def test_memories_out_of_skill_order_are_refused_naming_the_order(run, tmp_path,
     err = _one_line_error(capsys, [*args, f"--memories=[{unstaged[1]},{unstaged[0]}]"])
     assert f"not in skill order by the skill order of {out.resolve() / 'train_config.json'}" in err
     assert f"--memories=[{unstaged[0]},{unstaged[1]}]" in err and not (tmp_path / "slept").exists()
+
+
+def test_the_sleep_logs_its_progress_with_the_time_left(caplog):
+    """sr-sleep's default 1000 iterations took ~10 min for a user with no estimate: a line every tenth of the budget
+    says how far it is, the time spent and at most how long the rest takes at this pace."""
+    from sr_imitation.core.sleep import SleepConfig
+    from sr_imitation.imitation.offline_sleep import _progress_logger
+
+    ticks = iter([0.0, 30.0, 60.0])  # start, then the clock at iterations 100 and 200
+    log = _progress_logger(SleepConfig(max_iterations=1000), clock=lambda: next(ticks))
+    with caplog.at_level("INFO", logger="sr_imitation.imitation.offline_sleep"):
+        for it in range(200):
+            log(it, {"objective": 0.5, "memory_losses": [0.25, 0.125]})
+    lines = [r.getMessage() for r in caplog.records]
+    assert lines == ["sleep iteration 100/1000 (10%), 30s elapsed, at most ~4m30s left: objective 0.5, memory "
+                     "losses [0.25, 0.125]",
+                     "sleep iteration 200/1000 (20%), 1m00s elapsed, at most ~4m00s left: objective 0.5, memory "
+                     "losses [0.25, 0.125]"]
