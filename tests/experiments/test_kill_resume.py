@@ -99,3 +99,26 @@ def test_the_start_up_moments_are_run_again_and_compared_file_by_file(tmp_path, 
     (tmp_path / "start_05" / "train_config.json").unlink()
     assert kill_resume.compare_start_files(reference, tmp_path / "start_05") == [
         "only in the reference: train_config.json"]
+
+
+def test_start_files_of_commands_that_name_their_folder_compare_with_the_folder_set_aside(tmp_path):
+    """``--record.root={run}_data`` puts each run's own folder into its settings (and into the seal over them): the
+    start-up files then compare as JSON with the folder written {run} and the seal set aside (before: every such
+    run differed, 2026-11-29); a real difference still shows, and without {run} the bytes decide."""
+    from sr_imitation.io import write_checked_json
+
+    def run(name: str, lr: float) -> Path:
+        out = tmp_path / name
+        out.mkdir()
+        for file in kill_resume.START_FILES:
+            write_checked_json(out / file, {"record": {"root": f"{out}_data"}, "lr": lr})
+        return out
+
+    reference, same, other = run("reference", 0.1), run("moment_01", 0.1), run("moment_02", 0.2)
+    assert kill_resume.Command(["sr-main", "--record.root={run}_data"]).names_its_folder
+    assert not kill_resume.Command(["sr-train", "--seed=1"]).names_its_folder
+    assert kill_resume.compare_start_files(reference, same, names_its_folder=True) == []
+    assert kill_resume.compare_start_files(reference, other, names_its_folder=True) == [
+        f"{name}: bytes differ" for name in kill_resume.START_FILES]
+    assert kill_resume.compare_start_files(reference, same) == [
+        f"{name}: bytes differ" for name in kill_resume.START_FILES]
