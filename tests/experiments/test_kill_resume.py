@@ -4,6 +4,8 @@ changed tensor and a file only one run holds."""
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 import torch
 from safetensors.torch import save_file
