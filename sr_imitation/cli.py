@@ -10,11 +10,14 @@ The substrate comes from ``--substrate=<name>``, else from the config file's ``s
 config always has it; an ``sr-main`` preset's under ``train``), else ``act``. Shared concepts have the same flags
 on every substrate (:mod:`sr_imitation.stream.config`); a flag of an earlier version is answered with its new name.
 ``sr-rl-train`` is ``sr-train --substrate=sac``.
+
+Substrates are folders of :mod:`sr_imitation.substrates`, each registering its command
+(:mod:`sr_imitation.substrates.registry`); this module lists none. A substrate's command module is imported only
+when it runs, so the ACT command never imports Meta-World and the SAC command never imports LeRobot's policy registry.
 """
 
 from __future__ import annotations
 
-import importlib
 import json
 import sys
 from collections.abc import Callable
@@ -23,16 +26,10 @@ from typing import Any
 
 from sr_imitation.infra.cli_errors import check_config_file, run_cli, split_config_path
 from sr_imitation.stream.config import renamed_flag_hint, renamed_key_hint
-
-SUBSTRATE_COMMANDS: dict[str, tuple[str, str, str]] = {
-    "act": ("sr_imitation.imitation.cli", "parse_train_args", "train_main"),
-    "sac": ("sr_imitation.rl.cli", "parse", "main"),
-}
-"""Substrate name -> (module, function that parses a command line into its config, function that parses and runs
-the stream). Modules are imported on use, so the ACT command never imports Meta-World and the SAC command never
-imports LeRobot's policy registry."""
+from sr_imitation.substrates import substrate_command
 
 DEFAULT_SUBSTRATE = "act"
+"""The substrate of a command line that names none (nor does its config file)."""
 
 
 def substrate_of(args: list[str], config: object = None) -> str:
@@ -48,8 +45,7 @@ def substrate_of(args: list[str], config: object = None) -> str:
             config = _read_config(config_path) if config_path else None
         name = _config_substrate(config)
     name = name or DEFAULT_SUBSTRATE
-    if name not in SUBSTRATE_COMMANDS:
-        raise ValueError(f"substrate: unknown substrate {name!r}; choose from {sorted(SUBSTRATE_COMMANDS)}")
+    substrate_command(name)  # a one-line ValueError naming the registered substrates
     return name
 
 
@@ -69,7 +65,7 @@ def _config_substrate(data: object) -> str | None:
     return found if isinstance(found, str) else None
 
 
-def _function(args: list[str], which: int) -> Callable[[list[str]], Any]:
+def _function(args: list[str], which: str) -> Callable[[list[str]], Any]:
     hint = renamed_flag_hint(args)
     if hint is not None:
         raise ValueError(hint)
@@ -78,19 +74,18 @@ def _function(args: list[str], which: int) -> Callable[[list[str]], Any]:
     hint = renamed_key_hint(config)
     if hint is not None:
         raise ValueError(f"{config_path}: {hint}")
-    entry = SUBSTRATE_COMMANDS[substrate_of(args, config)]
-    return getattr(importlib.import_module(entry[0]), entry[which])
+    return substrate_command(substrate_of(args, config)).function(which)
 
 
 def parse_args(args: list[str]) -> Any:
     """The run configuration a command line describes (its substrate's config class), without running it."""
-    return _function(args, 1)(args)
+    return _function(args, "parse")(args)
 
 
 def train_main(args: list[str] | None = None) -> Any:
     """Run (or resume) a stream on the substrate the command line names."""
     args = list(sys.argv[1:] if args is None else args)
-    return _function(args, 2)(args)
+    return _function(args, "main")(args)
 
 
 def train_entry() -> None:

@@ -16,12 +16,12 @@ import os
 import sys
 from pathlib import Path
 
-from sr_imitation.imitation.cli import parse_config, parse_preset
-from sr_imitation.imitation.config import MainJobConfig
-from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.recorders.needle import ensure_recorded
+from sr_imitation.substrates.act.cli import parse_config, parse_preset
+from sr_imitation.substrates.act.config import MainJobConfig
+from sr_imitation.substrates.act.trainer import train_stream
 
 logger = logging.getLogger(__name__)
 

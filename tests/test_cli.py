@@ -11,10 +11,10 @@ import pytest
 from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation import cli
 from sr_imitation.core.sleep import SleepConfig
-from sr_imitation.imitation.trainer import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict
 from sr_imitation.infra.fingerprint import settings_fingerprint
-from sr_imitation.rl.config import RLTrainConfig
 from sr_imitation.stream.config import POLICY_ALIASES, RENAMED_FLAGS, renamed_flag_hint, renamed_key_hint
+from sr_imitation.substrates.act.trainer import RESUME_ALLOW_LIST, TrainStreamConfig, stored_config_dict
+from sr_imitation.substrates.sac.config import RLTrainConfig
 from tests.test_cli_errors import _one_line_error
 
 CONFIGS = Path(__file__).resolve().parents[1] / "configs"

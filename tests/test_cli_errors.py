@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-import sr_imitation.imitation.cli as imitation_cli
-import sr_imitation.rl.cli as rl_cli
+import sr_imitation.substrates.act.cli as imitation_cli
+import sr_imitation.substrates.sac.cli as rl_cli
 from sr_imitation.infra.cli_errors import run_cli, split_debug
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 
@@ -102,8 +102,8 @@ def test_bugs_keep_their_traceback_and_debug_flag_is_parsed():
 def test_needle_presets_are_runnable_by_sr_train_and_sr_main(preset):
     """The module docstring's ``sr-train --config_path=configs/needle_cpu.json`` failed (DecodingError: fields
     record, train): a preset's train section is now what sr-train runs, with its record.root datasets."""
-    from sr_imitation.imitation.cli import parse_config
     from sr_imitation.main_job import MainJobConfig
+    from sr_imitation.substrates.act.cli import parse_config
 
     main = parse_config(MainJobConfig, preset, [])
     train = imitation_cli.parse_train_config(preset, ["--seed=5"])
@@ -115,8 +115,8 @@ def test_a_dataset_root_flag_on_a_preset_is_never_silently_dropped(capsys, monke
     """``sr-train --config_path=<sr-main preset> --stream.dataset_root=X`` read the preset's ``record.root`` and
     ignored X without a word; now the flag overrides it like any flag (both spellings). ``sr-main`` reads its datasets
     where it records them: a ``--train.stream.dataset_root`` elsewhere is one line naming both keys."""
-    from sr_imitation.imitation.cli import parse_config
     from sr_imitation.main_job import MainJobConfig
+    from sr_imitation.substrates.act.cli import parse_config
 
     preset = "configs/needle_cpu_m16.json"
     assert imitation_cli.parse_train_config(preset, []).stream.dataset_root == Path("datasets/needle_cpu")
@@ -178,11 +178,13 @@ def test_every_python_m_command_answers_user_errors_in_one_line():
     ``__main__`` block or in the function that block calls: ``needle_compare``, ``mt5_compare`` and ``sleep_replay``
     printed a draccus traceback for a bad ``--extra`` value. Benchmarks (developer tools) and modules another command
     calls (the Meta-World recorder, under ``sr-record``) are left out; ``recompute_bwt`` answers through argparse,
-    ``sr-dataset-viz`` is LeRobot's own script."""
+    as does the grid's benchmark (``experiments/grid_benchmark.py``, a benchmark that lives beside the runner it
+    times), ``sr-dataset-viz`` is LeRobot's own script."""
     import ast
 
     root = Path(__file__).resolve().parents[1] / "sr_imitation"
-    exempt = {"recorders/metaworld.py", "experiments/recompute_bwt.py", "recorders/viz.py"}
+    exempt = {"recorders/metaworld.py", "experiments/recompute_bwt.py", "recorders/viz.py",
+              "experiments/grid_benchmark.py"}
     unwired = []
     for path in sorted(root.rglob("*.py")):
         rel = path.relative_to(root).as_posix()

@@ -17,11 +17,11 @@ from draccus.wrappers import docstring
 import sr_imitation.infra.cli_parsing as cli_parsing
 from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation import cli, main_job
-from sr_imitation.imitation import cli as imitation_cli
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.recorders import cli as record_cli
 from sr_imitation.recorders import needle
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, RENAMED_FLAGS
+from sr_imitation.substrates.act import cli as imitation_cli
 from tests.test_cli_errors import _one_line_error
 
 ROOT = Path(__file__).resolve().parents[1]

@@ -19,12 +19,12 @@ from sr_imitation.benchmarks.device import STATE_DIM, act_batch, act_policy
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
-from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.wake import _NoHooks, hooked_update
-from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.sac import ReplayBuffer, SACAgent
 from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.wake import _NoHooks, hooked_update
+from sr_imitation.substrates.sac.config import SACConfig
+from sr_imitation.substrates.sac.critic_memory import CriticMemory
+from sr_imitation.substrates.sac.sac import ReplayBuffer, SACAgent
 
 META = torch.device("meta")
 

@@ -62,6 +62,21 @@ def test_core_and_stream_engine_import_neither_lerobot_nor_simulators():
     assert not bad, bad
 
 
+def test_finding_the_substrates_imports_neither_lerobot_nor_simulators():
+    """``sr-train`` imports every substrate folder's ``__init__.py`` to find the one it runs (and the SAC folder's
+    own methods): none of them imports LeRobot or a simulator, which only the substrate that runs imports."""
+    found = _run_json(
+        "import json, sys\n"
+        "from sr_imitation.substrates import discover\n"
+        "names = sorted(discover())\n"
+        "print(json.dumps({'names': names, 'modules': sorted(m.split('.')[0] for m in sys.modules)}))\n",
+        timeout=120,
+    )
+    assert {"act", "sac"} <= set(found["names"])
+    bad = {"lerobot", "metaworld", "mujoco", "gymnasium", "lerobot_policy_act_sr"} & set(found["modules"])
+    assert not bad, bad
+
+
 def test_no_top_level_package_shadows_hugging_face_datasets():
     for name in ("datasets", "policies"):
         assert not (ROOT / name / "__init__.py").exists(), f"{name}/ must not be an importable package"
@@ -84,3 +99,4 @@ def test_rendering_modules_set_up_egl_before_mujoco_loads(monkeypatch):
     kept = _run_json("import json, os\nfrom sr_imitation.offscreen import setup_offscreen_rendering\n"
                      "setup_offscreen_rendering()\nprint(json.dumps({'gl': os.environ['MUJOCO_GL']}))\n", timeout=60)
     assert kept == {"gl": "glfw"}
+

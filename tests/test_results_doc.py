@@ -17,7 +17,7 @@ from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_value
 from sr_imitation.experiments.mt5_compare import VARIANTS as MT5_VARIANTS
 from sr_imitation.io import read_checked_json
 from sr_imitation.reporting.summary import phase_seconds
-from sr_imitation.rl.cli import parse as parse_sac_config
+from sr_imitation.substrates.sac.cli import parse as parse_sac_config
 
 DOCS = Path(__file__).resolve().parents[1] / "docs"
 ARCHIVE = DOCS / "results" / "needle_cpu_m16_compare"

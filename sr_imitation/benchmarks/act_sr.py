@@ -30,7 +30,7 @@ from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.benchmarks.sleep_joint_forward import GroupsOfOne
 from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.sleep import sleep_consolidate
-from sr_imitation.imitation.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
 
 STATE_DIM, ACTION_DIM, BATCH, K = 35, 7, 8, 5
 

@@ -1,6 +1,6 @@
 """How long ``sr-train`` takes to parse its flags, with every LeRobot policy type registered (draccus builds flags
 and extracts help text from the source of all of them) and with ``act_sr`` as the only choice (what sr-train does,
-:func:`sr_imitation.imitation.cli.act_sr_choices_only`).
+:func:`sr_imitation.substrates.act.cli.act_sr_choices_only`).
 
     python -m sr_imitation.benchmarks.cli_parse --repeats=5
 """
@@ -13,8 +13,8 @@ import json
 import draccus
 
 from sr_imitation.benchmarks.timing import median_ms
-from sr_imitation.imitation.cli import act_sr_choices_only, parse_config
-from sr_imitation.imitation.trainer import TrainStreamConfig
+from sr_imitation.substrates.act.cli import act_sr_choices_only, parse_config
+from sr_imitation.substrates.act.trainer import TrainStreamConfig
 
 ARGS = ["--policy.type=act_sr", "--sleep.lr=1e-4", "--seed=3"]
 

@@ -38,10 +38,10 @@ from sr_imitation.benchmarks.sac import critic_memories, replay_buffer
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.envs.metaworld.tasks import OBS_DIM
-from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.sac import SACAgent
 from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.sac.config import SACConfig
+from sr_imitation.substrates.sac.sac import SACAgent
 
 STATE_DIM, ACTION_DIM, CHUNK, K = 35, 7, 16, 5
 

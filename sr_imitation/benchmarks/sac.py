@@ -21,10 +21,10 @@ import torch
 from sr_imitation.core.excitability import ExcitabilityConfig, update_excitability
 from sr_imitation.core.sleep import SleepConfig, sleep_consolidate
 from sr_imitation.envs.metaworld.tasks import ACT_DIM, MT5_STREAM, OBS_DIM, SkillEnv, scripted_policy
-from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.evaluate import evaluate_policy, random_policy
-from sr_imitation.rl.sac import ReplayBuffer, SACAgent
+from sr_imitation.substrates.sac.config import SACConfig
+from sr_imitation.substrates.sac.critic_memory import CriticMemory
+from sr_imitation.substrates.sac.evaluate import evaluate_policy, random_policy
+from sr_imitation.substrates.sac.sac import ReplayBuffer, SACAgent
 
 
 def replay_buffer(n: int = 20_000) -> ReplayBuffer:

@@ -21,14 +21,14 @@ from sr_imitation.benchmarks.timing import median_ms
 from sr_imitation.core.excitability import activity_recording_off
 from sr_imitation.core.memory import OutputDistillationMemory
 from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
-from sr_imitation.rl.config import SACConfig
-from sr_imitation.rl.critic_memory import CriticMemory
-from sr_imitation.rl.sac import SACAgent
 from sr_imitation.stream.methods import METHODS
 from sr_imitation.stream.methods.base import WakeHooks
 from sr_imitation.stream.methods.clear import TransitionMemory
 from sr_imitation.stream.methods.ewc import FisherMemory
 from sr_imitation.stream.substrate import MethodSettings
+from sr_imitation.substrates.sac.config import SACConfig
+from sr_imitation.substrates.sac.critic_memory import CriticMemory
+from sr_imitation.substrates.sac.sac import SACAgent
 
 
 class _Substrate:

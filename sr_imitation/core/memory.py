@@ -16,8 +16,8 @@ reassigned; :meth:`Memory.fingerprint` lets tests prove that sleep leaves them u
 
 Concrete memories: :class:`OutputDistillationMemory` here (frozen teacher outputs on stored inputs, the
 generic form of the imitation actor memory L_i^pi); the ACT actor memory (in the ACT-SR plugin,
-``lerobot_policy_act_sr.actor_memory``) and the SAC critic memory (``sr_imitation.rl``) live beside what writes them
-and register themselves with :func:`register_memory` when imported.
+``lerobot_policy_act_sr.actor_memory``) and the SAC critic memory (``sr_imitation.substrates.sac``) live beside what
+writes them and register themselves with :func:`register_memory` when imported.
 """
 
 from __future__ import annotations

@@ -23,12 +23,12 @@ learned). All ``*_curve`` functions return one value per stage k (NaN where unde
   (k = 1, wake-only) W_i = S[i, i]; a wake-only run therefore has bwt_wake == bwt.
 * SPI (Synergy Preservation Index), computed on the policy-dependent part of the trajectory only (our choice):
   the robot's own end-effector / tool pose and gripper or jaw (each substrate names its feature indices in one
-  constant, ``sr_imitation.rl.evaluate.SPI_FEATURES`` and ``sr_imitation.imitation.evaluate.SPI_FEATURES``), as
-  the displacement from the episode's first observation, x_t[F] - x_0[F] (:func:`policy_motion`). Object and goal
-  coordinates, and the start pose the environment draws at reset, do not depend on the policy; with them in the
-  PCA a policy that does nothing scored 0.5-0.95. For skill i let X_ref (T x d) be these motions of the policy
-  right after stage i and X_cur those after stage k, stacked over the evaluation episodes (T = all their steps).
-  For each, mean-centre the rows and take the SVD; u_j are the principal
+  constant, ``sr_imitation.substrates.sac.evaluate.SPI_FEATURES`` and
+  ``sr_imitation.substrates.act.evaluate.SPI_FEATURES``), as the displacement from the episode's first observation,
+  x_t[F] - x_0[F] (:func:`policy_motion`). Object and goal coordinates, and the start pose the environment draws at
+  reset, do not depend on the policy; with them in the PCA a policy that does nothing scored 0.5-0.95. For skill i let
+  X_ref (T x d) be these motions of the policy right after stage i and X_cur those after stage k, stacked over the
+  evaluation episodes (T = all their steps). For each, mean-centre the rows and take the SVD; u_j are the principal
   directions (unit, descending) and lambda_j = sigma_j^2 / (T - 1) the variance along u_j, j <= c = min(3, d,
   T - 1). With tau = ``SPI_VARIANCE_FLOOR`` = 1e-3 (our choice) a direction counts only if its variance is at
   least tau times the reference's top variance:

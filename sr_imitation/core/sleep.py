@@ -43,8 +43,9 @@ class NonFiniteSleepError(FloatingPointError):
 @dataclass
 class SleepConfig:
     """Sleep hyperparameters. Defaults follow the paper's MT5 table ("Sleep-consolidation hyperparameters"); the
-    SurgicAI table's values are the ACT substrate's preset (:class:`sr_imitation.imitation.config.SurgicAISleepConfig`)
-    and whether a run sleeps at all is the stream's setting (:class:`sr_imitation.stream.config.StreamSleepConfig`).
+    SurgicAI table's values are the ACT substrate's preset
+    (:class:`sr_imitation.substrates.act.config.SurgicAISleepConfig`) and whether a run sleeps at all is the stream's
+    setting (:class:`sr_imitation.stream.config.StreamSleepConfig`).
 
     Each field is documented below (``sr-train --help`` shows it).
     """

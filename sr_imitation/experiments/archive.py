@@ -16,7 +16,7 @@ about the run needs and git should not carry: every checkpoint, memory and evalu
 directory without videos, plots, reports and logs) goes to ``<archive>.weights/<run>/`` (git-ignored: see
 ``.gitignore``), and the tracked ``<archive>/<run>/weights.json`` lists each stored file with its size and sha256
 (sealed), so the store of any machine can be checked against the archive (:func:`verify_weights`) before a re-sleep
-reads it (:mod:`sr_imitation.rl.resleep`).
+reads it (:mod:`sr_imitation.substrates.sac.resleep`).
 
 Keys the archived run does not have at all are settings added to the code after it ran (e.g.
 ``policy.backbone_norm``): they are named in a warning and the run counts as finished (our choice; the commits a

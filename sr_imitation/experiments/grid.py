@@ -161,7 +161,7 @@ class GridConfig:
     keep_weights: bool = True
     """With ``archive``: also keep each archived run's checkpoints and memories in the git-ignored
     ``<archive>.weights/<run>/``, their checksums in the archived ``weights.json`` (what a re-sleep of a stored stage
-    reads: :mod:`sr_imitation.rl.resleep`, ``sr-sleep``)."""
+    reads: :mod:`sr_imitation.substrates.sac.resleep`, ``sr-sleep``)."""
     runner: str = "ray"
     """``ray``: every run a Ray task, as many at once as the cluster's resources allow; ``loop``: one after another
     in this process."""

@@ -5,7 +5,7 @@
 
 The command after ``--`` is any run command that takes an output folder and a resume flag (``--output_flag``, default
 ``--output_dir``; ``--resume_flag``, default ``--resume=true``: ``sr-train``, ``sr-rl-train``, ``python -m
-sr_imitation.imitation.mt_joint``; ``sr-main`` with ``--output_flag=--train.output_dir
+sr_imitation.substrates.act.mt_joint``; ``sr-main`` with ``--output_flag=--train.output_dir
 --resume_flag=--train.resume=true``); ``{run}`` in any of its arguments becomes the run's folder (e.g.
 ``--record.root={run}_data``: each run records its own datasets). A console script is looked up beside this Python
 first. The experiment:

@@ -19,8 +19,8 @@ Variants (:data:`VARIANTS`): ``sr``; ``wake_only`` (the SR ablation: same wake, 
 ``progress_compress``, ``nash_mtl``, ``pcgrad``, ``componet``; the SR ablations ``sr_mean_grad`` (raw-gradient
 mean), ``sr_no_anchor``, ``sr_no_exc``, ``sr_no_wake_exc``, ``sr_no_sleep_exc``; the streams ``sr_reverse`` (reverse
 MT5) and ``sr_mt8`` (MT8 continued from the same seed's finished ``sr`` run, which must be listed before it); the
-oracle ``mt_joint`` (:mod:`sr_imitation.rl.mt_joint`, reported apart). Baselines use the plain ReLU actor of the
-paper's SAC substrate (excitability is part of Sleeping Robots: appendix A.1, "For Sleeping Robots, each hidden
+oracle ``mt_joint`` (:mod:`sr_imitation.substrates.sac.mt_joint`, reported apart). Baselines use the plain ReLU actor of
+the paper's SAC substrate (excitability is part of Sleeping Robots: appendix A.1, "For Sleeping Robots, each hidden
 neuron additionally carries the homeostatic excitability variable"); ``--excitability.enabled=false`` keeps every
 gain at 1, which is that actor.
 """
@@ -59,7 +59,7 @@ VARIANTS: dict[str, list[str]] = {
     "progress_compress": ["--method=progress_compress", *PLAIN_ACTOR],
     "nash_mtl": ["--method=nash_mtl", *PLAIN_ACTOR],
     "pcgrad": ["--method=pcgrad", *PLAIN_ACTOR],
-    "componet": ["--method=componet"],  # its own plain-ReLU actor (sr_imitation.rl.composed_actor)
+    "componet": ["--method=componet"],  # its own plain-ReLU actor (sr_imitation.substrates.sac.composed_actor)
     "sr_mean_grad": ["--sleep.aggregator=mean_grad"],
     "sr_no_anchor": ["--sleep.anchor_strength=0"],
     "sr_no_exc": ["--excitability.enabled=false"],
@@ -67,7 +67,7 @@ VARIANTS: dict[str, list[str]] = {
     "sr_no_sleep_exc": ["--excitability.sleep_enabled=false"],
     "sr_reverse": ["--stream.name=mt5-reverse"],
     "sr_mt8": ["--stream.name=mt8"],  # + --stream.extend_from=<the seed's sr run>
-    "mt_joint": [],  # the oracle (sr_imitation.rl.mt_joint): all skills at once, plain actor; reported apart
+    "mt_joint": [],  # the oracle (substrates.sac.mt_joint): all skills at once, plain actor; reported apart
 }
 """variant -> the flags it adds to the preset (``sr-train --substrate=sac``)."""
 
@@ -137,12 +137,12 @@ class MT5Grid:
             raise ValueError("variants: sr_mt8 continues the seed's sr run; list sr before it")
 
     def plan(self, cfg: GridConfig) -> dict[RunKey, Any]:
-        from sr_imitation.rl.cli import parse
+        from sr_imitation.substrates.sac.cli import parse
 
         return {(v, s): parse(run_args(cfg, v, s)) for v in cfg.variants for s in cfg.seeds}
 
     def fingerprint(self, variant: str, run: Any) -> Any:
-        from sr_imitation.rl.mt_joint import joint_fingerprint
+        from sr_imitation.substrates.sac.mt_joint import joint_fingerprint
 
         return joint_fingerprint(run) if variant == "mt_joint" else run.resume_fingerprint()
 
@@ -163,8 +163,8 @@ class MT5Grid:
         return str(run.device)
 
     def run(self, variant: str, run: Any) -> object:
-        from sr_imitation.rl import cli
-        from sr_imitation.rl.mt_joint import run_mt_joint
+        from sr_imitation.substrates.sac import cli
+        from sr_imitation.substrates.sac.mt_joint import run_mt_joint
 
         return (run_mt_joint if variant == "mt_joint" else cli.train)(run)
 

@@ -15,7 +15,7 @@ frames as SR's memory holds distilled into the shared ACT after every skill, wit
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
 ``sr_mean_normalized`` (mean of normalized gradients), ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
 iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamma_k = 0, so every wake is sequential
-BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.imitation.mt_joint`, one ACT on the
+BC and only sleep consolidates); the oracle ``mt_joint`` (:mod:`sr_imitation.substrates.act.mt_joint`, one ACT on the
 union of the five datasets, reported apart). Every (variant, seed) is an ordinary ``sr-train`` run of the preset
 (plus ``--extra`` flags) in ``<output_root>/<variant>_seed<seed>`` on the same recorded datasets (recorded once,
 as by ``sr-main``), each evaluated on the preset's evaluation seeds. The preset may also be an ``sr-train`` config
@@ -50,15 +50,15 @@ from typing import Any, NamedTuple
 from sr_imitation.experiments.archive import RunKey
 from sr_imitation.experiments.grid import GridConfig, is_train_config, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
-from sr_imitation.imitation.cli import parse_train_config
-from sr_imitation.imitation.mt_joint import joint_fingerprint, run_mt_joint
-from sr_imitation.imitation.trainer import TrainStreamConfig, resume_fingerprint, train_stream
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.reporting.summary import load_groups, write_summary
 from sr_imitation.reporting.summary import summarize as summary_of
 from sr_imitation.stream.config import check_choices
 from sr_imitation.stream.rundir import RunDirectory
+from sr_imitation.substrates.act.cli import parse_train_config
+from sr_imitation.substrates.act.mt_joint import joint_fingerprint, run_mt_joint
+from sr_imitation.substrates.act.trainer import TrainStreamConfig, resume_fingerprint, train_stream
 
 logger = logging.getLogger(__name__)
 PROG = "python -m sr_imitation.experiments.needle_compare"
@@ -87,7 +87,7 @@ VARIANTS: dict[str, Variant] = {
     # distilled into the shared ACT after every skill; the paper gives no ACT settings: our choice is the presets'
     # sleep budget (1000 steps, batch 32, lr 1e-5), so that it differs from SR in the method, not the optimizer's budget
     "reset_distill": Variant("reset_distill", {"enabled": True}, {"iterations": 1000, "batch_size": 32, "lr": 1e-5}),
-    "mt_joint": Variant("sequential_bc", _OFF),  # the oracle: run by imitation.mt_joint, not the stream
+    "mt_joint": Variant("sequential_bc", _OFF),  # the oracle: run by substrates.act.mt_joint, not the stream
     # EWC's lambda grid on ACT (ewc above: lambda 1, the paper's MT5 choice); our grid, wider than the paper's MT5
     # {1, 100, 500}: the unit-Frobenius Fisher spreads over ACT's 678k deployed parameters, ~9x the SAC actor's
     "ewc_lam100": Variant("ewc", _OFF, {"lam": 100.0}),

@@ -31,16 +31,16 @@ import numpy as np
 import torch
 
 from sr_imitation.envs.needle import geometry as G
-from sr_imitation.imitation.data import load_metadata
-from sr_imitation.imitation.evaluate import evaluate_skills
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import TrainStreamConfig
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.main_job import preset_with_datasets
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import check_choices
+from sr_imitation.substrates.act.data import load_metadata
+from sr_imitation.substrates.act.evaluate import evaluate_skills
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import TrainStreamConfig
 
 logger = logging.getLogger(__name__)
 PROG = "python -m sr_imitation.experiments.skill_probe"

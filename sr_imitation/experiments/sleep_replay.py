@@ -23,15 +23,15 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from sr_imitation.imitation.cli import parse_config
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import ACTTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, write_fingerprint
 from sr_imitation.io import write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.rundir import OverwriteRefusedError, check_not_an_input, read_progress, run_entries_problem
+from sr_imitation.substrates.act.cli import parse_config
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import ACTTrainer, TrainStreamConfig, resume_fingerprint, stored_config_dict
 
 logger = logging.getLogger(__name__)
 PROG = "python -m sr_imitation.experiments.sleep_replay"

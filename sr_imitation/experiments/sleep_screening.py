@@ -6,8 +6,8 @@ candidates by re-sleeping the last stage of stored calibration runs.
         --screening=docs/results/sac_sleep_screening
 
 For every seed and candidate (:data:`CANDIDATES`: ``control`` repeats the run's own sleep; ``a1``, ``a2``, ``b1``,
-``b2`` as the protocol states them) one :func:`~sr_imitation.rl.resleep.resleep` of the archived run's last stage
-from its weight store (checked against the archive's ``weights.json`` first), in
+``b2`` as the protocol states them) one :func:`~sr_imitation.substrates.sac.resleep.resleep` of the archived run's last
+stage from its weight store (checked against the archive's ``weights.json`` first), in
 ``<output_root>/<candidate>_seed<seed>``; a finished re-sleep is skipped, a killed one continued. Each is archived in
 ``--screening`` (report files only). Per seed the actor entering the sleep (the stored last wake) is evaluated once
 on every skill, on the same paired configurations (``before_seed<seed>.json``). Then ``screening.json`` / ``.md``:
@@ -87,7 +87,7 @@ def run_name(candidate: str, seed: int) -> str:
 
 def resleep_one(cfg: ScreeningConfig, candidate: str, seed: int) -> dict[str, Any]:
     """The re-sleep of ``candidate`` on seed ``seed`` (skipped if finished, continued if killed); its results."""
-    from sr_imitation.rl.resleep import ResleepConfig, resleep
+    from sr_imitation.substrates.sac.resleep import ResleepConfig, resleep
 
     out = cfg.output_root / run_name(candidate, seed)
     if (out / "results.json").is_file():
@@ -101,8 +101,8 @@ def resleep_one(cfg: ScreeningConfig, candidate: str, seed: int) -> dict[str, An
 def before_sleep(cfg: ScreeningConfig, seed: int) -> dict[str, Any]:
     """Every skill's success of the actor entering the last sleep (the stored last wake's checkpoint), on the
     paired configurations of the run's own evaluations; written once to ``before_seed<seed>.json``."""
-    from sr_imitation.rl.cli import parse
-    from sr_imitation.rl.substrate import SACSubstrate
+    from sr_imitation.substrates.sac.cli import parse
+    from sr_imitation.substrates.sac.substrate import SACSubstrate
 
     path = (cfg.screening or cfg.output_root) / f"before_seed{seed}.json"
     if path.is_file():

@@ -79,7 +79,7 @@ def command_parser(cls: type, *, prog: str, config_path: str | Path | None = Non
                    field_help: Mapping[str, str] = INHERITED_FIELD_HELP) -> ArgumentParser:
     """draccus' parser of ``cls`` for the command ``prog``, with the help of every flag filled in (module docstring)
     and argparse's usage errors raised as :class:`UsageError`. A config holding an ACT-SR policy must be built inside
-    :func:`sr_imitation.imitation.cli.act_sr_choices_only`."""
+    :func:`sr_imitation.substrates.act.cli.act_sr_choices_only`."""
     parser = ArgumentParser(cls, config_path=None if config_path is None else str(config_path), prog=prog,
                             allow_abbrev=False)
     parser.parser.error = _raise_usage_error  # type: ignore[method-assign]

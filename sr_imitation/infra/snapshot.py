@@ -1,6 +1,6 @@
-"""What the mid-wake snapshots of both substrates share (:mod:`sr_imitation.imitation.wake_snapshot`,
-:mod:`sr_imitation.rl.wake_snapshot`): the snapshot's frame (:func:`write_snapshot` / :func:`read_snapshot`: the
-identity that names the wake, checked before anything is restored; the process's global generators, torch's, CUDA's
+"""What the mid-wake snapshots of both substrates share (:mod:`sr_imitation.substrates.act.wake_snapshot`,
+:mod:`sr_imitation.substrates.sac.wake_snapshot`): the snapshot's frame (:func:`write_snapshot` / :func:`read_snapshot`:
+the identity that names the wake, checked before anything is restored; the process's global generators, torch's, CUDA's
 when initialized, NumPy's and Python's; the state of a continual method's wake hooks where they can carry it,
 ``WakeHooks.state``, their method's name joining the identity), and optimizer states and weights as tensors.
 

@@ -5,8 +5,8 @@ the tracked ``<folder>/<run>/``; with ``--keep_weights=true`` it also copies eve
 file of the run (the run directory without :data:`NOT_STORED`) into the git-ignored ``<folder>.weights/<run>/``
 (:func:`weight_store`), and writes the list of those files with their sizes and sha256 into the tracked
 ``<folder>/<run>/weights.json`` (:data:`WEIGHTS_FILE`), so that the store of any machine can be checked against the
-archive (:func:`verify_weights`) before a re-sleep (:mod:`sr_imitation.rl.resleep`) reads it. Standard library and
-``sr_imitation.io`` only.
+archive (:func:`verify_weights`) before a re-sleep (:mod:`sr_imitation.substrates.sac.resleep`) reads it. Standard
+library and ``sr_imitation.io`` only.
 """
 
 from __future__ import annotations

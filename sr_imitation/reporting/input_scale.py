@@ -6,7 +6,7 @@ For each stage's wake and sleep checkpoint (``skill_<k>_<name>/{wake,sleep}/pret
 dimension, the size of what that normalized input contributes to the encoder's tokens. Under
 ``--stream.stats=union`` the statistics never change and the norms stay about where training leaves them; under
 ``seen`` each widening of the statistics re-expresses the weights exactly (the input weights of a dimension grow by the
-factor its standard deviation grows, :func:`~sr_imitation.imitation.normalization.reexpress_state_dict`), so this
+factor its standard deviation grows, :func:`~sr_imitation.substrates.act.normalization.reexpress_state_dict`), so this
 shows how far a run's weights have been rescaled (docs/RESULTS.md, "The normalization default measured"). Reads
 only; with ``--output`` writes one checked JSON."""
 

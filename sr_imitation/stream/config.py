@@ -1,7 +1,7 @@
 """What every ``sr-train`` configuration shares, whatever its substrate.
 
-Both substrates' run configurations (:class:`sr_imitation.imitation.trainer.TrainStreamConfig` for ACT,
-:class:`sr_imitation.rl.config.RLTrainConfig` for SAC) use the same flag names for the same concepts::
+Both substrates' run configurations (:class:`sr_imitation.substrates.act.trainer.TrainStreamConfig` for ACT,
+:class:`sr_imitation.substrates.sac.config.RLTrainConfig` for SAC) use the same flag names for the same concepts::
 
     --substrate        act | sac (the key ``sr-train`` dispatches on; stored in the run's config)
     --method           the continual method (sr_imitation.stream.methods)

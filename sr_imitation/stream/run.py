@@ -9,11 +9,11 @@ whatever the policy family, and runs it.
     preflight()                                                                 # the substrate's checks
     engine.run()
 
-A substrate's trainer (``sr_imitation.imitation.trainer.ACTTrainer``, ``sr_imitation.rl.trainer.SACTrainer``)
-subclasses it and adds only its own: the settings fingerprint and stored configuration of its run config, the
-checks before the first phase (:meth:`StreamRun.preflight`: datasets, environments) and what follows a finished
-phase (:meth:`StreamRun.on_phase`, e.g. the ``last`` checkpoint link). Everything else (method, run directory,
-engine, the saved config's name, resume) is here, once.
+A substrate's trainer (``sr_imitation.substrates.act.trainer.ACTTrainer``,
+``sr_imitation.substrates.sac.trainer.SACTrainer``) subclasses it and adds only its own: the settings fingerprint and
+stored configuration of its run config, the checks before the first phase (:meth:`StreamRun.preflight`: datasets,
+environments) and what follows a finished phase (:meth:`StreamRun.on_phase`, e.g. the ``last`` checkpoint link).
+Everything else (method, run directory, engine, the saved config's name, resume) is here, once.
 """
 
 from __future__ import annotations

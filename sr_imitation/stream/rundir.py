@@ -212,7 +212,7 @@ class RunDirectory:
         resume, overwrite: the per-invocation flags.
         check_inputs: ``check_inputs(fingerprint_file, stored_settings)`` is called on resume before the settings
             are compared, to refuse other input data with its own message (the ACT substrate's datasets:
-            :func:`sr_imitation.imitation.dataset_identity.check_inputs`).
+            :func:`sr_imitation.substrates.act.dataset_identity.check_inputs`).
         inputs: the paths the run reads (datasets, a run it extends): the directory may not lie inside one, nor, to
             be replaced, be or hold one (:func:`check_not_an_input`).
         entries: top-level names (fnmatch patterns) the substrate writes beyond :data:`RUN_ENTRIES`, for

@@ -3,7 +3,7 @@
 The engine (:mod:`sr_imitation.stream.engine`) runs Algorithm 1 and owns the order of the phases, resume and the
 one call of :func:`~sr_imitation.core.sleep.sleep_consolidate`. A substrate owns everything that depends on the
 policy: how a wake trains, what a memory holds, how the policy is evaluated, seeded and saved. Two implement it:
-the ACT imitation substrate (:class:`sr_imitation.imitation.substrate.ACTSubstrate`) and the SAC substrate.
+the ACT imitation substrate (:class:`sr_imitation.substrates.act.substrate.ACTSubstrate`) and the SAC substrate.
 
 Phases are named ``wake``, ``memory``, ``wake.eval``, ``sleep`` and ``sleep.eval``; ``k`` is the 0-based stage
 index (skill ``skills[k]``).

@@ -17,8 +17,8 @@ import torch
 
 from sr_imitation.envs.metaworld.env import OBS_NAMES, UNSOLVED, MetaWorldEnv, unsolved_configurations
 from sr_imitation.envs.metaworld.tasks import NUM_CONFIGURATIONS, OBS_DIM, SkillEnv, scripted_policy
-from sr_imitation.imitation.evaluate import EvalConfig, evaluate_skills, make_env_factory, spi_features
 from sr_imitation.recorders.metaworld import MetaWorldRecordConfig, record
+from sr_imitation.substrates.act.evaluate import EvalConfig, evaluate_skills, make_env_factory, spi_features
 
 TASKS = ["reach-v3", "button-press-topdown-v3"]
 
@@ -140,7 +140,7 @@ def test_a_bad_task_name_is_one_line_with_a_suggestion():
 
 
 def test_a_two_skill_stream_evaluates_in_metaworld(tmp_path_factory):
-    from sr_imitation.imitation.trainer import train_stream
+    from sr_imitation.substrates.act.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_state")
@@ -158,7 +158,7 @@ def test_a_two_skill_stream_evaluates_in_metaworld(tmp_path_factory):
 
 
 def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written(tmp_path_factory):
-    from sr_imitation.imitation.trainer import train_stream
+    from sr_imitation.substrates.act.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_bad")
@@ -173,7 +173,7 @@ def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written
 
 
 def test_a_dataset_recorded_on_another_task_is_refused_naming_its_file(tmp_path_factory):
-    from sr_imitation.imitation.trainer import train_stream
+    from sr_imitation.substrates.act.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_swap")

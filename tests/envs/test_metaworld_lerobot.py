@@ -83,9 +83,9 @@ def test_stock_lerobot_eval_evaluates_a_meta_world_checkpoint(tmp_path_factory):
     """A tiny one-skill stream trained on ``sr-record --env=metaworld`` data, evaluated by stock ``lerobot-eval``
     (a real subprocess) in ``--env.type=sr_meta_world``, headless with no ``MUJOCO_GL`` set (the plugin's import
     chooses EGL)."""
-    from sr_imitation.imitation.evaluate import EvalConfig
-    from sr_imitation.imitation.trainer import train_stream
     from sr_imitation.recorders.metaworld import MetaWorldRecordConfig, record
+    from sr_imitation.substrates.act.evaluate import EvalConfig
+    from sr_imitation.substrates.act.trainer import train_stream
     from tests.imitation.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_lerobot_eval")

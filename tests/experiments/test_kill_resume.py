@@ -13,9 +13,10 @@ from safetensors.torch import save_file
 from sr_imitation.experiments import kill_resume
 from sr_imitation.io import read_checked_json
 
-# sr-train with the toy substrate registered (the recipe's one line in SUBSTRATE_COMMANDS), as a process of its own
-TOY_TRAIN = ["python", "-c", "from sr_imitation import cli; "
-             "cli.SUBSTRATE_COMMANDS['toy'] = ('tests.stream.toy', 'parse', 'main'); cli.train_entry()",
+# sr-train with the toy substrate registered (what the recipe's substrate folder registers), as a process of its own
+TOY_TRAIN = ["python", "-c", "from sr_imitation import cli; from sr_imitation.substrates import registry as r; "
+             "r.register_substrate(type('Toy', (r.SubstrateCommand,), {'name': 'toy', 'module': 'tests.stream.toy'}));"
+             " cli.train_entry()",
              "--substrate=toy", "--stream.skills=[a,b,c]", "--progress=false", "--wake_steps=1000"]
 
 

@@ -8,8 +8,8 @@ import pytest
 from sr_imitation.experiments.archive import archive_run
 from sr_imitation.experiments.sleep_screening import ScreeningConfig, rule_a, run_screening
 from sr_imitation.io import read_checked_json
-from sr_imitation.rl.config import EvalConfig
-from sr_imitation.rl.trainer import SACTrainer
+from sr_imitation.substrates.sac.config import EvalConfig
+from sr_imitation.substrates.sac.trainer import SACTrainer
 from tests.rl.test_trainer import tiny_config
 
 

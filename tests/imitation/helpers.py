@@ -9,10 +9,10 @@ import numpy as np
 from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_policy_act_sr import ACTSRConfig
-from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.trainer import MemoryConfig, StreamConfig, TrainStreamConfig
-from sr_imitation.imitation.wake import WakeConfig
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.evaluate import EvalConfig
+from sr_imitation.substrates.act.trainer import MemoryConfig, StreamConfig, TrainStreamConfig
+from sr_imitation.substrates.act.wake import WakeConfig
 
 IMAGE = 16
 STATE_DIM = 6

@@ -12,9 +12,9 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.imitation import substrate as substrate_module
-from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.stream import engine as engine_module
+from sr_imitation.substrates.act import substrate as substrate_module
+from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder

@@ -14,9 +14,9 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.imitation.config import stored_config_dict
-from sr_imitation.imitation.evaluate import EvalConfig
 from sr_imitation.infra.distributed import Processes, shard
+from sr_imitation.substrates.act.config import stored_config_dict
+from sr_imitation.substrates.act.evaluate import EvalConfig
 from tests.imitation.helpers import tiny_stream_config
 
 SKILLS = ["approach", "place"]

@@ -10,8 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.trainer import train_stream
+from sr_imitation.substrates.act.data import DatasetMismatchError
+from sr_imitation.substrates.act.trainer import train_stream
 from tests.imitation.helpers import damage, fake_env_factory, make_skill_dataset, tiny_stream_config
 
 SKILLS = ["approach", "place", "insert"]
@@ -28,7 +28,7 @@ def _fails_before_writing(root, out, match, monkeypatch):
     def tripwire(*args, **kwargs):
         raise AssertionError("training started before the inputs were checked")
 
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", tripwire)
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", tripwire)
     with pytest.raises(DatasetMismatchError, match=match) as info:
         train_stream(tiny_stream_config(root, out, SKILLS, use_images=False), fake_env_factory)
     assert "\n" not in str(info.value)  # one line
@@ -77,7 +77,7 @@ def test_a_skill_without_an_evaluation_environment_is_refused_before_training(st
     root = _copy(state_datasets, tmp_path / "d")
     shutil.copytree(root / "insert", root / "suture")
     out = tmp_path / "out"
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
     with pytest.raises(ValueError, match=r"stream.skills: \['suture'\] have no evaluation environment") as info:
         train_stream(tiny_stream_config(root, out, ["approach", "suture"], use_images=False))  # the needle env
     assert "\n" not in str(info.value) and not out.exists()
@@ -92,8 +92,8 @@ def test_a_skill_without_an_evaluation_environment_is_refused_before_training(st
 def test_a_misspelled_skill_is_named_as_such_before_any_dataset_is_read(tmp_path, env, skills, message):
     """With no dataset for a misspelled skill, the error names the skill (and a close task name), not a missing
     dataset folder: the names are checked before the datasets are read (they used to be read first)."""
-    from sr_imitation.imitation.evaluate import EvalConfig
-    from sr_imitation.imitation.mt_joint import run_mt_joint
+    from sr_imitation.substrates.act.evaluate import EvalConfig
+    from sr_imitation.substrates.act.mt_joint import run_mt_joint
 
     cfg = tiny_stream_config(tmp_path / "no_datasets", tmp_path / "out", skills, use_images=False)
     cfg.eval = EvalConfig(env=env, episodes=1, seeds=[0], max_steps=3, videos_per_skill=0)
@@ -114,8 +114,8 @@ def test_datasets_not_recorded_yet_get_the_command_that_records_them(state_datas
     """A skill whose dataset folder does not exist, in a stream evaluated in one of the recorders' environments:
     the one line names the folder and the ``sr-record`` command for exactly the missing skills, for the stream and
     the MT-Joint oracle alike; nothing is written."""
-    from sr_imitation.imitation.evaluate import EvalConfig
-    from sr_imitation.imitation.mt_joint import run_mt_joint
+    from sr_imitation.substrates.act.evaluate import EvalConfig
+    from sr_imitation.substrates.act.mt_joint import run_mt_joint
 
     root = tmp_path / "d"
     root.mkdir()
@@ -136,7 +136,7 @@ def test_datasets_not_recorded_yet_get_the_command_that_records_them(state_datas
 def test_datasets_given_by_path_or_evaluated_elsewhere_get_no_guess(tmp_path):
     """No ``sr-record`` hint where the recorders cannot know the data: datasets given by path, or a stream evaluated
     in the user's own environment (``--eval.env=none`` here)."""
-    from sr_imitation.imitation.evaluate import EvalConfig
+    from sr_imitation.substrates.act.evaluate import EvalConfig
 
     cfg = tiny_stream_config(tmp_path / "d", tmp_path / "out", SKILLS, use_images=False)
     cfg.eval = EvalConfig(env="none")
@@ -168,7 +168,7 @@ def test_out_of_range_policy_numbers_are_refused_at_parse_time_with_their_prefix
 
 def test_sleep_and_sac_range_errors_name_the_key_with_its_prefix():
     from sr_imitation.core.sleep import SleepConfig
-    from sr_imitation.rl.config import SACConfig
+    from sr_imitation.substrates.sac.config import SACConfig
 
     with pytest.raises(ValueError, match=r"^sleep.anchor_strength must be >= 0, got nan$"):
         SleepConfig(anchor_strength=float("nan"))
@@ -256,7 +256,7 @@ def test_a_damaged_parquet_of_a_later_skill_is_named_before_anything_is_written(
 
 
 def test_a_damaged_video_is_named_before_anything_is_written(tmp_path):
-    from sr_imitation.imitation.data import read_video_through
+    from sr_imitation.substrates.act.data import read_video_through
     from sr_imitation.video import write_mp4
 
     video = tmp_path / "episode.mp4"
@@ -269,8 +269,8 @@ def test_a_damaged_video_is_named_before_anything_is_written(tmp_path):
 
 def _sr_train(capsys, root: Path, out: Path, skills: list[str], *flags: str) -> str:
     """``sr-train`` on the command line, refused: its one stderr line (exit status 2)."""
-    from sr_imitation.imitation.cli import train_main
     from sr_imitation.infra.cli_errors import run_cli
+    from sr_imitation.substrates.act.cli import train_main
 
     capsys.readouterr()
     with pytest.raises(SystemExit) as info:
@@ -297,7 +297,7 @@ def test_a_truncated_video_is_refused_before_the_first_phase_even_without_images
     shutil.copytree(video_datasets, root)
     video = _video(root, "place")
     damage(video, "truncated")
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
     out = tmp_path / "out"
     line = _sr_train(capsys, root, out, ["approach", "place"])
     assert re.match(rf"sr-train: error: {re.escape(str(video))}: (unreadable video file \(.*\) after \d+ frames: )?"
@@ -352,7 +352,7 @@ def test_a_damaged_file_is_named_on_the_command_line(state_datasets, tmp_path, m
         target.write_bytes(bytes(data))
     else:
         damage(target, how)
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
     out = tmp_path / "out"
     line = _sr_train(capsys, root, out, SKILLS)
     kind = "JSON" if target.suffix == ".json" else "parquet"
@@ -367,7 +367,7 @@ def test_torchvisions_video_notice_is_kept_out_of_the_output():
     import subprocess
     import sys
 
-    code = ("import warnings, sr_imitation.imitation.data\n"
+    code = ("import warnings, sr_imitation.substrates.act.data\n"
             "from torchvision.io._video_deprecation_warning import _raise_video_deprecation_warning\n"
             "_raise_video_deprecation_warning()\n"
             "warnings.warn('another notice', UserWarning, stacklevel=1)\n")
@@ -380,7 +380,7 @@ def test_a_state_only_dataset_under_the_image_default_is_one_line_naming_the_fil
     """LeRobot's own ACT refuses inputs without a camera or an environment state ("You must provide at least one
     image ..."), so a LeRobot user expects an error, not a silent switch: ``sr-train`` on state-only datasets
     without ``--policy.use_images=false`` is one line naming the dataset's info.json and the flag, nothing written."""
-    import sr_imitation.imitation.cli as imitation_cli
+    import sr_imitation.substrates.act.cli as imitation_cli
     from sr_imitation.infra.cli_errors import run_cli
 
     out = tmp_path / "run"

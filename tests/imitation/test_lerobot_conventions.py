@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from sr_imitation.imitation.cli import parse_train_args
-from sr_imitation.imitation.wake import WakeConfig
+from sr_imitation.substrates.act.cli import parse_train_args
+from sr_imitation.substrates.act.wake import WakeConfig
 
 
 def test_policy_flags_alone_imply_act_sr(tmp_path):

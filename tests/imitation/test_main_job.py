@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 from safetensors.torch import load_file
 
-from sr_imitation.imitation.cli import train_main
 from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.main_job import main as main_job
+from sr_imitation.substrates.act.cli import train_main
 
 TINY_POLICY = {
     "type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2, "dim_feedforward": 64,
@@ -242,7 +242,7 @@ def test_stock_lerobot_eval_evaluates_a_consolidated_checkpoint(main_job_run, tm
 
 
 def test_sr_eval_evaluates_a_checkpoint_with_videos(main_job_run, tmp_path):
-    from sr_imitation.imitation.cli import eval_main
+    from sr_imitation.substrates.act.cli import eval_main
 
     tmp, _ = main_job_run
     checkpoint = tmp / "run" / "skill_2_place" / "sleep" / "pretrained_model"
@@ -272,7 +272,7 @@ def test_sr_eval_takes_a_run_s_skills_and_settings_and_never_replaces_an_evaluat
     (it used to default to the five needle skills: a Meta-World checkpoint failed on 'approach'), a flag overriding
     one of them; a second evaluation into the same folder is refused before evaluating, unless --overwrite=true (which
     removes that evaluation's files only)."""
-    from sr_imitation.imitation.cli import eval_main
+    from sr_imitation.substrates.act.cli import eval_main
 
     tmp, _ = main_job_run
     checkpoint = tmp / "run" / "last" / "pretrained_model"

@@ -10,9 +10,9 @@ from sr_imitation.core.metrics import bwt_curve, policy_motion, subspace_preserv
 from sr_imitation.envs.needle import SKILL_NAMES, NeedleEnv
 from sr_imitation.envs.needle.env import STATE_DIM, STATE_NAMES
 from sr_imitation.envs.needle.expert import NeedleExpert
-from sr_imitation.imitation.evaluate import NEEDLE_STATE_DIM, SPI_FEATURES, spi_features
-from sr_imitation.imitation.report import _spi_curves
 from sr_imitation.reporting.results import metric_curves
+from sr_imitation.substrates.act.evaluate import NEEDLE_STATE_DIM, SPI_FEATURES, spi_features
+from sr_imitation.substrates.act.report import _spi_curves
 
 
 def _episode(env: NeedleEnv, seed: int, policy: str, max_steps: int) -> np.ndarray:

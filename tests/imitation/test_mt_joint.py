@@ -10,10 +10,10 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.imitation.data import load_skill_data
-from sr_imitation.imitation.mt_joint import JointSubstrate, joint_wake, run_mt_joint, union_data
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.stream.rundir import RunDirectory
+from sr_imitation.substrates.act.data import load_skill_data
+from sr_imitation.substrates.act.mt_joint import JointSubstrate, joint_wake, run_mt_joint, union_data
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 

@@ -24,9 +24,12 @@ from safetensors.torch import load_file
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.cli import sleep_main
-from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.offline_sleep import (
+from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.io import CorruptFileError, read_checked_json, verify_manifest
+from sr_imitation.stream.substrate import phase_seed
+from sr_imitation.substrates.act.cli import sleep_main
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.offline_sleep import (
     AnchorConfig,
     OfflineSleepConfig,
     PolicyPathConfig,
@@ -35,10 +38,7 @@ from sr_imitation.imitation.offline_sleep import (
     load_policy,
     run_offline_sleep,
 )
-from sr_imitation.imitation.trainer import ACTTrainer
-from sr_imitation.infra.cli_errors import run_cli
-from sr_imitation.io import CorruptFileError, read_checked_json, verify_manifest
-from sr_imitation.stream.substrate import phase_seed
+from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_policy, tiny_stream_config
 
@@ -349,11 +349,11 @@ def test_the_sleep_logs_its_progress_with_the_time_left(caplog):
     """sr-sleep's default 1000 iterations took ~10 min for a user with no estimate: a line every tenth of the budget
     says how far it is, the time spent and at most how long the rest takes at this pace."""
     from sr_imitation.core.sleep import SleepConfig
-    from sr_imitation.imitation.offline_sleep import _progress_logger
+    from sr_imitation.substrates.act.offline_sleep import _progress_logger
 
     ticks = iter([0.0, 30.0, 60.0])  # start, then the clock at iterations 100 and 200
     log = _progress_logger(SleepConfig(max_iterations=1000), clock=lambda: next(ticks))
-    with caplog.at_level("INFO", logger="sr_imitation.imitation.offline_sleep"):
+    with caplog.at_level("INFO", logger="sr_imitation.substrates.act.offline_sleep"):
         for it in range(200):
             log(it, {"objective": 0.5, "memory_losses": [0.25, 0.125]})
     lines = [r.getMessage() for r in caplog.records]

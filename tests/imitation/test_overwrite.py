@@ -13,8 +13,8 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.stream.rundir import REPLACED_MARK, OverwriteRefusedError
+from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.imitation.helpers import damage, fake_env_factory, tiny_stream_config
 from tests.infra.test_fingerprint import tree_state
 
@@ -40,7 +40,7 @@ def _no_training(monkeypatch):
     def tripwire(*args, **kwargs):
         raise AssertionError("training started")
 
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", tripwire)
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", tripwire)
 
 
 def test_overwrite_never_deletes_the_datasets_or_foreign_files(datasets, tmp_path, monkeypatch):
@@ -80,7 +80,7 @@ def test_overwrite_keeps_the_earlier_run_when_a_video_of_the_new_one_is_truncate
     run was deleted once stage 1 was recorded, then ``IndexError: min(): Expected reduction dim 1`` at stage 2. Now
     every input is read through before the old run is set aside: one line naming the mp4, the earlier run
     byte-identical and nothing set aside."""
-    from sr_imitation.imitation.data import DatasetMismatchError
+    from sr_imitation.substrates.act.data import DatasetMismatchError
 
     datasets = tmp_path / "data"
     shutil.copytree(video_datasets, datasets)

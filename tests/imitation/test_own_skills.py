@@ -17,17 +17,6 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sr_imitation.imitation.cli import parse_train_args
-from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import (
-    SETTINGS_ADDED,
-    ACTTrainer,
-    resume_fingerprint,
-    stream_inputs,
-    train_stream,
-)
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -35,6 +24,17 @@ from sr_imitation.infra.fingerprint import (
     read_fingerprint,
     settings_digest,
     write_fingerprint,
+)
+from sr_imitation.substrates.act.cli import parse_train_args
+from sr_imitation.substrates.act.data import DatasetMismatchError
+from sr_imitation.substrates.act.evaluate import EvalConfig
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import (
+    SETTINGS_ADDED,
+    ACTTrainer,
+    resume_fingerprint,
+    stream_inputs,
+    train_stream,
 )
 from tests.imitation.helpers import ACTION_DIM, STATE_DIM, make_skill_dataset, tiny_stream_config
 from tests.imitation.test_resume_settings import check_resume
@@ -231,7 +231,7 @@ def test_a_lerobot_env_config_per_skill_evaluates_the_stream(own_datasets, tmp_p
 
 
 def _refused_before_writing(cfg, match: str, monkeypatch, error: type[Exception] = ValueError) -> None:
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", lambda *a, **k: pytest.fail("trained"))
     with pytest.raises(error, match=match) as info:
         train_stream(cfg)
     assert "\n" not in str(info.value) and not cfg.output_dir.exists()

@@ -14,8 +14,8 @@ from lerobot.policies.factory import get_policy_class
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.trainer import TrainStreamConfig
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.trainer import TrainStreamConfig
 from tests.imitation.helpers import ACTION_DIM, IMAGE, STATE_DIM, tiny_policy
 
 
@@ -67,7 +67,7 @@ def test_paper_defaults_and_validation():
 def test_sleep_defaults_survive_a_partial_flag():
     """draccus fills the fields a flag leaves out from the class defaults: --sleep.lr alone must keep the SurgicAI
     table's other values (not MT5's tau = 150 / 4000 iterations)."""
-    from sr_imitation.imitation.cli import parse_config
+    from sr_imitation.substrates.act.cli import parse_config
 
     cfg = parse_config(TrainStreamConfig, None, ["--sleep.lr=1e-4"])
     assert cfg.sleep.lr == 1e-4

@@ -5,8 +5,8 @@ from __future__ import annotations
 
 import pytest
 
-from sr_imitation.imitation.config import StreamConfig
-from sr_imitation.imitation.report import no_pairs_warning, pair_list
+from sr_imitation.substrates.act.config import StreamConfig
+from sr_imitation.substrates.act.report import no_pairs_warning, pair_list
 
 MT5 = ["reach-v3", "door-open-v3", "drawer-open-v3", "window-close-v3", "button-press-topdown-v3"]
 

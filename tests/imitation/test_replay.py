@@ -9,13 +9,13 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.data import sample_observation_buffer
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import train_stream
 from sr_imitation.stream import METHODS, StreamEngine
 from sr_imitation.stream.methods.base import WakeStep
 from sr_imitation.stream.methods.replay import DemonstrationMemory, ReplayConfig
 from sr_imitation.stream.substrate import MethodSettings
+from sr_imitation.substrates.act.data import sample_observation_buffer
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import train_stream
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 

@@ -13,12 +13,12 @@ from safetensors.torch import load_file
 
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import ACTTrainer
 from sr_imitation.stream.capabilities import ActorSnapshotMemory, ResettableNetworks
 from sr_imitation.stream.methods.registry import refusal
 from sr_imitation.stream.methods.reset_distill import ResetDistill
+from sr_imitation.substrates.act.evaluate import EvalConfig
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import make_skill_dataset, tiny_stream_config
 

@@ -16,10 +16,8 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-import sr_imitation.imitation.cli as cli
-import sr_imitation.imitation.dataset_identity as identity
-from sr_imitation.imitation.dataset_identity import InputsMismatchError, dataset_digest, dataset_inputs
-from sr_imitation.imitation.trainer import ACTTrainer, train_stream
+import sr_imitation.substrates.act.cli as cli
+import sr_imitation.substrates.act.dataset_identity as identity
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
@@ -28,6 +26,8 @@ from sr_imitation.infra.fingerprint import (
     settings_digest,
     write_fingerprint,
 )
+from sr_imitation.substrates.act.dataset_identity import InputsMismatchError, dataset_digest, dataset_inputs
+from sr_imitation.substrates.act.trainer import ACTTrainer, train_stream
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 from tests.infra.test_fingerprint import tree_state
@@ -60,7 +60,7 @@ def _no_training(monkeypatch):
     def tripwire(*args, **kwargs):
         raise AssertionError("training started before the inputs were checked")
 
-    monkeypatch.setattr("sr_imitation.imitation.substrate.wake_train", tripwire)
+    monkeypatch.setattr("sr_imitation.substrates.act.substrate.wake_train", tripwire)
 
 
 def _resume(run: Path, root: Path, **changes):

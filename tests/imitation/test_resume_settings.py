@@ -21,17 +21,9 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-import sr_imitation.imitation.cli as cli
+import sr_imitation.substrates.act.cli as cli
 from sr_imitation.core.aggregation import AGGREGATORS
 from sr_imitation.envs.needle.skills import THRESHOLD_PRESETS
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import (
-    RESUME_ALLOW_LIST,
-    ACTTrainer,
-    TrainStreamConfig,
-    resume_fingerprint,
-    train_stream,
-)
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
@@ -45,6 +37,14 @@ from sr_imitation.infra.fingerprint import (
 )
 from sr_imitation.io import CorruptFileError, read_config_json
 from sr_imitation.stream import methods_for
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import (
+    RESUME_ALLOW_LIST,
+    ACTTrainer,
+    TrainStreamConfig,
+    resume_fingerprint,
+    train_stream,
+)
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 from tests.infra.test_fingerprint import assert_refused_naming, changed_values, leaves, tree_state, with_leaf

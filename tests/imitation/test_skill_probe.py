@@ -10,8 +10,8 @@ import pytest
 
 from sr_imitation.experiments import skill_probe
 from sr_imitation.experiments.skill_probe import ProbeConfig, final_errors, run
-from sr_imitation.imitation.data import load_stats
-from sr_imitation.imitation.trainer import stored_config_dict
+from sr_imitation.substrates.act.data import load_stats
+from sr_imitation.substrates.act.trainer import stored_config_dict
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 

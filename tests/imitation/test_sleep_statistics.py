@@ -23,14 +23,14 @@ import torch
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.config import SurgicAISleepConfig
-from sr_imitation.imitation.normalization import (
+from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.normalization import (
     floor_std,
     map_actions,
     pooled,
     reexpress_policy,
 )
-from sr_imitation.imitation.offline_sleep import (
+from sr_imitation.substrates.act.offline_sleep import (
     OfflineSleepConfig,
     PolicyPathConfig,
     SleepEvalConfig,
@@ -128,7 +128,7 @@ def test_a_constant_jaw_in_the_deployed_statistics_gives_a_finite_sleep_that_low
 
 def test_the_deployed_policys_actions_are_unchanged_by_the_new_statistics(stock, jaw_datasets):
     approach, place = stock
-    from sr_imitation.imitation.offline_sleep import read_actor_memory, settle_statistics
+    from sr_imitation.substrates.act.offline_sleep import read_actor_memory, settle_statistics
 
     loaded = load_policy(place, "cpu")
     memory = load_memory(place / MEMORY_FILE)

@@ -12,12 +12,12 @@ import torch
 from safetensors.torch import load_file
 
 from sr_imitation.core.memory import load_memory
-from sr_imitation.imitation.data import DatasetMismatchError
-from sr_imitation.imitation.trainer import StreamConfig, train_stream
-from sr_imitation.imitation.wake import NonFiniteLossError
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import CorruptFileError, write_checked_json
 from sr_imitation.stream import StreamEngine
+from sr_imitation.substrates.act.data import DatasetMismatchError
+from sr_imitation.substrates.act.trainer import StreamConfig, train_stream
+from sr_imitation.substrates.act.wake import NonFiniteLossError
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
 
@@ -103,7 +103,7 @@ def test_union_statistics_pool_every_skill_and_first_keeps_the_first_skills(stat
     mean, pooled variance), checked against the frames themselves; the std floor applies to both."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    from sr_imitation.imitation.substrate import ACTSubstrate
+    from sr_imitation.substrates.act.substrate import ACTSubstrate
 
     frames = {s: np.stack([np.asarray(x) for x in LeRobotDataset(f"local/sr_needle_{s}", root=state_datasets / s)
                            .hf_dataset["observation.state"]]) for s in SKILLS}
@@ -227,7 +227,7 @@ def test_image_stream_runs_end_to_end(image_datasets, tmp_path):
 
 
 def test_in_memory_dataset_serves_the_same_items_as_lerobot(image_datasets):
-    from sr_imitation.imitation.data import load_skill_data
+    from sr_imitation.substrates.act.data import load_skill_data
     from tests.imitation.helpers import tiny_policy
 
     cfg = tiny_policy()

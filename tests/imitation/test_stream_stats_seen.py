@@ -12,12 +12,12 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.imitation.config import StreamConfig
-from sr_imitation.imitation.data import load_metadata, load_stats, stream_stats
-from sr_imitation.imitation.evaluate import EvalConfig
-from sr_imitation.imitation.offline_sleep import load_policy
-from sr_imitation.imitation.substrate import ACTSubstrate
-from sr_imitation.imitation.trainer import ACTTrainer
+from sr_imitation.substrates.act.config import StreamConfig
+from sr_imitation.substrates.act.data import load_metadata, load_stats, stream_stats
+from sr_imitation.substrates.act.evaluate import EvalConfig
+from sr_imitation.substrates.act.offline_sleep import load_policy
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.imitation.helpers import make_skill_dataset, tiny_stream_config
 
 SKILLS = ["approach", "place", "insert"]
@@ -87,13 +87,13 @@ def test_a_skill_far_outside_the_statistics_in_use_is_reported_before_its_first_
     root = tmp_path / "far"
     make_skill_dataset(root, "approach", 0, image=False, offset=0.0)
     make_skill_dataset(root, "place", 1, image=False, offset=40.0)
-    with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
+    with caplog.at_level(logging.WARNING, logger="sr_imitation.substrates.act.substrate"):
         ACTTrainer(_config(root, tmp_path / "first", ["approach", "place"], stats="first")).run()
     lines = [r.getMessage() for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
     assert len(lines) == 1 and lines[0].startswith("skill place: its observation.state[")
     assert "(--stream.stats=first)" in lines[0] and "--stream.stats=seen" in lines[0]
     caplog.clear()
-    with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
+    with caplog.at_level(logging.WARNING, logger="sr_imitation.substrates.act.substrate"):
         ACTTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
     assert not [r for r in caplog.records if "standard deviations from the mean" in r.getMessage()]
     # under seen the statistics in use hold place already: the line says how far it lies outside approach's
@@ -107,7 +107,7 @@ def test_seen_says_nothing_of_a_skill_inside_the_statistics_before_it(tmp_path, 
     root = tmp_path / "near"
     make_skill_dataset(root, "approach", 0, image=False, offset=0.0)
     make_skill_dataset(root, "place", 1, image=False, offset=0.0)
-    with caplog.at_level(logging.WARNING, logger="sr_imitation.imitation.substrate"):
+    with caplog.at_level(logging.WARNING, logger="sr_imitation.substrates.act.substrate"):
         ACTTrainer(_config(root, tmp_path / "seen", ["approach", "place"])).run()
     assert not [r for r in caplog.records if "standard deviations" in r.getMessage()]
 
@@ -124,9 +124,9 @@ def test_methods_that_keep_normalized_data_are_refused_with_seen(datasets, tmp_p
 def test_archived_runs_and_presets_keep_their_recorded_setting(tmp_path):
     import json
 
-    from sr_imitation.imitation.cli import parse_train_config
-    from sr_imitation.imitation.config import stored_config_dict
-    from sr_imitation.imitation.trainer import SETTINGS_ADDED
+    from sr_imitation.substrates.act.cli import parse_train_config
+    from sr_imitation.substrates.act.config import stored_config_dict
+    from sr_imitation.substrates.act.trainer import SETTINGS_ADDED
 
     root = Path(__file__).resolve().parents[2]
     # a run written before the setting existed normalized with the first skill's statistics: its config is read so
@@ -147,8 +147,8 @@ def test_reexpress_inputs_false_rewrites_the_action_head_only(datasets, tmp_path
     """``--stream.reexpress_inputs=false`` (exploratory): under seen the state input weights keep the scale
     training leaves them at, while the action head is still re-expressed (a memory's targets stay finite), and the
     setting is refused where the statistics never change."""
-    from sr_imitation.imitation.normalization import reexpress_state_dict
     from sr_imitation.reporting.input_scale import STATE_INPUT, stage_input_norms
+    from sr_imitation.substrates.act.normalization import reexpress_state_dict
 
     cfg = _config(datasets, tmp_path / "actions")
     cfg.stream.reexpress_inputs = False

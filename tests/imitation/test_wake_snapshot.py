@@ -1,7 +1,7 @@
-"""An ACT wake killed inside an epoch resumes from its last snapshot bit for bit (sr_imitation.imitation.wake_snapshot):
-a stream's wake with memories attached (the distillation's sampler), ACT's VAE and dropout (the global generator)
-and the best epoch's weights kept, and the MT-Joint oracle's one training phase. The references never write a
-snapshot, so the checks also show that writing one draws nothing."""
+"""An ACT wake killed inside an epoch resumes from its last snapshot bit for bit
+(sr_imitation.substrates.act.wake_snapshot): a stream's wake with memories attached (the distillation's sampler), ACT's
+VAE and dropout (the global generator) and the best epoch's weights kept, and the MT-Joint oracle's one training phase.
+The references never write a snapshot, so the checks also show that writing one draws nothing."""
 
 from __future__ import annotations
 
@@ -14,13 +14,13 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.imitation import wake, wake_snapshot
-from sr_imitation.imitation.mt_joint import run_mt_joint
-from sr_imitation.imitation.substrate import WAKE_SNAPSHOT
-from sr_imitation.imitation.trainer import train_stream
-from sr_imitation.imitation.wake import WakeConfig
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.reporting.summary import phase_seconds
+from sr_imitation.substrates.act import wake, wake_snapshot
+from sr_imitation.substrates.act.mt_joint import run_mt_joint
+from sr_imitation.substrates.act.substrate import WAKE_SNAPSHOT
+from sr_imitation.substrates.act.trainer import train_stream
+from sr_imitation.substrates.act.wake import WakeConfig
 from tests.imitation.conftest import SKILLS
 from tests.imitation.helpers import fake_env_factory, tiny_stream_config
 

@@ -11,10 +11,10 @@ import torch
 
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import load_checked_safetensors
-from sr_imitation.rl.config import EvalConfig
-from sr_imitation.rl.trainer import SACTrainer
 from sr_imitation.stream import METHODS
 from sr_imitation.stream.methods.ewc import EWC, EWCConfig
+from sr_imitation.substrates.sac.config import EvalConfig
+from sr_imitation.substrates.sac.trainer import SACTrainer
 from tests.rl.test_trainer import tiny_config
 
 WAKE_NUMBERS = {"agem": "agem_projected", "nash_mtl": "weight_current", "pcgrad": "weight_current",

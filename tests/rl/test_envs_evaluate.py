@@ -16,7 +16,7 @@ from sr_imitation.envs.metaworld.tasks import (
     scripted_policy,
     stream_skills,
 )
-from sr_imitation.rl.evaluate import (
+from sr_imitation.substrates.sac.evaluate import (
     SPI_FEATURES,
     evaluate_policy,
     evaluation_configurations,

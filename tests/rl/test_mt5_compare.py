@@ -9,14 +9,14 @@ import pytest
 
 from sr_imitation.experiments.mt5_compare import VARIANTS, MT5CompareConfig, run_args, run_compare
 from sr_imitation.reporting.summary import memory_table
-from sr_imitation.rl.cli import parse
 from sr_imitation.stream import METHODS
+from sr_imitation.substrates.sac.cli import parse
 from tests.rl.test_trainer import tiny_config
 
 
 @pytest.fixture
 def tiny_preset(tmp_path):
-    from sr_imitation.rl.config import EvalConfig
+    from sr_imitation.substrates.sac.config import EvalConfig
 
     cfg = tiny_config(tmp_path / "unused", eval=EvalConfig(episodes=1, videos_per_skill=0))
     stored = cfg.stored_config()
@@ -68,7 +68,7 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
     assert (tmp_path / "c" / "dynamics.png").stat().st_size > 0 and (tmp_path / "c" / "summary.png").is_file()
     curve = summary["variants"]["der"]["curves"]["afsr"]
     assert len(curve["mean"]) == 2 and curve["mean"][-1] == summary["variants"]["der"]["afsr"]["mean"]
-    from sr_imitation.rl import cli
+    from sr_imitation.substrates.sac import cli
 
     monkeypatch.setattr(cli, "train", lambda cfg: pytest.fail(f"{cfg.output_dir} was re-run"))
     run_compare(cfg)  # everything finished: nothing runs again
@@ -89,7 +89,7 @@ def test_the_runner_skips_finished_runs_and_writes_the_tables(tmp_path, tiny_pre
 def test_the_archive_keeps_finished_runs_and_refuses_other_settings(tmp_path, tiny_preset, monkeypatch):
     from sr_imitation.experiments.archive import ARCHIVED_FILES
     from sr_imitation.infra.fingerprint import SettingsMismatchError
-    from sr_imitation.rl import cli
+    from sr_imitation.substrates.sac import cli
 
     archive = tmp_path / "archive"
     cfg = MT5CompareConfig(preset=tiny_preset, seeds=[0], variants=["wake_only"], output_root=tmp_path / "a",

@@ -9,8 +9,8 @@ from collections import Counter
 import pytest
 
 from sr_imitation.infra.fingerprint import SettingsMismatchError
-from sr_imitation.rl.config import EvalConfig
-from sr_imitation.rl.mt_joint import MultiSkillEnv, run_mt_joint
+from sr_imitation.substrates.sac.config import EvalConfig
+from sr_imitation.substrates.sac.mt_joint import MultiSkillEnv, run_mt_joint
 from tests.rl.test_trainer import tiny_config
 
 

@@ -9,9 +9,9 @@ import torch
 
 from sr_imitation.experiments.archive import archive_run, weight_store
 from sr_imitation.io import CorruptFileError, load_checked_safetensors, read_checked_json
-from sr_imitation.rl.config import EvalConfig
-from sr_imitation.rl.resleep import RESLEEP_FILE, ResleepConfig, main, resleep
-from sr_imitation.rl.trainer import SACTrainer
+from sr_imitation.substrates.sac.config import EvalConfig
+from sr_imitation.substrates.sac.resleep import RESLEEP_FILE, ResleepConfig, main, resleep
+from sr_imitation.substrates.sac.trainer import SACTrainer
 from tests.rl.test_trainer import tiny_config
 
 SLEEP = ("stages", "02_door-open", "sleep", "agent.safetensors")
@@ -93,7 +93,7 @@ def test_a_killed_resleep_continues_with_the_same_command_and_another_is_refused
         if phase == "sleep":
             raise KillError
 
-    import sr_imitation.rl.trainer as trainer
+    import sr_imitation.substrates.sac.trainer as trainer
 
     original = trainer.SACTrainer.__init__
 

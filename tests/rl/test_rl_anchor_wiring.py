@@ -12,8 +12,10 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.rl import substrate as substrate_module
-from sr_imitation.rl.config import (
+from sr_imitation.stream import engine as engine_module
+from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.sac import substrate as substrate_module
+from sr_imitation.substrates.sac.config import (
     CriticMemoryConfig,
     EvalConfig,
     RLTrainConfig,
@@ -21,9 +23,7 @@ from sr_imitation.rl.config import (
     StreamConfig,
     WakeConfig,
 )
-from sr_imitation.rl.trainer import SACTrainer
-from sr_imitation.stream import engine as engine_module
-from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.sac.trainer import SACTrainer
 from tests.stream.wiring import assert_sleep_wiring, clone, same, sleep_recorder
 
 SKILLS = ["reach-v3", "door-open-v3", "drawer-open-v3"]

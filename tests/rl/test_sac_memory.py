@@ -11,10 +11,10 @@ from sr_imitation.core.memory import load_memory
 from sr_imitation.core.sleep import SleepConfig, anchor_coefficient, sleep_consolidate
 from sr_imitation.envs.metaworld.tasks import ACT_DIM, OBS_DIM
 from sr_imitation.io import CorruptFileError
-from sr_imitation.rl.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
-from sr_imitation.rl.critic_memory import CriticMemory, sample_late_states, validate_critic
-from sr_imitation.rl.sac import ReplayBuffer, SACAgent
-from sr_imitation.rl.wake import should_stop_early
+from sr_imitation.substrates.sac.config import CriticMemoryConfig, SACConfig, SkillBudget, WakeConfig
+from sr_imitation.substrates.sac.critic_memory import CriticMemory, sample_late_states, validate_critic
+from sr_imitation.substrates.sac.sac import ReplayBuffer, SACAgent
+from sr_imitation.substrates.sac.wake import should_stop_early
 
 SMALL = SACConfig(hidden_dim=32, batch_size=16, buffer_size=1000)
 

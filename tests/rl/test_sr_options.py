@@ -8,9 +8,9 @@ import torch
 
 from sr_imitation.core.sleep import SleepConfig, _plateaued
 from sr_imitation.io import load_checked_safetensors
-from sr_imitation.rl.config import EvalConfig
-from sr_imitation.rl.trainer import SACTrainer
 from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.sac.config import EvalConfig
+from sr_imitation.substrates.sac.trainer import SACTrainer
 from tests.rl.test_trainer import SimulatedKillError, tiny_config
 
 EVAL = EvalConfig(episodes=2, videos_per_skill=0)

@@ -17,7 +17,8 @@ from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.reporting.results import RESULTS_VERSION
 from sr_imitation.reporting.summary import group_runs, render_markdown, summarize
-from sr_imitation.rl.config import (
+from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.sac.config import (
     CriticMemoryConfig,
     EvalConfig,
     RLTrainConfig,
@@ -25,9 +26,8 @@ from sr_imitation.rl.config import (
     StreamConfig,
     WakeConfig,
 )
-from sr_imitation.rl.sac import SACAgent
-from sr_imitation.rl.trainer import SACTrainer
-from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.substrates.sac.sac import SACAgent
+from sr_imitation.substrates.sac.trainer import SACTrainer
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 

@@ -8,8 +8,8 @@ import pytest
 
 from sr_imitation.envs.metaworld.tasks import SkillEnv, scripted_policy
 from sr_imitation.envs.metaworld.video import SkillRenderer, VideoSpec, rendering_unavailable
-from sr_imitation.rl.config import EvalConfig, RLTrainConfig
-from sr_imitation.rl.evaluate import evaluate_policy, random_policy
+from sr_imitation.substrates.sac.config import EvalConfig, RLTrainConfig
+from sr_imitation.substrates.sac.evaluate import evaluate_policy, random_policy
 
 pytestmark = pytest.mark.skipif(rendering_unavailable() is not None, reason="no offscreen rendering (EGL)")
 

@@ -1,5 +1,5 @@
-"""A SAC wake killed between episodes resumes from its snapshot bit for bit (sr_imitation.rl.wake_snapshot): the
-wake alone, the oracle's one training phase, and a stream run through ``--resume``."""
+"""A SAC wake killed between episodes resumes from its snapshot bit for bit (sr_imitation.substrates.sac.wake_snapshot):
+the wake alone, the oracle's one training phase, and a stream run through ``--resume``."""
 
 from __future__ import annotations
 
@@ -18,12 +18,12 @@ from sr_imitation.envs.metaworld import tasks
 from sr_imitation.envs.metaworld.tasks import SkillEnv
 from sr_imitation.io import CorruptFileError, load_checked_safetensors
 from sr_imitation.reporting.summary import phase_seconds
-from sr_imitation.rl import wake as rl_wake
-from sr_imitation.rl.config import CriticMemoryConfig, EvalConfig, SACConfig, SkillBudget, WakeConfig
-from sr_imitation.rl.mt_joint import run_mt_joint
-from sr_imitation.rl.sac import SACAgent
-from sr_imitation.rl.trainer import SACTrainer
-from sr_imitation.rl.wake import train_skill
+from sr_imitation.substrates.sac import wake as rl_wake
+from sr_imitation.substrates.sac.config import CriticMemoryConfig, EvalConfig, SACConfig, SkillBudget, WakeConfig
+from sr_imitation.substrates.sac.mt_joint import run_mt_joint
+from sr_imitation.substrates.sac.sac import SACAgent
+from sr_imitation.substrates.sac.trainer import SACTrainer
+from sr_imitation.substrates.sac.wake import train_skill
 from tests.rl.test_trainer import SimulatedKillError as Killed  # stands for kill -9
 from tests.rl.test_trainer import tiny_config
 

@@ -9,10 +9,8 @@ from pathlib import Path
 
 import pytest
 
-import sr_imitation.rl  # noqa: F401  (registers CompoNet)
-from sr_imitation.imitation.substrate import ACTSubstrate
+import sr_imitation.substrates.sac  # noqa: F401  (registers CompoNet)
 from sr_imitation.infra.fingerprint import settings_fingerprint
-from sr_imitation.rl.substrate import SACSubstrate
 from sr_imitation.stream import METHODS, ContinualMethod, RunDirectory, StreamEngine
 from sr_imitation.stream import capabilities as caps
 from sr_imitation.stream.capabilities import (
@@ -23,6 +21,8 @@ from sr_imitation.stream.capabilities import (
     missing_capabilities,
 )
 from sr_imitation.stream.methods.registry import refusal
+from sr_imitation.substrates.act.substrate import ACTSubstrate
+from sr_imitation.substrates.sac.substrate import SACSubstrate
 from tests.stream.toy import ToySubstrate
 
 SUBSTRATES = {"act": ACTSubstrate, "sac": SACSubstrate}

@@ -238,8 +238,8 @@ def test_a_sleep_regularizer_is_added_to_the_objective_and_its_gradient(tmp_path
 
 
 def test_componet_starts_with_the_self_bias_and_keeps_earlier_modules_exactly():
-    from sr_imitation.rl.composed_actor import SELF_BIAS, ComposedActor
-    from sr_imitation.rl.config import SACConfig
+    from sr_imitation.substrates.sac.composed_actor import SELF_BIAS, ComposedActor
+    from sr_imitation.substrates.sac.config import SACConfig
 
     torch.manual_seed(0)
     actor = ComposedActor(SACConfig(hidden_dim=16), n_skills=3)
@@ -283,9 +283,9 @@ def test_method_options_replace_the_methods_own_settings_and_name_the_valid_ones
 
 
 def test_method_options_are_parsed_and_fingerprinted_on_both_substrates():
-    from sr_imitation.imitation.cli import parse_train_args
-    from sr_imitation.imitation.trainer import resume_fingerprint
-    from sr_imitation.rl.cli import parse
+    from sr_imitation.substrates.act.cli import parse_train_args
+    from sr_imitation.substrates.act.trainer import resume_fingerprint
+    from sr_imitation.substrates.sac.cli import parse
 
     act = parse_train_args(["--config_path=configs/needle_cpu.json", "--method=ewc", "--method_options={lam: 100}"])
     assert act.method_options == {"lam": 100.0}

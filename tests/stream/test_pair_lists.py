@@ -8,8 +8,8 @@ import pytest
 from sr_imitation.core.metrics import prs_curve
 from sr_imitation.envs.metaworld.tasks import MT5_PAIRS, STREAMS, canonical_skill
 from sr_imitation.envs.needle.skills import PRS_PAIRS, SKILL_NAMES
-from sr_imitation.imitation.report import pair_list
-from sr_imitation.rl.trainer import prs_pairs
+from sr_imitation.substrates.act.report import pair_list
+from sr_imitation.substrates.sac.trainer import prs_pairs
 
 
 def test_paper_pair_lists_match_their_streams():

@@ -1,16 +1,19 @@
 """docs/ARCHITECTURE.md's two recipes, done exactly as written, so that they cannot go stale: a method is one file
-(``tests/stream/l2_anchor.py``) plus its test; a substrate is one file (``tests/stream/toy.py``) plus one line in
-``sr_imitation.cli.SUBSTRATE_COMMANDS`` plus its test; both run by ``sr-train``. A substrate missing any member of
-the protocol is refused in one line before anything is written."""
+(``tests/stream/l2_anchor.py``) plus its test; a substrate is one folder (``sr_imitation/substrates/toy/``, whose
+``__init__.py`` is the recipe's code block, written here into a temporary folder on the package's path; its code is
+``tests/stream/toy.py``) plus its test, and no other file; both run by ``sr-train``. A substrate missing any member
+of the protocol is refused in one line before anything is written."""
 
 from __future__ import annotations
 
+import sys
 from pathlib import Path
 
 import pytest
 import torch
 
 import sr_imitation.stream.methods as methods_package
+import sr_imitation.substrates as substrates_package
 import tests.stream.l2_anchor  # registers l2_anchor, as the methods package registers its files
 from sr_imitation import cli
 from sr_imitation.core.memory import OutputDistillationMemory
@@ -20,16 +23,33 @@ from sr_imitation.stream.capabilities import protocol_members
 from sr_imitation.stream.methods.base import ContinualMethod
 from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.substrate import MethodSettings, Substrate, SubstrateProtocolError, check_substrate
+from sr_imitation.substrates.registry import SUBSTRATES
 from tests.stream import toy
 from tests.stream.conftest import KilledError
 from tests.stream.toy import ToySubstrate
 
+DOC = Path(__file__).resolve().parents[2] / "docs" / "ARCHITECTURE.md"
+
+
+def recipe_init() -> str:
+    """The substrate folder's ``__init__.py``: the first python block of the recipe "Adding a substrate"."""
+    recipe = DOC.read_text().split("### Adding a substrate", 1)[1].split("\n## ", 1)[0]
+    return recipe.split("```python\n", 1)[1].split("```", 1)[0]
+
 
 @pytest.fixture
-def sr_train(monkeypatch):
-    """``sr-train`` with the toy substrate registered: the recipe's one line in ``SUBSTRATE_COMMANDS``."""
-    monkeypatch.setitem(cli.SUBSTRATE_COMMANDS, "toy", ("tests.stream.toy", "parse", "main"))
-    return cli.train_main
+def sr_train(tmp_path_factory, monkeypatch):
+    """``sr-train`` with the toy substrate added as the recipe says: a folder ``toy/`` of the substrates package
+    whose ``__init__.py`` is the recipe's (in a temporary folder on ``sr_imitation.substrates.__path__``, so that
+    the test writes nothing into the package); nothing else is registered or edited."""
+    root = tmp_path_factory.mktemp("substrates")
+    (root / "toy").mkdir()
+    (root / "toy" / "__init__.py").write_text(recipe_init())
+    assert "toy" not in SUBSTRATES
+    monkeypatch.setattr(substrates_package, "__path__", [*substrates_package.__path__, str(root)])
+    yield cli.train_main
+    SUBSTRATES.pop("toy", None)
+    sys.modules.pop("sr_imitation.substrates.toy", None)
 
 
 def _weights(result) -> list[torch.Tensor]:
@@ -83,11 +103,15 @@ def test_the_example_method_runs_on_any_substrate_through_sr_train_and_resumes_t
 
 
 # -- adding a substrate --------------------------------------------------------------------------------------------
-def test_the_toy_substrate_runs_through_sr_train_like_any_substrate(tmp_path, sr_train):
+def test_the_toy_substrate_added_as_one_folder_runs_a_stream_with_sleep_through_sr_train(tmp_path, sr_train):
+    with pytest.raises(ValueError, match=r"^substrate: unknown substrate 'toyy'; choose from \['act', 'sac', 'toy'\]$"):
+        cli.substrate_of(["--substrate=toyy"])  # the folder alone registered it, beside the package's own
     out = tmp_path / "run"
     result = sr_train(["--substrate=toy", "--method=sr", "--stream.skills=[a,b]", "--progress=false",
                        f"--output_dir={out}"])
+    assert SUBSTRATES["toy"].__module__ == "sr_imitation.substrates.toy"
     assert result["final_phases"] == ["wake", "sleep"] and result["memories"] == ["a", "b"]
+    assert (out / "stage1" / "sleep.safetensors").is_file() and not (out / "stage0" / "sleep.safetensors").exists()
     assert (out / "train_config.json").is_file() and (out / "settings_fingerprint.json").is_file()
     # the same run through StreamRun in Python, as toy.main builds it
     cfg = toy.parse(["--method=sr", "--stream.skills=[a,b]", "--progress=false", f"--output_dir={tmp_path / 'py'}"])
@@ -154,9 +178,9 @@ def test_the_recipes_name_every_protocol_member_and_the_files_they_cite():
     substrate = doc[doc.index("### Adding a substrate"):doc.index("## The imitation substrate")]
     assert [m for m in protocol_members(Substrate) if f"`{m}" not in substrate] == []
     for cited in ("WakeHooks", "StreamRun", "RunConfig", "settings_fingerprint", "train_config.json",
-                  "SUBSTRATE_COMMANDS", '"toy": ("tests.stream.toy", "parse", "main")'):
+                  "sr_imitation/substrates/<name>/", "register_substrate", "tests/test_architecture.py"):
         assert cited in substrate, cited
-    assert '"toy": ("tests.stream.toy", "parse", "main")' in (toy.__doc__ or "")
+    assert 'module = "tests.stream.toy"' in recipe_init() and "sr_imitation/substrates/toy/" in (toy.__doc__ or "")
     example = Path(tests.stream.l2_anchor.__file__).read_text()
     for line in ('name = "l2_anchor"', 'substrate.parameters_at(k - 1, "wake")', "0.5 * self.config.lam"):
         assert line in method and line in example, line

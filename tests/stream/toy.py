@@ -9,8 +9,9 @@ The file holds all a substrate is: the :class:`~sr_imitation.stream.substrate.Su
 (:class:`ToySubstrate`, every member), a few capabilities beyond it (:mod:`sr_imitation.stream.capabilities`:
 ``LikelihoodPolicy``, ``GaussianActor``, ``StoredTransitions``, ``ResettableNetworks``), its run configuration
 (:class:`ToyConfig`, a :class:`~sr_imitation.stream.config.RunConfig`), the settings fingerprint and stored config of
-a run, and the two functions ``sr-train`` calls (:func:`parse`, :func:`main`), registered in
-``sr_imitation.cli.SUBSTRATE_COMMANDS`` as ``"toy": ("tests.stream.toy", "parse", "main")``.
+a run, and the two functions ``sr-train`` calls (:func:`parse`, :func:`main`). A folder ``sr_imitation/substrates/toy/``
+whose ``__init__.py`` registers ``module = "tests.stream.toy"`` (the recipe's code block; tests/stream/test_recipes.py
+writes it) makes it ``sr-train --substrate=toy``.
 """
 
 from __future__ import annotations
@@ -288,7 +289,7 @@ def stored_config(cfg: ToyConfig) -> dict[str, Any]:
 
 
 def parse(args: list[str]) -> ToyConfig:
-    """The configuration a command line describes (``SUBSTRATE_COMMANDS``' parse function)."""
+    """The configuration a command line describes (the registered command's ``parse``)."""
     config_path, rest = split_config_path(args)
     cfg = parse_command(ToyConfig, rest, prog="sr-train", config_path=config_path)
     cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
@@ -296,7 +297,7 @@ def parse(args: list[str]) -> ToyConfig:
 
 
 def main(args: list[str] | None = None) -> dict[str, Any]:
-    """Run or resume the stream a command line describes (``SUBSTRATE_COMMANDS``' run function)."""
+    """Run or resume the stream a command line describes (the registered command's ``main``)."""
     cfg = parse(list(sys.argv[1:] if args is None else args))
     run = StreamRun(cfg, ToySubstrate.from_config(cfg), fingerprint=fingerprint(cfg), stored_config=stored_config(cfg))
     return run.run()

@@ -54,7 +54,7 @@ print(" ".join(k.split(".", 2)[2] for k in sorted(s) if k.startswith("inputs.dat
     "$py" - "$root/datasets/$folder" "$reference/settings_fingerprint.json" <<'PY' || exit 1
 import json, sys
 from pathlib import Path
-from sr_imitation.imitation.dataset_identity import dataset_digest
+from sr_imitation.substrates.act.dataset_identity import dataset_digest
 folder, reference = Path(sys.argv[1]), sys.argv[2]
 settings = json.load(open(reference))["settings"]
 bad = [k.split(".", 2)[2] for k, v in sorted(settings.items())

@@ -14,7 +14,7 @@ in docs/BENCHMARKS.md). The snapshot's weights are the stage checkpoint ``skill_
 and :meth:`ActorMemory.verify_targets` recomputes the targets from it when an audit is wanted.
 
 It lives in the plugin because the policy writes it (``--policy.sleep``, :mod:`.modeling_act_sr`) and the stream's
-ACT substrate (``sr_imitation.imitation``), which imports the plugin, loads and trains on it; the kind name
+ACT substrate (``sr_imitation.substrates.act``), which imports the plugin, loads and trains on it; the kind name
 ``act_actor`` is the one every saved file carries.
 """
 

@@ -3,7 +3,7 @@
 LeRobot 0.4.4 routes every ``ACTConfig`` subclass to ACT's processor factory (an ``isinstance`` check in
 ``lerobot.policies.factory.make_pre_post_processors``), so this function exists to honour the plugin naming
 contract and for direct use. What ACT-SR adds is a *policy* for the statistics: the stream trainer fixes one
-set of statistics for the whole stream (see ``sr_imitation.imitation.data.stream_stats``).
+set of statistics for the whole stream (see ``sr_imitation.substrates.act.data.stream_stats``).
 """
 
 from __future__ import annotations

@@ -150,7 +150,7 @@ class SkillEnv:
 
     def rng_state(self) -> dict[str, Any]:
         """The state of this environment's generators (the configuration choice and the simulator's own), as plain
-        data: what a wake snapshot keeps (:mod:`sr_imitation.rl.wake_snapshot`)."""
+        data: what a wake snapshot keeps (:mod:`sr_imitation.substrates.sac.wake_snapshot`)."""
         return {"choice": self._rng.bit_generator.state, "env": self._env.np_random.bit_generator.state}
 
     def set_rng_state(self, state: dict[str, Any]) -> None:

@@ -5,13 +5,11 @@ by :func:`register_method` (docs/ARCHITECTURE.md, "Adding a method"). Every modu
 start with ``_`` is imported here, so the file alone registers the method.
 """
 
-import importlib
-import pkgutil
-
 from sr_imitation.stream.methods.base import ContinualMethod, WakeStep
 from sr_imitation.stream.methods.registry import (
     METHODS,
     check_method,
+    import_method_files,
     make_method,
     method_class,
     method_config,
@@ -19,9 +17,7 @@ from sr_imitation.stream.methods.registry import (
     register_method,
 )
 
-for _module in pkgutil.iter_modules(__path__):
-    if not _module.name.startswith("_") and _module.name not in ("base", "registry"):
-        importlib.import_module(f"{__name__}.{_module.name}")  # registers the module's methods
+import_method_files(__name__, __path__, skip=("base", "registry"))  # each file registers its methods
 
 __all__ = ["METHODS", "ContinualMethod", "WakeStep", "check_method", "make_method", "method_class", "method_config",
            "methods_for", "register_method"]

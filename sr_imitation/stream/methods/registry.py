@@ -7,7 +7,9 @@ substrate provides, so a new substrate gets every method it can run without any 
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+import importlib
+import pkgutil
+from collections.abc import Iterable, Mapping
 from typing import Any, TypeVar
 
 from sr_imitation.infra.fingerprint import to_jsonable
@@ -29,6 +31,15 @@ def register_method(cls: M) -> M:
         raise ValueError(f"method {cls.name!r} is registered twice ({METHODS[cls.name].__name__}, {cls.__name__})")
     METHODS[cls.name] = cls
     return cls
+
+
+def import_method_files(package: str, path: Iterable[str], skip: Iterable[str] = ()) -> None:
+    """Import every module of a methods folder (``package``, its ``__path__``) whose name does not start with ``_``
+    and is not in ``skip``: each registers its methods. The substrate-free methods (:mod:`sr_imitation.stream.methods`)
+    and a substrate's own (``sr_imitation/substrates/<name>/methods/``) are found so."""
+    for module in pkgutil.iter_modules(list(path)):
+        if not module.name.startswith("_") and module.name not in set(skip):
+            importlib.import_module(f"{package}.{module.name}")
 
 
 def method_class(name: str, substrate: str | None = None) -> type[ContinualMethod]:
