@@ -8,7 +8,7 @@
 # editable installs' import hooks dropped), this clone's .venv (bash .ci/venv.sh) and one torch thread, the two
 # sides at once, on the same recorded datasets (recorded first by BEFORE's code). Every *.safetensors file's sha256
 # and every JSON file's (its stable keys: tools/bit_identical_runs.py) are listed in <scratch>/<side>/runs/sha256.txt
-# and the two lists compared: exit 0 when equal, 1 with the differing lines. Runs at nice 19. SR_BITCHECK_DIR names
+# and the two lists compared: exit 0 when equal, 1 with the differing lines. Runs at nice ${SR_BITCHECK_NICE:-19} (SR_BITCHECK_NICE=0 beside other work). SR_BITCHECK_DIR names
 # the scratch folder (default: a new temporary one, kept).
 set -euo pipefail
 ROOT="$(cd "$(dirname "$0")/.." && pwd)"
@@ -35,7 +35,7 @@ in_side() {  # $1 side name, then the driver's arguments
   local dir="$SCRATCH/$1"
   shift
   (cd "$dir/src" && PYTHONPATH="$dir/src:$dir/src/policies/lerobot_policy_act_sr" OMP_NUM_THREADS=1 \
-     nice -n 19 "$PY" "$ROOT/tools/bit_identical_runs.py" "$@")
+     nice -n "${SR_BITCHECK_NICE:-19}" "$PY" "$ROOT/tools/bit_identical_runs.py" "$@")
 }
 
 export_side before "$BEFORE"

@@ -190,6 +190,20 @@ def parameter_distance(params: Sequence[Tensor], reference: Sequence[Tensor]) ->
     return math.sqrt(total)
 
 
+def anchor_applies(strength: float, is_final_skill: bool, apply_after_final: bool) -> bool:
+    """Whether Eq. 2's anchor can act in this sleep at all: a positive strength, and not the sleep after the final
+    skill unless ``apply_after_final`` (paper, MT5: "The anchor is not applied after the final skill"). The one
+    place the anchor's rule lives: :func:`anchor_coefficient` and ``sr-sleep``'s input checks both ask it."""
+    return strength > 0.0 and (not is_final_skill or apply_after_final)
+
+
+def anchor_gate_decides(config: SleepConfig, is_final_skill: bool) -> bool:
+    """Whether the gate of Eq. 2 (``anchor_tau``) decides this sleep's anchor, so the gate snapshots theta_i^wake are
+    needed: the anchor applies (:func:`anchor_applies`) and ``anchor_tau`` is set (``None``: always on)."""
+    return (anchor_applies(config.anchor_strength, is_final_skill, config.anchor_after_final)
+            and config.anchor_tau is not None)
+
+
 def anchor_coefficient(
     params: Sequence[Tensor],
     wake_snapshots: Sequence[Sequence[Tensor]],
@@ -204,7 +218,7 @@ def anchor_coefficient(
     final skill unless ``apply_after_final`` (paper, MT5: "The anchor is not applied after the final skill").
     """
     distances = [parameter_distance(params, snap) for snap in wake_snapshots]
-    if strength == 0.0 or (is_final_skill and not apply_after_final):
+    if not anchor_applies(strength, is_final_skill, apply_after_final):
         return 0.0, distances
     if tau is None:
         return float(strength), distances

@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.core.memory import Memory
-from sr_imitation.core.sleep import sleep_consolidate
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -233,12 +232,8 @@ class StreamEngine:
             if log is not None:
                 log.log("sleep", stage=k + 1, step=iteration, **values)
 
-        result = sleep_consolidate(
-            problem.parameters, problem.policy, memories, problem.config, anchor_params=anchor,
-            wake_snapshots=wake_snapshots, is_final_skill=k == len(self.skills) - 1,
-            step_callback=problem.step_callback, progress=self.progress, on_iteration=on_iteration,
-            regularizer=problem.regularizer,
-        )
+        result = problem.consolidate(memories, anchor, wake_snapshots, is_final_skill=k == len(self.skills) - 1,
+                                     progress=self.progress, on_iteration=on_iteration)
         logger.info("stage %d sleep: %d iterations (%s), solver %s", k + 1, result.stop_iteration,
                     result.stop_reason, dict(result.solver_status))
         seconds = time.perf_counter() - t0

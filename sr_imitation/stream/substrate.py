@@ -21,7 +21,7 @@ import numpy as np
 from torch import Tensor
 
 from sr_imitation.core.memory import Memory
-from sr_imitation.core.sleep import SleepConfig
+from sr_imitation.core.sleep import SleepConfig, SleepResult, sleep_consolidate
 from sr_imitation.infra.runlog import RunLog
 from sr_imitation.stream.capabilities import missing_members
 
@@ -82,6 +82,18 @@ class SleepProblem:
     step_callback: Callable[[int], None] | None = None
     diagnostics: Callable[[], dict[str, Any]] | None = None
     regularizer: Callable[[Sequence[Tensor]], Tensor] | None = None
+
+    def consolidate(self, memories: Sequence[Memory], anchor: Sequence[Tensor] | None,
+                    wake_snapshots: Sequence[Sequence[Tensor]], is_final_skill: bool, progress: bool = True,
+                    on_iteration: Callable[[int, dict[str, Any]], None] | None = None) -> SleepResult:
+        """Algorithm 1, lines 7-15 on this problem: the core's sleep over ``memories`` with the anchor theta_{k-1}^sleep
+        (``None``: none), the gate snapshots theta_i^wake (i < k) and this problem's step callback and regularizer.
+        The stream engine's sleep and ``sr-sleep`` both sleep through it, so the anchor's rule
+        (:func:`~sr_imitation.core.sleep.anchor_coefficient`) is decided in one place for both."""
+        return sleep_consolidate(self.parameters, self.policy, memories, self.config, anchor_params=anchor,
+                                 wake_snapshots=wake_snapshots, is_final_skill=is_final_skill,
+                                 step_callback=self.step_callback, progress=progress, on_iteration=on_iteration,
+                                 regularizer=self.regularizer)
 
 
 @dataclass

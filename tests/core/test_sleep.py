@@ -13,6 +13,7 @@ from sr_imitation.core.sleep import (
     NonFiniteSleepError,
     SleepConfig,
     anchor_coefficient,
+    anchor_gate_decides,
     parameter_distance,
     sleep_consolidate,
 )
@@ -177,6 +178,20 @@ def test_anchor_gate_of_eq_2():
     # The gate flips exactly at tau.
     assert anchor_coefficient(params, [near], 0.01, tau=3**0.5 + 1e-9)[0] == 0.01
     assert anchor_coefficient(params, [near], 0.01, tau=3**0.5 - 1e-9)[0] == 0.0
+
+
+@pytest.mark.parametrize("strength", [0.0, 0.01])
+@pytest.mark.parametrize("tau", [None, 2.0])
+@pytest.mark.parametrize("final", [False, True])
+@pytest.mark.parametrize("after_final", [False, True])
+def test_the_gate_needs_its_snapshots_exactly_when_it_can_change_the_anchor(strength, tau, final, after_final):
+    """sr-sleep asks anchor_gate_decides whether the wake snapshots are required; the answer must be yes exactly when
+    the snapshots change the coefficient the sleep uses (one rule for the engine and sr-sleep, issue 61 item 4)."""
+    config = SleepConfig(anchor_strength=strength, anchor_tau=tau, anchor_after_final=after_final)
+    params, near, far = [torch.zeros(3)], [torch.full((3,), 1.0)], [torch.full((3,), 100.0)]
+    coefficients = {anchor_coefficient(params, snaps, strength, tau, final, after_final)[0]
+                    for snaps in ([near], [far], [])}
+    assert anchor_gate_decides(config, final) == (len(coefficients) > 1)
 
 
 class _NaNMemory(OutputDistillationMemory):

@@ -12,7 +12,6 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
-from sr_imitation.stream import engine as engine_module
 from sr_imitation.substrates.act import substrate as substrate_module
 from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.imitation.conftest import SKILLS
@@ -42,7 +41,7 @@ def recorded_stream(state_datasets, tmp_path_factory):
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(substrate_module, "wake_train", recording_wake)
-        mp.setattr(engine_module, "sleep_consolidate", sleep_recorder(sleeps, _full_buffer_losses))
+        mp.setattr("sr_imitation.stream.substrate.sleep_consolidate", sleep_recorder(sleeps, _full_buffer_losses))
         trainer.run()
     names = [n for n, _ in trainer.policy.deployed_named_parameters()]
     return out, names, wakes, sleeps

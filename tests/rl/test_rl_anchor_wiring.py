@@ -12,7 +12,6 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.stream import engine as engine_module
 from sr_imitation.stream.config import StreamSleepConfig
 from sr_imitation.substrates.sac import substrate as substrate_module
 from sr_imitation.substrates.sac.config import (
@@ -55,7 +54,7 @@ def recorded_stream(tmp_path_factory):
 
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(substrate_module, "train_skill", recording_wake)
-        mp.setattr(engine_module, "sleep_consolidate", sleep_recorder(sleeps))
+        mp.setattr("sr_imitation.stream.substrate.sleep_consolidate", sleep_recorder(sleeps))
         trainer.run()
     saved = [trainer.substrate.parameters_at(k, "wake") for k in range(len(SKILLS))]
     return wakes, sleeps, saved

@@ -22,7 +22,6 @@ from sr_imitation.stream import (
     methods_for,
     register_method,
 )
-from sr_imitation.stream import engine as engine_module
 from tests.stream.conftest import SKILLS, KilledError, make_engine
 from tests.stream.toy import ToySubstrate
 from tests.stream.wiring import same, sleep_recorder
@@ -63,7 +62,7 @@ def test_wake_eval_covers_what_the_substrate_asks(tmp_path):
 
 def test_the_sleep_gets_the_previous_final_policy_as_anchor_and_earlier_wake_snapshots(tmp_path, monkeypatch):
     calls: list[dict[str, Any]] = []
-    monkeypatch.setattr(engine_module, "sleep_consolidate", sleep_recorder(calls))
+    monkeypatch.setattr("sr_imitation.stream.substrate.sleep_consolidate", sleep_recorder(calls))
     engine = make_engine(tmp_path / "r")
     engine.run()
     sub = engine.substrate

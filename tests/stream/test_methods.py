@@ -189,8 +189,7 @@ def test_reset_distill_resets_the_network_for_every_wake_and_distills_into_the_s
 
 
 def test_progress_and_compress_compresses_the_current_column_under_ewc_of_the_knowledge_base(tmp_path, monkeypatch):
-    from sr_imitation.stream import engine as engine_module
-    from sr_imitation.stream.engine import sleep_consolidate as real_sleep
+    from sr_imitation.core.sleep import sleep_consolidate as real_sleep
 
     calls = []
 
@@ -200,7 +199,7 @@ def test_progress_and_compress_compresses_the_current_column_under_ewc_of_the_kn
                       "at_start": None if reg is None else float(reg(params).detach())})
         return real_sleep(params, policy, memories, config, **kwargs)
 
-    monkeypatch.setattr(engine_module, "sleep_consolidate", recording)
+    monkeypatch.setattr("sr_imitation.stream.substrate.sleep_consolidate", recording)
     engine = make_engine(tmp_path / "pc", "progress_compress")
     engine.run()
     assert [c["memories"] for c in calls] == [["a"], ["b"], ["c"]]  # only the current active column

@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 import torch
 
-from sr_imitation.stream import engine as engine_module
+from sr_imitation.stream import substrate as substrate_module
 
 
 def clone(tensors) -> list[torch.Tensor]:
@@ -29,7 +29,7 @@ def sleep_recorder(sleeps: list[dict[str, Any]],
                    measure: Callable[[Any, Any], dict[str, Any]] | None = None) -> Callable[..., Any]:
     """A stand-in for ``sleep_consolidate`` that appends each call's inputs and outputs to ``sleeps``; ``measure``
     (policy, memories) -> values is recorded before (``<key>_before``) and after (``<key>_after``) the sleep."""
-    real = engine_module.sleep_consolidate
+    real = substrate_module.sleep_consolidate
 
     def recording_sleep(params, policy, memories, config, anchor_params=None, wake_snapshots=(), **kwargs):
         params = list(params)

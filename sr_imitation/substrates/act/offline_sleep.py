@@ -76,7 +76,7 @@ from safetensors.torch import load_file
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.memory import load_memory, memory_contents
-from sr_imitation.core.sleep import SleepConfig, SleepResult, sleep_consolidate
+from sr_imitation.core.sleep import SleepConfig, SleepResult, anchor_gate_decides
 from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, to_jsonable
 from sr_imitation.io import (
@@ -265,8 +265,7 @@ class OfflineSleepConfig:
 
     def gate_decides(self) -> bool:
         """Whether Eq. 2's gate decides the anchor (so the gate snapshots theta_i^wake are needed)."""
-        anchored = self.sleep.anchor_strength > 0 and (not self.final_skill or self.sleep.anchor_after_final)
-        return anchored and self.sleep.anchor_tau is not None
+        return anchor_gate_decides(self.sleep, self.final_skill)
 
 
 # -- inputs ------------------------------------------------------------------------------------------------------
@@ -703,10 +702,9 @@ def run_offline_sleep(cfg: OfflineSleepConfig, make_env: EnvFactory | None = Non
             success_before = _evaluate(cfg, loaded, make_env, tmp / "videos" / "before") if cfg.eval.skills else None
             seed_everything(cfg.sleep.seed)
             t0 = time.perf_counter()
-            result = sleep_consolidate(problem.parameters, problem.policy, [m.memory for m in memories], problem.config,
-                                       anchor_params=inputs.anchor, wake_snapshots=inputs.wake_snapshots,
-                                       is_final_skill=cfg.final_skill, progress=cfg.progress,
-                                       on_iteration=_progress_logger(cfg.sleep))
+            result = problem.consolidate([m.memory for m in memories], inputs.anchor, inputs.wake_snapshots,
+                                         is_final_skill=cfg.final_skill, progress=cfg.progress,
+                                         on_iteration=_progress_logger(cfg.sleep))
             seconds = time.perf_counter() - t0
             after = [memory_loss(m.memory, problem.policy) for m in memories]
             check_losses(memories, after, "after the sleep")
