@@ -41,13 +41,14 @@ BUDGET = "--wake.max_epochs=2 --wake.min_epochs=1 --wake.max_steps_per_epoch=3 -
 EVAL_BUDGET = "--eval.episodes=2 --eval.seeds=[0] --eval.max_steps=100 --eval.videos_per_skill=0"
 """Appended besides :data:`BUDGET` to the lines that evaluate (not ``--eval.env=none``)."""
 HEADLESS_UNSET = ("MUJOCO_GL", "PYOPENGL_PLATFORM", "DISPLAY")
-MY_PKG = '''"""A user's package registering their skills' environments (here: the needle's approach and place)."""
+MY_PKG = '''"""A user's package registering their skills' environments (here: the needle's approach and place, its wrist
+camera named as the datasets name it, LeRobot's gym convention: pixels={"wrist": image} -> observation.images.wrist)."""
 import gymnasium as gym
 
 for _id, _skill in (("Pick-v0", "approach"), ("PlaceCup-v0", "place")):
     if f"my_pkg/{_id}" not in gym.registry:
         gym.register(id=f"my_pkg/{_id}", entry_point="sr_imitation.envs.needle.env:NeedleEnv",
-                     max_episode_steps=300, kwargs={"skill": _skill})
+                     max_episode_steps=300, kwargs={"skill": _skill, "camera_dict": True})  # pixels={"wrist": ...}
 '''
 
 
