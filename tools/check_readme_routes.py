@@ -1,6 +1,6 @@
 """Run README's stock LeRobot route and its own-skills commands as written, on a fresh clone, headless.
 
-    python3 tools/check_readme_routes.py [--work DIR] [--ref REF] [--keep]
+    python3 tools/check_readme_routes.py [--work DIR] [--ref REF] [--resume]
 
 What it does, in order (every step logged with its wall time; exit 0 only if every command exits 0):
 1. ``git clone`` of this repository at REF (default HEAD) into ``<work>/clone`` and ``bash .ci/venv.sh`` there (the
@@ -48,7 +48,7 @@ import gymnasium as gym
 for _id, _skill in (("Pick-v0", "approach"), ("PlaceCup-v0", "place")):
     if f"my_pkg/{_id}" not in gym.registry:
         gym.register(id=f"my_pkg/{_id}", entry_point="sr_imitation.envs.needle.env:NeedleEnv",
-                     max_episode_steps=300, kwargs={"skill": _skill, "camera_dict": True})  # pixels={"wrist": ...}
+                     max_episode_steps=300, kwargs={"skill": _skill, "camera_dict": True})
 '''
 
 
@@ -77,11 +77,15 @@ def bash_blocks_after(readme: str, marker: str, count: int) -> list[list[str]]:
 
 
 class Runner:
-    """Runs each command in the clone; with ``done`` (``--resume``), a command that already exited 0 there, with the
-    same text, is skipped (its earlier time kept)."""
+    """Runs each command in the clone and records its time in ``record`` (``times.json``, rewritten after every
+    command, so a failed try leaves what ``--resume`` reads); with ``done``, a command that already exited 0 there,
+    with the same text, is skipped (its earlier time kept)."""
 
-    def __init__(self, clone: Path, env: dict[str, str], done: dict[str, dict] | None = None) -> None:
-        self.clone, self.env, self.times, self.done = clone, env, [], done or {}
+    def __init__(self, clone: Path, env: dict[str, str], record: Path, commit: str,
+                 done: dict[str, dict] | None = None) -> None:
+        self.clone, self.env, self.record, self.commit = clone, env, record, commit
+        self.times: list[dict] = []
+        self.done = done or {}
 
     def __call__(self, command: str, note: str = "") -> None:
         if command in self.done:
@@ -96,7 +100,7 @@ class Runner:
         tail = "\n".join(proc.stdout.rstrip().splitlines()[-8:])
         self.times.append({"command": command, "seconds": round(seconds, 1), "rc": proc.returncode, "note": note})
         log(f"  rc={proc.returncode} in {seconds:.1f} s; last lines:\n{tail}")
-        (self.clone.parent / "times.json").write_text(json.dumps({"commands": self.times}, indent=2))
+        self.record.write_text(json.dumps({"commit": self.commit, "commands": self.times}, indent=2))
         if proc.returncode != 0:
             raise SystemExit(f"failed: {command}")
 
@@ -133,7 +137,7 @@ def main() -> None:
     env["PATH"] = f"{clone / '.venv' / 'bin'}:{venv}/bin:{env['PATH']}"
     env["HF_LEROBOT_HOME"] = str(work / "hf_lerobot")
     env["PYTHONPATH"] = str(work / "user_pkgs")
-    run = Runner(clone, env, done)
+    run = Runner(clone, env, work / "times.json", commit, done)
     readme = (clone / "README.md").read_text()
 
     (stock,) = bash_blocks_after(readme, "**The LeRobot workflow", 1)
@@ -145,25 +149,21 @@ def main() -> None:
     user_data = work / "user_data"
     run(f"sr-record --skills=[approach,place] --num_episodes=4 --video=true --root={user_data}",
         "fixture: the user's own camera datasets")
-    for name, skill in (("pick", "approach"), ("place_cup", "place")):  # (copies are skipped when present)
+    for name, skill in (("pick", "approach"), ("place_cup", "place")):
         shutil.copytree(user_data / skill, work / "hf_lerobot" / "user" / name, dirs_exist_ok=True)
         shutil.copytree(user_data / skill, clone / "data" / name, dirs_exist_ok=True)
     (work / "user_pkgs" / "my_pkg").mkdir(parents=True, exist_ok=True)
     (work / "user_pkgs" / "my_pkg" / "__init__.py").write_text(MY_PKG)
 
-    blocks = bash_blocks_after(readme, "**Does sleep help on your skills?**", 2)
-    grid, own_train = blocks[0], blocks[1]
+    grid, own_train = bash_blocks_after(readme, "**Does sleep help on your skills?**", 2)
     for command in own_train:
         extra = BUDGET if "--eval.env=none" in command else f"{BUDGET} {EVAL_BUDGET}"
         run(f"{command} {extra}", "README's command + the CPU budget flags")
-    config = json.loads((clone / "outputs" / "mine_gym" / "train_config.json").read_text())
-    (clone / "my_skills.json").write_text(json.dumps(config, indent=2))
+    shutil.copyfile(clone / "outputs" / "mine_gym" / "train_config.json", clone / "my_skills.json")
     for command in grid:
         run(command, "my_skills.json = outputs/mine_gym/train_config.json")
 
-    summary = work / "times.json"
-    summary.write_text(json.dumps({"commit": commit, "commands": run.times}, indent=2))  # the last run's
-    log(f"every command exited 0; times in {summary}")
+    log(f"every command exited 0; times in {run.record}")
 
 
 if __name__ == "__main__":

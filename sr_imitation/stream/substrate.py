@@ -1,7 +1,8 @@
 """What a substrate (a policy family with its data, environment and files) provides to the stream engine.
 
-The engine (:mod:`sr_imitation.stream.engine`) runs Algorithm 1 and owns the order of the phases, resume and the
-one call of :func:`~sr_imitation.core.sleep.sleep_consolidate`. A substrate owns everything that depends on the
+The engine (:mod:`sr_imitation.stream.engine`) runs Algorithm 1 and owns the order of the phases and resume; the one
+call of :func:`~sr_imitation.core.sleep.sleep_consolidate` is :meth:`SleepProblem.consolidate` (the engine's sleep
+and ``sr-sleep`` both go through it). A substrate owns everything that depends on the
 policy: how a wake trains, what a memory holds, how the policy is evaluated, seeded and saved. Two implement it:
 the ACT imitation substrate (:class:`sr_imitation.substrates.act.substrate.ACTSubstrate`) and the SAC substrate.
 
