@@ -91,6 +91,7 @@ class Runner:
         if command in self.done:
             log(f"$ {command}\n  done before (rc=0 in {self.done[command]['seconds']} s): skipped (--resume)")
             self.times.append({**self.done[command], "resumed": True})
+            self._save()
             return
         log(f"$ {command}" + (f"    # {note}" if note else ""))
         t0 = time.perf_counter()
@@ -100,9 +101,12 @@ class Runner:
         tail = "\n".join(proc.stdout.rstrip().splitlines()[-8:])
         self.times.append({"command": command, "seconds": round(seconds, 1), "rc": proc.returncode, "note": note})
         log(f"  rc={proc.returncode} in {seconds:.1f} s; last lines:\n{tail}")
-        self.record.write_text(json.dumps({"commit": self.commit, "commands": self.times}, indent=2))
+        self._save()
         if proc.returncode != 0:
             raise SystemExit(f"failed: {command}")
+
+    def _save(self) -> None:
+        self.record.write_text(json.dumps({"commit": self.commit, "commands": self.times}, indent=2))
 
 
 def main() -> None:
