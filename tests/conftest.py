@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import os
+import tempfile
 
 import numpy as np
 import pytest
@@ -12,6 +13,9 @@ from sr_imitation.offscreen import setup_offscreen_rendering
 
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
+# The datasets' digest cache (substrates/act/dataset_identity.py) of this test process, not the user's: the suite
+# hashes thousands of throwaway datasets. Subprocesses inherit it.
+os.environ.setdefault("SR_DIGEST_CACHE", os.path.join(tempfile.mkdtemp(prefix="sr_digest_cache_"), "file_digests.json"))
 setup_offscreen_rendering()
 
 

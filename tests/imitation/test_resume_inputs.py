@@ -123,6 +123,7 @@ def test_an_old_run_without_dataset_digests_resumes_only_with_the_flag(datasets,
 
 
 def test_dataset_digests_are_cached_by_file_stat_and_follow_a_replaced_file(datasets, tmp_path, monkeypatch):
+    monkeypatch.delenv("SR_DIGEST_CACHE", raising=False)  # the suite's own cache file (tests/conftest.py)
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
     root = tmp_path / "data"
     shutil.copytree(datasets / "approach", root / "approach")
@@ -143,6 +144,39 @@ def test_dataset_digests_are_cached_by_file_stat_and_follow_a_replaced_file(data
     (root / "approach" / ".cache").mkdir()  # hidden files are not part of a dataset
     (root / "approach" / ".cache" / "x").write_text("y")
     assert dataset_digest(root / "approach") == dataset_inputs(["approach"], [root / "approach"])["approach"]
+
+
+def test_the_digest_cache_keeps_only_live_entries_and_is_read_again_after_another_process_wrote_it(
+        datasets, tmp_path, monkeypatch):
+    """The cache does not grow with every dataset ever hashed: a write keeps only the entries that still describe a
+    file as it is (a deleted dataset's and a rewritten file's go). A process re-reads the file only when it changed
+    since this process read or wrote it, so another process's entries are seen."""
+    cache_file = tmp_path / "digests.json"
+    monkeypatch.setenv("SR_DIGEST_CACHE", str(cache_file))
+    for name in ("a", "b"):
+        shutil.copytree(datasets / "approach", tmp_path / name)
+    dataset_inputs(["a"], [tmp_path / "a"])
+    n_a = len(json.loads(cache_file.read_text()))
+    dataset_inputs(["b"], [tmp_path / "b"])
+    assert len(json.loads(cache_file.read_text())) == 2 * n_a
+    shutil.rmtree(tmp_path / "a")
+    shutil.copytree(datasets / "place", tmp_path / "c")
+    dataset_inputs(["c"], [tmp_path / "c"])  # a write: a's entries are dead
+    kept = json.loads(cache_file.read_text())
+    assert not any(str(tmp_path / "a") in key for key in kept) and len(kept) >= n_a + 1
+    assert all(str(tmp_path / "b") in key or str(tmp_path / "c") in key for key in kept)
+    # another process rewrites the file (a foreign entry, whose file exists as recorded): this process reads it
+    probe = tmp_path / "probe"
+    probe.write_text("x")
+    st = probe.stat()
+    foreign = {**kept, str(probe): {"stat": [st.st_size, st.st_mtime_ns, st.st_ino], "sha256": "0" * 64}}
+    cache_file.write_text(json.dumps(foreign))
+    assert identity._load_cache(cache_file) == foreign
+    reads = []
+    real = identity.file_digest
+    monkeypatch.setattr(identity, "file_digest", lambda p: reads.append(p) or real(p))
+    dataset_inputs(["b", "c"], [tmp_path / "b", tmp_path / "c"])
+    assert reads == []  # every file of b and c from the cache
 
 
 def _flip_candidates(run: Path) -> list[Path]:

@@ -13,6 +13,8 @@ from sr_imitation.envs.metaworld.tasks import (
     OBS_DIM,
     STREAMS,
     SkillEnv,
+    _benchmark,
+    configurations,
     scripted_policy,
     stream_skills,
 )
@@ -60,6 +62,27 @@ def test_same_seed_same_rollouts_and_final_step_mode():
         assert a.trajectories[0].shape == (61, OBS_DIM)
         c = evaluate_policy(random_policy(1), env, 1, seed=5, success_mode="final_step")
         assert c.success_rate == 0.0
+
+
+def test_the_configurations_built_once_are_meta_worlds_and_leave_numpys_generator_alone():
+    """SkillEnv builds ``metaworld.MT1(skill, seed=task_seed)`` once a process (about 2 s each): what it reads from
+    the cached build equals a fresh build's, other seeds give other configurations, and neither build nor a cached
+    read moves numpy's global generator (so an environment made after either starts from the same state)."""
+    import metaworld
+
+    _benchmark.cache_clear()
+    np.random.seed(11)
+    before = np.random.get_state()[1].copy()
+    first = configurations("drawer-open-v3", 0)
+    assert np.array_equal(np.random.get_state()[1], before)
+    fresh = metaworld.MT1("drawer-open-v3", seed=0)
+    assert configurations("drawer-open-v3", 0) == first
+    assert list(first) == list(fresh.train_tasks) and len(first) == 50
+    assert _benchmark.cache_info().misses == 1  # built once
+    assert configurations("drawer-open-v3", 1) != first
+    assert np.array_equal(np.random.get_state()[1], before)
+    with SkillEnv("drawer-open-v3", seed=2) as env:
+        assert env.tasks == list(first) and type(env._env) is fresh.train_classes["drawer-open-v3"]
 
 
 def test_streams_and_errors():

@@ -15,6 +15,7 @@ Streams (skill names are Meta-World v3 ids; the metrics strip the ``-v3`` suffix
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -112,6 +113,23 @@ class StepResult:
     success: bool
 
 
+@functools.cache
+def _benchmark(skill: str, task_seed: int) -> Any:
+    """``metaworld.MT1(skill, seed=task_seed)``, built once a process (our choice, for speed): building it resets a
+    fresh environment 50 times to draw the configurations (about 2 s on a 2-core CPU); with a seed it restores
+    numpy's global generator after, so a second build gives the same configurations and leaves the same state
+    (``tests/rl/test_envs_evaluate.py`` checks both). Only its immutable task list and its environment class are
+    read."""
+    import metaworld
+
+    return metaworld.MT1(skill, seed=task_seed)
+
+
+def configurations(skill: str, task_seed: int = 0) -> tuple[Any, ...]:
+    """The 50 task configurations of ``metaworld.MT1(skill, seed=task_seed)`` (``metaworld.Task``: immutable)."""
+    return tuple(_benchmark(skill, int(task_seed)).train_tasks)
+
+
 class SkillEnv:
     """One Meta-World v3 skill with its 50 task configurations, sampled uniformly at every reset.
 
@@ -133,11 +151,10 @@ class SkillEnv:
             raise ValueError(f"max_episode_steps must be >= 1, got {max_episode_steps}")
         self.skill = skill
         self.max_episode_steps = int(max_episode_steps)
-        benchmark = metaworld.MT1(skill, seed=task_seed)
-        self.tasks = list(benchmark.train_tasks)
+        self.tasks = list(configurations(skill, task_seed))
         if len(self.tasks) != NUM_CONFIGURATIONS:
             raise RuntimeError(f"{skill}: expected {NUM_CONFIGURATIONS} configurations, got {len(self.tasks)}")
-        self._env = benchmark.train_classes[skill]()
+        self._env = _benchmark(skill, int(task_seed)).train_classes[skill]()
         self._env.max_path_length = max(self._env.max_path_length, self.max_episode_steps)
         self.seed(seed)
         self._t = 0

@@ -23,6 +23,7 @@ wake instead of 0.93 with regrasp's own statistics (docs/RESULTS.md, "Why the ba
 
 from __future__ import annotations
 
+import copy
 import json
 import logging
 import warnings
@@ -108,13 +109,37 @@ def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
     if missing:
         raise DatasetMismatchError(f"{root}: incomplete LeRobot dataset, missing {', '.join(missing)}")
     read_meta_through(root)
-    try:
-        meta = LeRobotDatasetMetadata(repo_id, root=root)
-    except Exception as exc:  # noqa: BLE001 - LeRobot raises anything from Arrow/JSON/Hub errors here
-        raise DatasetMismatchError(f"{root}: cannot read the dataset metadata ({type(exc).__name__}: {exc})") from exc
-    if meta.total_episodes == 0 or meta.total_frames == 0:
-        raise DatasetMismatchError(f"{root}: dataset is empty ({meta.total_episodes} episodes)")
-    return meta
+    key = (str(root.resolve()), repo_id, _meta_signature(root))
+    meta = _METADATA_CACHE.get(key)
+    if meta is None:
+        try:
+            meta = LeRobotDatasetMetadata(repo_id, root=root)
+        except Exception as exc:  # noqa: BLE001 - LeRobot raises anything from Arrow/JSON/Hub errors here
+            raise DatasetMismatchError(
+                f"{root}: cannot read the dataset metadata ({type(exc).__name__}: {exc})") from exc
+        if meta.total_episodes == 0 or meta.total_frames == 0:
+            raise DatasetMismatchError(f"{root}: dataset is empty ({meta.total_episodes} episodes)")
+        if len(_METADATA_CACHE) >= 16:  # a stream's datasets, and a few more
+            _METADATA_CACHE.pop(next(iter(_METADATA_CACHE)))
+        _METADATA_CACHE[key] = meta
+    return copy.deepcopy(meta)  # a caller may change its copy; the cached one stays as read
+
+
+_METADATA_CACHE: dict[tuple[str, str, tuple[tuple[str, int, int, int, int], ...]], LeRobotDatasetMetadata] = {}
+"""The metadata :func:`load_metadata` read last (our choice, for speed: a stream's start-up and each stage read the
+same datasets' metadata several times, about 0.3 s a read through LeRobot's Arrow and ``datasets`` layers on a 2-core
+CPU). Keyed by the dataset's path, repo_id and every ``meta/`` file's size, inode, modification and change time, so
+a rewritten, replaced or touched metadata file is read again; every call still reads the files through first
+(:func:`read_meta_through`)."""
+
+
+def _meta_signature(root: Path) -> tuple[tuple[str, int, int, int, int], ...]:
+    out = []
+    for path in sorted((root / "meta").rglob("*")):
+        if path.is_file():
+            st = path.stat()
+            out.append((str(path.relative_to(root)), st.st_size, st.st_ino, st.st_mtime_ns, st.st_ctime_ns))
+    return tuple(out)
 
 
 DAMAGED_ADVICE = "the dataset is damaged: record or copy it again"

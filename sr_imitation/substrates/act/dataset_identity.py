@@ -14,8 +14,11 @@ path (:func:`check_inputs`).
 
 Cost. Hashing reads every byte (a 10 GB dataset: about a minute). Per-file digests are cached by
 (path, size, mtime in ns, inode) in ``$XDG_CACHE_HOME/sr_imitation/file_digests.json`` (our choice, the stat
-check git uses for its index): a resume re-hashes only files that were rewritten, replaced or touched. A byte edited
-in place with size and mtime restored by hand would escape the cache; ``SR_NO_DIGEST_CACHE=1`` hashes everything.
+check git uses for its index; ``SR_DIGEST_CACHE=<file>`` puts it elsewhere, as the test suite does): a resume
+re-hashes only files that were rewritten, replaced or touched. A byte edited in place with size and mtime restored
+by hand would escape the cache; ``SR_NO_DIGEST_CACHE=1`` hashes everything. The cache keeps only entries that still
+describe a file as it is (each write drops the others: deleted datasets, rewritten files), so it does not grow with
+every dataset ever hashed; a process reads it again only when another process rewrote it.
 """
 
 from __future__ import annotations
@@ -42,16 +45,55 @@ class InputsMismatchError(ValueError):
 
 
 def _cache_path() -> Path:
+    if os.environ.get("SR_DIGEST_CACHE"):
+        return Path(os.environ["SR_DIGEST_CACHE"])
     root = Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache")
     return root / "sr_imitation" / "file_digests.json"
 
 
+_read: dict[str, tuple[tuple[int, int, int], dict[str, Any]]] = {}
+"""The cache as this process last read or wrote it, by path, with the file's (size, mtime in ns, inode) then."""
+
+
+def _file_stamp(path: Path) -> tuple[int, int, int] | None:
+    try:
+        st = path.stat()
+    except OSError:
+        return None
+    return st.st_size, st.st_mtime_ns, st.st_ino
+
+
 def _load_cache(path: Path) -> dict[str, Any]:
+    stamp = _file_stamp(path)
+    seen = _read.get(str(path))
+    if stamp is not None and seen is not None and seen[0] == stamp:
+        return dict(seen[1])  # unchanged since this process read or wrote it (entries are replaced, never changed)
     try:
         data = json.loads(path.read_text())
     except (OSError, ValueError):
         return {}  # no cache, or an unreadable one: it is only a cache, everything is re-hashed
-    return data if isinstance(data, dict) else {}
+    if not isinstance(data, dict):
+        return {}
+    if stamp is not None:
+        _read[str(path)] = (stamp, dict(data))
+    return data
+
+
+def _still_valid(key: str, entry: Any) -> bool:
+    """Whether a cache entry still describes its file as it is now (a deleted or rewritten file's entry is dead)."""
+    try:
+        st = os.stat(key)
+    except OSError:
+        return False
+    return isinstance(entry, dict) and entry.get("stat") == [st.st_size, st.st_mtime_ns, st.st_ino]
+
+
+def _save_cache(path: Path, cache: dict[str, Any]) -> None:
+    kept = {key: entry for key, entry in cache.items() if _still_valid(key, entry)}
+    atomic_write_json(path, kept)
+    stamp = _file_stamp(path)
+    if stamp is not None:
+        _read[str(path)] = (stamp, kept)
 
 
 def dataset_files(root: Path) -> list[Path]:
@@ -97,7 +139,7 @@ def dataset_inputs(skills: Sequence[str], paths: Sequence[Path]) -> dict[str, st
     out = {skill: dataset_digest(Path(path), cache) for skill, path in zip(skills, paths, strict=True)}
     if cache is not None and cache != entries:  # a file was hashed anew
         try:
-            atomic_write_json(cache_path, cache)
+            _save_cache(cache_path, cache)
         except OSError as exc:  # a read-only home: only the cache is lost
             logger.warning("cannot write the digest cache %s (%s); datasets are re-hashed next time", cache_path, exc)
     return out
