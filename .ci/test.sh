@@ -14,4 +14,4 @@ export SR_TEST_OVERLAY="$venv"
 if [ "$workers" = "0" ]; then
   exec "$venv/bin/python" -m pytest "$@"
 fi
-exec "$venv/bin/python" -m pytest -n "$workers" "$@"
+exec "$venv/bin/python" -m pytest -n "$workers" --dist loadgroup "$@"

@@ -379,7 +379,7 @@ def _threads(run: Any, opts: RayOptions) -> int:
 def _resources(opts: RayOptions, substrate: GridSubstrate, run: Any) -> dict[str, Any]:
     gpus = opts.num_gpus if opts.num_gpus is not None else float(substrate.device(run).startswith("cuda"))
     env = {"OMP_NUM_THREADS": str(_threads(run, opts))}
-    env.update({k: os.environ[k] for k in ("MUJOCO_GL", "PYOPENGL_PLATFORM") if k in os.environ})
+    env.update({k: os.environ[k] for k in ("MUJOCO_GL", "PYOPENGL_PLATFORM", KILL_HOOK_ENV) if k in os.environ})
     out: dict[str, Any] = {"num_cpus": opts.num_cpus, "num_gpus": gpus, "max_retries": opts.max_retries,
                            "runtime_env": {"env_vars": env}}
     if opts.memory_gb is not None:

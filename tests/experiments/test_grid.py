@@ -1,6 +1,6 @@
 """sr-grid (sr_imitation.experiments.grid) on a tiny needle preset: a grid on a local Ray gives the plain loop's
 results, a worker killed mid-run is retried and its run resumes to the same results, runs in the archive are never
-submitted. Every test that starts Ray shuts it down (fixture ``local_ray``)."""
+submitted. The module's tests share one local Ray (fixture ``module_ray``), stopped after them."""
 
 from __future__ import annotations
 
@@ -32,6 +32,8 @@ from sr_imitation.main_job import preset_with_datasets
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 VARIANTS = ["sr", "wake_only"]
+
+pytestmark = pytest.mark.xdist_group("ray")  # one pytest worker runs every Ray test (.ci/test.sh: --dist loadgroup)
 
 
 @pytest.fixture(scope="module")
@@ -71,20 +73,31 @@ def _ray_processes() -> list[str]:
     return [line for line in ps.splitlines() if "raylet" in line or "gcs_server" in line]
 
 
-@pytest.fixture
-def local_ray():
-    """``start()`` starts a local Ray on 2 cores (after the test has set its environment: workers inherit it);
-    shut down, with no Ray process left, after the test."""
+@pytest.fixture(scope="module")
+def module_ray():
+    """One local Ray on 2 cores for the module's tests that submit to a Ray they did not start (a Ray start and stop
+    is about 10 s here); stopped, with no Ray process left, after the module. The module's tests run on one pytest
+    worker (``xdist_group``), so no other Ray runs beside it."""
     import ray
 
     assert not ray.is_initialized() and _ray_processes() == []
-
-    def start() -> None:
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False, _system_config=LOCAL_RAY_SYSTEM_CONFIG)
-
-    yield start
+    yield
     ray.shutdown()
     assert _ray_processes() == []
+
+
+@pytest.fixture
+def local_ray(module_ray):
+    """``start()`` connects the test to the module's local Ray, started on first use (a run's worker reads the kill
+    hook's setting from the environment the runner passes each task, so a test may set it after the start)."""
+    import ray
+
+    def start() -> None:
+        if not ray.is_initialized():
+            ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False,
+                     _system_config=LOCAL_RAY_SYSTEM_CONFIG)
+
+    return start
 
 
 def _assert_same_run(reference: Path, run: Path) -> None:
@@ -120,8 +133,8 @@ def test_a_grid_on_ray_gives_the_loops_results(preset, loop_runs, local_ray, tmp
 def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(preset, loop_runs, local_ray, tmp_path,
                                                                              monkeypatch, caplog):
     marker = tmp_path / "killed"
+    local_ray()  # started first: the setting reaches the run's worker through the task's environment
     monkeypatch.setenv(KILL_HOOK_ENV, f"sr_seed0:1.wake:{marker}")  # the first attempt dies after stage 1's wake
-    local_ray()
     out = tmp_path / "ray"
     with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
         run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=out))
@@ -155,10 +168,14 @@ def test_runs_in_the_archive_are_not_submitted(preset, loop_runs, local_ray, tmp
     _assert_same_run(loop_runs / "wake_only_seed0", out / "wake_only_seed0")
 
 
-def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(local_ray, tmp_path, caplog):
+def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(module_ray, tmp_path, caplog):
+    import ray
+
     from tests.experiments import toy_grid
 
-    # the runner starts its own local Ray here (and stops it: the fixture checks no Ray process is left)
+    # the runner starts its own local Ray here, and stops it
+    ray.shutdown()
+    assert _ray_processes() == []
     out, archive = tmp_path / "grid", tmp_path / "archive"
     cfg = GridConfig(preset=tmp_path / "unused.json", variants=["after_a", "a", "fails", "after_fails", "b"],
                      seeds=[0], output_root=out, archive=archive, ray=RayOptions(local_cpus=2))
@@ -173,6 +190,7 @@ def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(loc
     assert sorted(p.name for p in archive.iterdir()) == ["a_seed0", "after_a_seed0", "b_seed0"]  # the others kept
     assert not (out / "after_fails_seed0").exists()
     assert "toy failure" in (out / "logs" / "fails_seed0.log").read_text()  # the traceback in the run's log
+    assert not ray.is_initialized() and _ray_processes() == []  # the Ray the runner started is stopped
 
 
 def test_the_sac_grid_on_ray_gives_the_loops_results(local_ray, tmp_path):
