@@ -48,6 +48,19 @@ def test_every_variant_parses_to_its_method_and_settings(tmp_path, tiny_preset):
     assert "--resume=true" in run_args(cfg, "der", 0)
     assert parse(run_args(cfg, "sr_mean_grad", 0)).sleep.aggregator == "mean_grad"
     assert parse(run_args(cfg, "sr_mt8", 0)).stream.extend_from == tmp_path / "c" / "sr_seed0"
+    # issue 59's candidates as whole runs: the screening's flags (a1..b2), c = Reset & Distill's wake + a candidate's
+    from sr_imitation.experiments.sleep_screening import CANDIDATES
+
+    for name in ("a1", "a2", "b1", "b2"):
+        assert VARIANTS[f"sr_{name}"] == CANDIDATES[name]
+    a1, a2, b1, b2, c, c_b1 = (parse(run_args(cfg, v, 0)) for v in ("sr_a1", "sr_a2", "sr_b1", "sr_b2", "sr_c",
+                                                                      "sr_c_b1"))
+    assert a1.sleep.early_stop_tol == 0 and a2.sleep.early_stop_scale == "memory_scale"
+    assert (b1.method_options, b2.method_options) == ({"expert_memory": "instead"}, {"expert_memory": "beside"})
+    assert c.method_options == {"reset_wake": True} and c_b1.method_options == {"reset_wake": True,
+                                                                                 "expert_memory": "instead"}
+    assert parse(run_args(cfg, "sr_c_a1", 0)).sleep.early_stop_tol == 0
+    assert all(r.method == "sr" and r.excitability.enabled for r in (a1, a2, b1, b2, c, c_b1))
     with pytest.raises(ValueError, match="list sr before it"):
         MT5CompareConfig(variants=["sr_mt8", "sr"])
     with pytest.raises(ValueError, match="unknown"):
