@@ -36,6 +36,7 @@ from typing import Any
 from sr_imitation.experiments.archive import RunKey
 from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
+from sr_imitation.experiments.sleep_screening import CANDIDATES
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.reporting.summary import load_groups, write_summary
 from sr_imitation.reporting.summary import summarize as summary_of
@@ -68,12 +69,9 @@ VARIANTS: dict[str, list[str]] = {
     "sr_reverse": ["--stream.name=mt5-reverse"],
     "sr_mt8": ["--stream.name=mt8"],  # + --stream.extend_from=<the seed's sr run>
     "mt_joint": [],  # the oracle (substrates.sac.mt_joint): all skills at once, plain actor; reported apart
-    # issue 59's candidate sleeps as whole runs (docs/RESULTS.md, its protocol: step B and the confirmation's V);
-    # the flags are sleep_screening.CANDIDATES', c adds Reset & Distill's wake to the A-winner's setting (or to none)
-    "sr_a1": ["--sleep.early_stop_tol=0"],
-    "sr_a2": ["--sleep.early_stop_scale=memory_scale"],
-    "sr_b1": ["--method_options={expert_memory: instead}"],
-    "sr_b2": ["--method_options={expert_memory: beside}"],
+    # issue 59's candidate sleeps as whole runs (docs/RESULTS.md, its protocol: step B and the confirmation's V):
+    # sr_<candidate> with the screening's flags; c adds Reset & Distill's wake to the A-winner's setting (or to none)
+    **{f"sr_{name}": flags for name, flags in CANDIDATES.items() if name != "control"},
     "sr_c": ["--method_options={reset_wake: true}"],
     "sr_c_a1": ["--method_options={reset_wake: true}", "--sleep.early_stop_tol=0"],
     "sr_c_a2": ["--method_options={reset_wake: true}", "--sleep.early_stop_scale=memory_scale"],

@@ -79,9 +79,7 @@ def _memoized_attribute_docstring(klass: type, field_name: str) -> Any:
     return dataclasses.replace(_attribute_docstring(klass, field_name))
 
 
-_DRACCUS_ATTRIBUTE_DOCSTRING = getattr(draccus_docstring.get_attribute_docstring, "draccus_original",
-                                       draccus_docstring.get_attribute_docstring)  # a reload memoizes the original
-_memoized_attribute_docstring.draccus_original = _DRACCUS_ATTRIBUTE_DOCSTRING  # type: ignore[attr-defined]
+_DRACCUS_ATTRIBUTE_DOCSTRING = draccus_docstring.get_attribute_docstring
 draccus_docstring.get_attribute_docstring = _memoized_attribute_docstring  # every draccus wrapper calls it through here
 
 

@@ -108,10 +108,10 @@ def load_metadata(root: Path, repo_id: str) -> LeRobotDatasetMetadata:
         missing.append("meta/episodes/*/*.parquet")
     if missing:
         raise DatasetMismatchError(f"{root}: incomplete LeRobot dataset, missing {', '.join(missing)}")
-    read_meta_through(root)
     key = (str(root.resolve()), repo_id, _meta_signature(root))
     meta = _METADATA_CACHE.get(key)
     if meta is None:
+        read_meta_through(root)
         try:
             meta = LeRobotDatasetMetadata(repo_id, root=root)
         except Exception as exc:  # noqa: BLE001 - LeRobot raises anything from Arrow/JSON/Hub errors here
@@ -129,8 +129,8 @@ _METADATA_CACHE: dict[tuple[str, str, tuple[tuple[str, int, int, int, int], ...]
 """The metadata :func:`load_metadata` read last (our choice, for speed: a stream's start-up and each stage read the
 same datasets' metadata several times, about 0.3 s a read through LeRobot's Arrow and ``datasets`` layers on a 2-core
 CPU). Keyed by the dataset's path, repo_id and every ``meta/`` file's size, inode, modification and change time, so
-a rewritten, replaced or touched metadata file is read again; every call still reads the files through first
-(:func:`read_meta_through`)."""
+a rewritten, replaced or touched metadata file is read again, through :func:`read_meta_through` first like any
+read."""
 
 
 def _meta_signature(root: Path) -> tuple[tuple[str, int, int, int, int], ...]:

@@ -51,20 +51,21 @@ def _cache_path() -> Path:
     return root / "sr_imitation" / "file_digests.json"
 
 
-_read: dict[str, tuple[tuple[int, int, int], dict[str, Any]]] = {}
-"""The cache as this process last read or wrote it, by path, with the file's (size, mtime in ns, inode) then."""
+_read: dict[str, tuple[list[int], dict[str, Any]]] = {}
+"""The cache as this process last read or wrote it, by path, with the file's :func:`_stamp` then."""
 
 
-def _file_stamp(path: Path) -> tuple[int, int, int] | None:
+def _stamp(path: Path | str) -> list[int] | None:
+    """A file's (size, mtime in ns, inode), the cache's test of "unchanged"; ``None`` if it cannot be read."""
     try:
-        st = path.stat()
+        st = os.stat(path)
     except OSError:
         return None
-    return st.st_size, st.st_mtime_ns, st.st_ino
+    return [st.st_size, st.st_mtime_ns, st.st_ino]
 
 
 def _load_cache(path: Path) -> dict[str, Any]:
-    stamp = _file_stamp(path)
+    stamp = _stamp(path)
     seen = _read.get(str(path))
     if stamp is not None and seen is not None and seen[0] == stamp:
         return dict(seen[1])  # unchanged since this process read or wrote it (entries are replaced, never changed)
@@ -81,17 +82,14 @@ def _load_cache(path: Path) -> dict[str, Any]:
 
 def _still_valid(key: str, entry: Any) -> bool:
     """Whether a cache entry still describes its file as it is now (a deleted or rewritten file's entry is dead)."""
-    try:
-        st = os.stat(key)
-    except OSError:
-        return False
-    return isinstance(entry, dict) and entry.get("stat") == [st.st_size, st.st_mtime_ns, st.st_ino]
+    stamp = _stamp(key)
+    return stamp is not None and isinstance(entry, dict) and entry.get("stat") == stamp
 
 
 def _save_cache(path: Path, cache: dict[str, Any]) -> None:
     kept = {key: entry for key, entry in cache.items() if _still_valid(key, entry)}
     atomic_write_json(path, kept)
-    stamp = _file_stamp(path)
+    stamp = _stamp(path)
     if stamp is not None:
         _read[str(path)] = (stamp, kept)
 
@@ -116,9 +114,8 @@ def dataset_digest(root: Path, cache: dict[str, Any] | None = None) -> str:
     h = hashlib.sha256()
     files = dataset_files(root)
     for path in files:
-        st = path.stat()
         key = str(path.resolve())
-        stamp = [st.st_size, st.st_mtime_ns, st.st_ino]
+        stamp = _stamp(path)
         entry = None if cache is None else cache.get(key)
         if isinstance(entry, dict) and entry.get("stat") == stamp and isinstance(entry.get("sha256"), str):
             digest = entry["sha256"]
