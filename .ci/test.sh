@@ -5,13 +5,18 @@ root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
 source .ci/env.sh
 # Two pytest workers (pytest-xdist), one torch thread each: both cores busy without oversubscription
-# (SR_TEST_WORKERS=0 runs in one process).
+# (SR_TEST_WORKERS=0 runs in one process). Each test file runs on one worker (--dist loadfile): a module's shared
+# fixtures (recorded datasets, tiny trained runs, the grid's Ray) are built once, and the Ray tests never run beside
+# each other. (--dist loadfile's xdist_group marks do nothing under pytest 9 with xdist 3.8: tests/test_ci_dist.py.)
 workers="${SR_TEST_WORKERS:-2}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 # tests/test_install.py fails (instead of skipping) unless the tests run under this clone's overlay.
 export SR_TEST_OVERLAY="$venv"
 "$venv/bin/ruff" check sr_imitation policies tests
+# This clone's code byte-compiled once, before the tests: every process they start (lerobot-train, torchrun ranks, Ray
+# workers, the sr-* commands) compiles it again where PYTHONDONTWRITEBYTECODE is set (0.6-0.9 s a process here).
+"$venv/bin/python" -m compileall -q -j 0 sr_imitation policies tests >/dev/null
 if [ "$workers" = "0" ]; then
   exec "$venv/bin/python" -m pytest "$@"
 fi
-exec "$venv/bin/python" -m pytest -n "$workers" --dist loadgroup "$@"
+exec "$venv/bin/python" -m pytest -n "$workers" --dist loadfile "$@"

@@ -1,6 +1,7 @@
 """sr-grid (sr_imitation.experiments.grid) on a tiny needle preset: a grid on a local Ray gives the plain loop's
 results, a worker killed mid-run is retried and its run resumes to the same results, runs in the archive are never
-submitted. The module's tests share one local Ray (fixture ``module_ray``), stopped after them."""
+submitted. The module's tests share one local Ray (fixture ``module_ray``), stopped after them; they run on one pytest
+worker because .ci/test.sh hands each test file to one worker (``--dist loadfile``; tests/test_ci_dist.py checks it)."""
 
 from __future__ import annotations
 
@@ -32,9 +33,6 @@ from sr_imitation.main_job import preset_with_datasets
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 VARIANTS = ["sr", "wake_only"]
-
-pytestmark = pytest.mark.xdist_group("ray")  # one pytest worker runs every Ray test (.ci/test.sh: --dist loadgroup)
-
 
 @pytest.fixture(scope="module")
 def preset(tmp_path_factory) -> Path:
@@ -77,7 +75,7 @@ def _ray_processes() -> list[str]:
 def module_ray():
     """One local Ray on 2 cores for the module's tests that submit to a Ray they did not start (a Ray start and stop
     is about 10 s here); stopped, with no Ray process left, after the module. The module's tests run on one pytest
-    worker (``xdist_group``), so no other Ray runs beside it."""
+    worker (.ci/test.sh: ``--dist loadfile``), so no other Ray runs beside it."""
     import ray
 
     assert not ray.is_initialized() and _ray_processes() == []
@@ -114,22 +112,6 @@ def _assert_same_run(reference: Path, run: Path) -> None:
         assert x.keys() == y.keys() and all(torch.equal(x[k], y[k]) for k in x), file
 
 
-def test_a_grid_on_ray_gives_the_loops_results(preset, loop_runs, local_ray, tmp_path, caplog):
-    import ray
-
-    local_ray()
-    out = tmp_path / "ray"
-    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
-        summary = run_grid(GridConfig(preset=preset, variants=VARIANTS, seeds=[0], output_root=out))
-    for variant in VARIANTS:
-        _assert_same_run(loop_runs / f"{variant}_seed0", out / f"{variant}_seed0")
-        assert (out / "logs" / f"{variant}_seed0.log").stat().st_size > 0  # the run's log, not the console's
-    finished = [r.message for r in caplog.records if r.message.startswith("finished ")]
-    assert len(finished) == 2 and all("AFSR" in m and " s (" in m for m in finished)
-    assert set(summary["variants"]) == set(VARIANTS) and (out / "summary.md").is_file()
-    assert ray.is_initialized()  # a Ray the runner did not start is left to its owner
-
-
 def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(preset, loop_runs, local_ray, tmp_path,
                                                                              monkeypatch, caplog):
     marker = tmp_path / "killed"
@@ -148,7 +130,10 @@ def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(pres
     _assert_same_run(loop_runs / "sr_seed0", out / "sr_seed0")
 
 
-def test_runs_in_the_archive_are_not_submitted(preset, loop_runs, local_ray, tmp_path, caplog):
+def test_runs_in_the_archive_are_not_submitted_and_a_grid_on_ray_gives_the_loops_results(preset, loop_runs, local_ray,
+                                                                                           tmp_path, caplog):
+    import ray
+
     archive = tmp_path / "archive"
     archive_run(loop_runs / "sr_seed0", archive, "sr_seed0")
     # another value of a setting is refused before anything is submitted (Ray not even needed)
@@ -165,7 +150,13 @@ def test_runs_in_the_archive_are_not_submitted(preset, loop_runs, local_ray, tmp
     assert not (out / "sr_seed0").exists()
     assert summary["variants"]["sr"]["runs"] == {"0": str(archive / "sr_seed0")}
     assert summary["variants"]["wake_only"]["runs"] == {"0": str(archive / "wake_only_seed0")}  # archived at once
+    # the run on Ray gives the loop's results (sr's on Ray: the killed-worker test), with its own log and a line
     _assert_same_run(loop_runs / "wake_only_seed0", out / "wake_only_seed0")
+    assert (out / "logs" / "wake_only_seed0.log").stat().st_size > 0  # the run's log, not the console's
+    finished = [r.message for r in caplog.records if r.message.startswith("finished ")]
+    assert len(finished) == 1 and "AFSR" in finished[0] and " s (" in finished[0], finished
+    assert set(summary["variants"]) == set(VARIANTS) and (out / "summary.md").is_file()
+    assert ray.is_initialized()  # a Ray the runner did not start is left to its owner
 
 
 def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(module_ray, tmp_path, caplog):
