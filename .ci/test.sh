@@ -19,4 +19,4 @@ export SR_TEST_OVERLAY="$venv"
 if [ "$workers" = "0" ]; then
   exec "$venv/bin/python" -m pytest "$@"
 fi
-exec "$venv/bin/python" -m pytest -n "$workers" --dist loadfile "$@"
+exec "$venv/bin/python" -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder "$@"

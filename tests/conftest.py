@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import json
 import os
 import tempfile
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -24,3 +26,29 @@ def _seed_everything():
     torch.manual_seed(0)
     np.random.seed(0)
     yield
+
+
+_DURATIONS = Path(__file__).with_name("durations.json")
+"""Seconds each test file took in a measured run (tools/test_durations.py writes it)."""
+
+
+def pytest_collection_modifyitems(config, items):
+    """The heaviest test files first (:func:`heaviest_files_first`): .ci/test.sh gives whole files to the two workers
+    in this order (``--dist loadfile --no-loadscope-reorder``), so neither ends up alone with a long file at the end."""
+    seconds = json.loads(_DURATIONS.read_text()) if _DURATIONS.is_file() else {}
+    items[:] = heaviest_files_first(items, seconds)
+
+
+def heaviest_files_first(items: list, seconds: dict[str, float]) -> list:
+    """``items`` (anything with a pytest ``nodeid``) ordered by their file's ``seconds``, heaviest first, each file's
+    items in their own order and files of equal weight in collection order. A file not in ``seconds`` counts as 0 s:
+    the order changes how long the suite takes, never what it checks."""
+    first_seen: dict[str, int] = {}
+    for index, item in enumerate(items):
+        first_seen.setdefault(item.nodeid.split("::", 1)[0], index)
+
+    def key(item) -> tuple[float, int]:
+        name = item.nodeid.split("::", 1)[0]
+        return -seconds.get(name, 0.0), first_seen[name]
+
+    return sorted(items, key=key)
