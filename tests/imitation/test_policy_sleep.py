@@ -1,11 +1,11 @@
 """``--policy.sleep=true`` on stock ``lerobot-train``: the ACT-SR policy keeps a uniform reservoir
 of the observations it trains on and writes the skill's frozen actor memory beside each checkpoint, in the stream's
-format; with ``sleep`` false or not given nothing changes."""
+format; with ``sleep`` false or not given nothing changes. The flag on stock ``lerobot-train`` itself (a real
+subprocess) is checked by the stock route's test (tests/imitation/test_sleep_statistics.py), whose first run is that
+command."""
 
 from __future__ import annotations
 
-import subprocess
-import sys
 from pathlib import Path
 
 import pytest
@@ -142,32 +142,3 @@ def test_sleep_writes_the_skill_s_frozen_actor_memory_which_loads_back(image_dat
     bare.train()
     with pytest.raises(ValueError, match="dataset statistics"):
         bare.forward(pre(next(iter(torch.utils.data.DataLoader(dataset, batch_size=2)))))
-
-
-def test_stock_lerobot_train_with_policy_sleep_writes_a_memory_beside_the_checkpoint(image_datasets, tmp_path):
-    """The design card's command on stock lerobot-train (a real subprocess): accepted, and useful."""
-    exe = Path(sys.executable).parent / "lerobot-train"
-    if not exe.exists():
-        pytest.fail(f"lerobot-train is not installed next to {sys.executable}")
-    out = tmp_path / "lerobot_out"
-    cmd = [str(exe), "--policy.type=act_sr", "--policy.sleep=true", "--policy.sleep_memory_size=6",
-           "--policy.push_to_hub=false", "--policy.device=cpu", "--policy.dim_model=32", "--policy.n_heads=2",
-           "--policy.dim_feedforward=64", "--policy.n_encoder_layers=1", "--policy.n_vae_encoder_layers=1",
-           "--policy.chunk_size=4", "--policy.n_action_steps=4", f"--dataset.repo_id={REPO_ID}",
-           f"--dataset.root={image_datasets / SKILL}", "--dataset.video_backend=pyav", "--steps=4", "--batch_size=4",
-           "--num_workers=0", "--eval_freq=0", "--save_freq=4", "--wandb.enable=false", f"--output_dir={out}"]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    checkpoint = out / "checkpoints" / "000004" / "pretrained_model"
-    assert (checkpoint / "model.safetensors").is_file()
-    memory = load_memory(checkpoint / MEMORY_FILE, skill=REPO_ID)
-    assert isinstance(memory, ActorMemory) and memory.size == 6  # 16 observations seen, 6 kept
-    assert memory.observations()[IMAGE_KEY].dtype == torch.uint8
-    loaded = ACTSRPolicy.from_pretrained(checkpoint)
-    assert loaded.config.sleep is True and loaded.config.sleep_memory_size == 6
-    pre, _ = make_pre_post_processors(loaded.config, pretrained_path=str(checkpoint))  # the checkpoint's own
-
-    def chunk(raw):
-        return loaded.action_chunk(pre({k: v.float() / 255 if v.dtype == torch.uint8 else v for k, v in raw.items()}))
-
-    assert memory.verify_targets(chunk, atol=1e-5) <= 1e-5  # the memory is this checkpoint's skill memory

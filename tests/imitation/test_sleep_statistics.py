@@ -19,7 +19,9 @@ import gymnasium as gym
 import numpy as np
 import pytest
 import torch
+from lerobot.policies.factory import make_pre_post_processors
 
+from lerobot_policy_act_sr import ACTSRPolicy
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE
 from sr_imitation.core.memory import load_memory
@@ -232,7 +234,8 @@ def test_eval_skills_in_a_gym_environment(stock, tmp_path):
 # -- the stock route as a user runs it --------------------------------------------------------------------------------
 @pytest.mark.slow
 def test_the_stock_route_lerobot_train_twice_then_sr_sleep(jaw_datasets, tmp_path):
-    """lerobot-train on approach, lerobot-train on place fine-tuned from it, sr-sleep (real subprocesses)."""
+    """lerobot-train on approach (the README's ``--policy.sleep=true`` command: it writes the skill's memory beside the
+    checkpoint), lerobot-train on place fine-tuned from it, sr-sleep (real subprocesses)."""
     bin_dir = Path(sys.executable).parent
     common = ["--policy.sleep=true", "--policy.sleep_memory_size=8", "--policy.push_to_hub=false",
               "--policy.device=cpu", "--dataset.video_backend=pyav", "--steps=4", "--batch_size=4",
@@ -250,6 +253,19 @@ def test_the_stock_route_lerobot_train_twice_then_sr_sleep(jaw_datasets, tmp_pat
         return out / "checkpoints" / "000004" / "pretrained_model"
 
     approach = train("approach", *tiny)
+    # --policy.sleep=true on stock lerobot-train is accepted, and useful: the checkpoint's skill memory (a uniform
+    # reservoir of the camera frames and states it trained on) is beside it
+    memory = load_memory(approach / MEMORY_FILE, skill="local/sr_needle_approach")
+    assert isinstance(memory, ActorMemory) and memory.size == 8  # 16 observations seen, 8 kept
+    assert memory.observations()["observation.images.wrist"].dtype == torch.uint8
+    loaded = ACTSRPolicy.from_pretrained(approach)
+    assert loaded.config.sleep is True and loaded.config.sleep_memory_size == 8
+    pre, _ = make_pre_post_processors(loaded.config, pretrained_path=str(approach))  # the checkpoint's own
+
+    def chunk(raw):
+        return loaded.action_chunk(pre({k: v.float() / 255 if v.dtype == torch.uint8 else v for k, v in raw.items()}))
+
+    assert memory.verify_targets(chunk, atol=1e-5) <= 1e-5  # the memory is this checkpoint's skill memory
     place = train("place", f"--policy.path={approach}")
     proc = subprocess.run([str(bin_dir / "sr-sleep"), f"--policy.path={place}",
                            f"--memories=[{approach / MEMORY_FILE},{place / MEMORY_FILE}]",
