@@ -88,8 +88,9 @@ def test_same_seed_same_data(tmp_path):
 
 
 def test_same_settings_same_bytes_whatever_the_hash_seed(tmp_path):
-    """Two recordings in processes with different PYTHONHASHSEED give byte-identical files, so the dataset's
-    content digest (inputs.datasets.<skill>) names the demos, not the process that wrote them."""
+    """A recording in a process with another PYTHONHASHSEED than this one gives byte-identical files, so the
+    dataset's content digest (inputs.datasets.<skill>) names the demos, not the process that wrote them. (This
+    process's hash seed is random unless PYTHONHASHSEED is set; the other process's is chosen to differ from it.)"""
     import hashlib
     import os
     import subprocess
@@ -99,11 +100,11 @@ def test_same_settings_same_bytes_whatever_the_hash_seed(tmp_path):
         return {p.relative_to(root).as_posix(): hashlib.sha256(p.read_bytes()).hexdigest()
                 for p in sorted(root.rglob("*")) if p.is_file()}
 
-    for name, hash_seed in (("a", "1"), ("b", "2")):
-        env = {**os.environ, "PYTHONHASHSEED": hash_seed}
-        subprocess.run([sys.executable, "-m", "sr_imitation.recorders.needle", f"--root={tmp_path / name}",
-                        "--skills=[approach]", "--num_episodes=1", f"--image_size={SIZE}"],
-                       check=True, env=env, capture_output=True)
+    other_seed = "2" if os.environ.get("PYTHONHASHSEED") == "1" else "1"
+    subprocess.run([sys.executable, "-m", "sr_imitation.recorders.needle", f"--root={tmp_path / 'a'}",
+                    "--skills=[approach]", "--num_episodes=1", f"--image_size={SIZE}"],
+                   check=True, env={**os.environ, "PYTHONHASHSEED": other_seed}, capture_output=True)
+    rec.record(rec.RecordConfig(skills=["approach"], num_episodes=1, root=tmp_path / "b", image_size=SIZE))
     a, b = files(tmp_path / "a"), files(tmp_path / "b")
     assert any(k.endswith(".parquet") for k in a) and "approach/meta/stats.json" in a
     assert a == b

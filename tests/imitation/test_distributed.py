@@ -14,6 +14,7 @@ import pytest
 import torch
 from safetensors.torch import load_file
 
+from sr_imitation.cli import train_main
 from sr_imitation.infra.distributed import Processes, shard
 from sr_imitation.substrates.act.config import stored_config_dict
 from sr_imitation.substrates.act.evaluate import EvalConfig
@@ -53,15 +54,19 @@ def test_two_processes_give_the_one_process_run_and_write_it_once(state_datasets
     cfg.eval = EvalConfig(env="none", episodes=0)
     config = tmp_path / "train_config.json"
     config.write_text(json.dumps(stored_config_dict(cfg)))
-    runs = {}
-    for n in (1, 2):
-        scratch = tmp_path / f"tmp{n}"
-        scratch.mkdir()
-        done = _train(config, tmp_path / f"run{n}", n, scratch)
-        assert done.returncode == 0, done.stderr[-3000:]
-        # the other process's scratch copy is gone (torchrun keeps its own torchelastic_* folder there)
-        assert [p.name for p in scratch.iterdir() if not p.name.startswith("torchelastic_")] == []
-        runs[n] = tmp_path / f"run{n}"
+    threads = torch.get_num_threads()
+    torch.set_num_threads(1)  # the one-process reference in this process: sr-train's entry, one thread as each rank
+    try:
+        train_main([f"--config_path={config}", f"--output_dir={tmp_path / 'run1'}"])
+    finally:
+        torch.set_num_threads(threads)
+    scratch = tmp_path / "tmp2"
+    scratch.mkdir()
+    done = _train(config, tmp_path / "run2", 2, scratch)
+    assert done.returncode == 0, done.stderr[-3000:]
+    # the other process's scratch copy is gone (torchrun keeps its own torchelastic_* folder there)
+    assert [p.name for p in scratch.iterdir() if not p.name.startswith("torchelastic_")] == []
+    runs = {n: tmp_path / f"run{n}" for n in (1, 2)}
     files = {n: sorted(str(p.relative_to(run)) for p in run.rglob("*") if p.is_file()) for n, run in runs.items()}
     assert files[1] == files[2]  # the same files, once: the second process wrote none of the run's
     log = (runs[2] / "log.jsonl").read_text().splitlines()
