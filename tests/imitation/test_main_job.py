@@ -193,12 +193,16 @@ def test_sr_train_refuses_to_overwrite_an_existing_run(main_job_run):
 
 
 def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
+    """Stock lerobot-train (a real subprocess) makes act_sr from its plugin. Without --policy.sleep the policy keeps
+    no reservoir and writes no memory; --policy.use_images=false gives a state-only model there too (it used to be
+    stored as false while the model still took the camera: 11.2M parameters instead of 25k). The camera is used by
+    default: the stock route's first run checks it (tests/imitation/test_sleep_statistics.py)."""
     tmp, _ = main_job_run
     exe = Path(sys.executable).parent / "lerobot-train"
     if not exe.exists():
         pytest.fail(f"lerobot-train is not installed next to {sys.executable}")
     out = tmp_path / "lerobot_out"
-    cmd = [str(exe), "--policy.type=act_sr", "--policy.device=cpu",
+    cmd = [str(exe), "--policy.type=act_sr", "--policy.device=cpu", "--policy.use_images=false",
            "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64",
            "--policy.n_encoder_layers=1", "--policy.n_vae_encoder_layers=1", "--policy.chunk_size=8",
            "--policy.n_action_steps=8", "--dataset.repo_id=local/sr_needle_approach",
@@ -207,22 +211,13 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
            f"--output_dir={out}"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]
-    config = json.loads(next(out.rglob("pretrained_model/config.json")).read_text())
-    # --policy.sleep not given: the policy keeps no reservoir and writes no memory (test_policy_sleep.py gives it)
+    pretrained = next(out.rglob("pretrained_model/config.json")).parent
+    config = json.loads((pretrained / "config.json").read_text())
     assert config["type"] == "act_sr" and config["sleep"] is None
     assert not list(out.rglob("memory.safetensors"))
-    assert any("images" in key for key in config["input_features"])  # the dataset's camera, used by default
-    shutil.rmtree(out)
-    # --policy.use_images=false gives a state-only model on stock lerobot-train too (it used to be stored as false
-    # while the model still took the camera: 11.2M parameters instead of 25k)
-    proc = subprocess.run([*cmd, "--policy.use_images=false"], capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    pretrained = next(out.rglob("pretrained_model/config.json")).parent
-    features = json.loads((pretrained / "config.json").read_text())["input_features"]
-    assert set(features) == {"observation.state", "observation.environment_state"}
+    assert set(config["input_features"]) == {"observation.state", "observation.environment_state"}
     weights = load_file(str(pretrained / "model.safetensors"))
     assert not any("backbone" in name for name in weights)
-    shutil.rmtree(out)
 
 
 def test_stock_lerobot_eval_evaluates_a_consolidated_checkpoint(main_job_run, tmp_path):

@@ -253,6 +253,9 @@ def test_the_stock_route_lerobot_train_twice_then_sr_sleep(jaw_datasets, tmp_pat
         return out / "checkpoints" / "000004" / "pretrained_model"
 
     approach = train("approach", *tiny)
+    config = json.loads((approach / "config.json").read_text())
+    assert config["type"] == "act_sr" and any("images" in key for key in config["input_features"])  # the camera, used
+    # by default (test_main_job.py's stock run gives --policy.use_images=false)
     # --policy.sleep=true on stock lerobot-train is accepted, and useful: the checkpoint's skill memory (a uniform
     # reservoir of the camera frames and states it trained on) is beside it
     memory = load_memory(approach / MEMORY_FILE, skill="local/sr_needle_approach")
