@@ -36,12 +36,15 @@ def _worker_flags() -> list[str]:
 
 
 def test_each_test_file_runs_on_one_worker(tmp_path):
+    (tmp_path / "files").mkdir()
     for name in ("test_one", "test_two", "test_three"):
-        (tmp_path / f"{name}.py").write_text(_TEST_FILE)
+        (tmp_path / "files" / f"{name}.py").write_text(_TEST_FILE)
     (tmp_path / "pytest.ini").write_text("[pytest]\n")  # not the project's settings
     log = tmp_path / "where.jsonl"
     proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2", *_worker_flags(),
-                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path), str(tmp_path)],
+                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
+                           # its own temporary folder, not a numbered one beside this session's
+                           f"--basetemp={tmp_path / 'basetemp'}", str(tmp_path / "files")],
                           cwd=tmp_path, env={**_env(), "WHERE_LOG": str(log)}, capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
