@@ -7,7 +7,7 @@ source .ci/env.sh
 # Two pytest workers (pytest-xdist), one torch thread each: both cores busy without oversubscription
 # (SR_TEST_WORKERS=0 runs in one process). Each test file runs on one worker (--dist loadfile): a module's shared
 # fixtures (recorded datasets, tiny trained runs, the grid's Ray) are built once, and the Ray tests never run beside
-# each other. (--dist loadfile's xdist_group marks do nothing under pytest 9 with xdist 3.8: tests/test_ci_dist.py.)
+# each other. (--dist loadgroup's xdist_group marks do nothing under pytest 9 with xdist 3.8: tests/test_ci_dist.py.)
 workers="${SR_TEST_WORKERS:-2}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 # tests/test_install.py fails (instead of skipping) unless the tests run under this clone's overlay.

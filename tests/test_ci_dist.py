@@ -9,6 +9,7 @@ a dependency update could do the same to ``loadfile``."""
 from __future__ import annotations
 
 import json
+import os
 import subprocess
 import sys
 from pathlib import Path
@@ -87,6 +88,4 @@ def test_the_durations_come_from_pytests_report(tmp_path):
 
 
 def _env() -> dict[str, str]:
-    import os
-
     return {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}

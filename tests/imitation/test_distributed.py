@@ -41,9 +41,10 @@ def test_shard_cuts_contiguous_slices_and_their_shares():
         shard({"x": torch.arange(2), "y": torch.arange(3)}, Processes(0, 2))
 
 
-def _train(config: Path, out: Path, processes: int, tmp: Path) -> subprocess.CompletedProcess:
+def _torchrun(config: Path, out: Path, tmp: Path) -> subprocess.CompletedProcess:
+    """``sr-train`` on ``config`` as two processes started by ``torchrun``, ``tmp`` their temporary folder."""
     cli = ["-m", "sr_imitation.cli", f"--config_path={config}", f"--output_dir={out}"]
-    launcher = ["-m", "torch.distributed.run", "--standalone", f"--nproc_per_node={processes}"] if processes > 1 else []
+    launcher = ["-m", "torch.distributed.run", "--standalone", "--nproc_per_node=2"]
     env = {**os.environ, "OMP_NUM_THREADS": "1", "TMPDIR": str(tmp)}
     return subprocess.run([sys.executable, *launcher, *cli], capture_output=True, text=True, env=env, timeout=600)
 
@@ -62,7 +63,7 @@ def test_two_processes_give_the_one_process_run_and_write_it_once(state_datasets
         torch.set_num_threads(threads)
     scratch = tmp_path / "tmp2"
     scratch.mkdir()
-    done = _train(config, tmp_path / "run2", 2, scratch)
+    done = _torchrun(config, tmp_path / "run2", scratch)
     assert done.returncode == 0, done.stderr[-3000:]
     # the other process's scratch copy is gone (torchrun keeps its own torchelastic_* folder there)
     assert [p.name for p in scratch.iterdir() if not p.name.startswith("torchelastic_")] == []
@@ -91,7 +92,7 @@ def test_too_small_a_batch_for_the_processes_is_one_line(state_datasets, tmp_pat
     cfg.wake.batch_size = 1
     config = tmp_path / "train_config.json"
     config.write_text(json.dumps(stored_config_dict(cfg)))
-    done = _train(config, tmp_path / "run", 2, tmp_path)
+    done = _torchrun(config, tmp_path / "run", tmp_path)
     assert done.returncode != 0 and "wake.batch_size: 1 rows cannot be split over 2 processes" in done.stderr
     assert not (tmp_path / "run").exists()
 

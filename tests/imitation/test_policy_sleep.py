@@ -18,6 +18,7 @@ from lerobot_policy_act_sr.actor_memory import ActorMemory
 from lerobot_policy_act_sr.configuration_act_sr import DEFAULT_SLEEP_MEMORY_SIZE
 from lerobot_policy_act_sr.modeling_act_sr import MEMORY_FILE, MEMORY_SNAPSHOT, ObservationReservoir
 from sr_imitation.core.memory import load_memory
+from sr_imitation.substrates.act.substrate import normalize_raw_observations
 from tests.imitation.helpers import IMAGE, tiny_policy
 from tests.imitation.test_policy import _features
 
@@ -132,11 +133,8 @@ def test_sleep_writes_the_skill_s_frozen_actor_memory_which_loads_back(image_dat
     loaded = ACTSRPolicy.from_pretrained(tmp_path / "ckpt")
     loaded_pre, _ = make_pre_post_processors(loaded.config, dataset_stats=dataset.meta.stats)
 
-    def chunk(raw):
-        return loaded.action_chunk(loaded_pre({k: v.float() / 255 if v.dtype == torch.uint8 else v
-                                               for k, v in raw.items()}))
-
-    assert memory.verify_targets(chunk, atol=1e-5) <= 1e-5
+    assert memory.verify_targets(lambda raw: loaded.action_chunk(normalize_raw_observations(loaded_pre, raw)),
+                                 atol=1e-5) <= 1e-5
     # A policy built without dataset statistics cannot recover raw observations: refused at the first step.
     bare = ACTSRPolicy(policy.config)
     bare.train()

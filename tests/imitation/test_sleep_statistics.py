@@ -40,6 +40,7 @@ from sr_imitation.substrates.act.offline_sleep import (
     load_policy,
     run_offline_sleep,
 )
+from sr_imitation.substrates.act.substrate import normalize_raw_observations
 from tests.imitation.helpers import ACTION_DIM, STATE_DIM, make_skill_dataset, tiny_policy
 from tests.imitation.test_offline_sleep import _loads_as_lerobot_eval_does, _one_line_error, _stock_checkpoint
 
@@ -265,10 +266,9 @@ def test_the_stock_route_lerobot_train_twice_then_sr_sleep(jaw_datasets, tmp_pat
     assert loaded.config.sleep is True and loaded.config.sleep_memory_size == 8
     pre, _ = make_pre_post_processors(loaded.config, pretrained_path=str(approach))  # the checkpoint's own
 
-    def chunk(raw):
-        return loaded.action_chunk(pre({k: v.float() / 255 if v.dtype == torch.uint8 else v for k, v in raw.items()}))
-
-    assert memory.verify_targets(chunk, atol=1e-5) <= 1e-5  # the memory is this checkpoint's skill memory
+    # the memory is this checkpoint's skill memory
+    assert memory.verify_targets(lambda raw: loaded.action_chunk(normalize_raw_observations(pre, raw)),
+                                 atol=1e-5) <= 1e-5
     place = train("place", f"--policy.path={approach}")
     proc = subprocess.run([str(bin_dir / "sr-sleep"), f"--policy.path={place}",
                            f"--memories=[{approach / MEMORY_FILE},{place / MEMORY_FILE}]",
