@@ -14,6 +14,8 @@ import subprocess
 import sys
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 
 _TEST_FILE = '''
@@ -89,3 +91,71 @@ def test_the_durations_come_from_pytests_report(tmp_path):
 
 def _env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}
+
+
+_COST_FILE = '''
+import subprocess, sys
+
+def test_starts_one():
+    subprocess.run([sys.executable, "-c", "sum(range(2_000_000))"], check=True)
+
+def test_works_here():
+    sum(range(2_000_000))
+'''
+
+
+def test_the_cost_plugin_records_each_test_once_with_its_children_under_two_workers(tmp_path):
+    (tmp_path / "files").mkdir()
+    for name in ("test_one", "test_two"):
+        (tmp_path / "files" / f"{name}.py").write_text(_COST_FILE)
+    (tmp_path / "pytest.ini").write_text("[pytest]\n")
+    out = tmp_path / "cost"
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "test_cost",
+                           *_worker_flags(), "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
+                           f"--basetemp={tmp_path / 'basetemp'}", str(tmp_path / "files")], cwd=tmp_path,
+                          env={**_env(), "PYTHONPATH": str(ROOT / "tools"), "SR_TEST_COST": str(out)},
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    records = [json.loads(line) for path in out.glob("*.jsonl") for line in path.read_text().splitlines()]
+    assert len(list(out.glob("*.jsonl"))) == 2  # the two workers wrote; the controller, which runs no test, did not
+    assert sorted(r["nodeid"].rsplit("/", 1)[-1] for r in records) == [  # each test once
+        "test_one.py::test_starts_one", "test_one.py::test_works_here",
+        "test_two.py::test_starts_one", "test_two.py::test_works_here"]
+    for r in records:
+        started = r["nodeid"].endswith("test_starts_one")
+        assert (len(r["started"]) == 1) == started and (r["child"] > 0) == started, r
+        assert r["cpu"] > 0 and r["wall"] > 0, r
+        if started:
+            assert r["started"][0].startswith(sys.executable) and "sum(range" in r["started"][0], r
+
+
+def test_the_cost_report_sums_per_file_and_gives_the_in_process_floor():
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location("test_cost_tool", ROOT / "tools" / "test_cost.py")
+    tool = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(tool)
+    records = [{"nodeid": "tests/a.py::t1", "wall": 10.0, "cpu": 8.0, "child": 0.0, "started": []},
+               {"nodeid": "tests/a.py::t2[x]", "wall": 30.0, "cpu": 2.0, "child": 25.0,
+                "started": ["/venv/bin/lerobot-train --steps=4", "/usr/bin/git status"]},
+               {"nodeid": "tests/b.py::t", "wall": 4.0, "cpu": 4.0, "child": 0.0, "started": ["<os.fork>"]}]
+    assert tool.per_file(records) == {
+        "tests/a.py": {"tests": 2, "wall": 40.0, "cpu": 10.0, "child": 25.0, "started": 2},
+        "tests/b.py": {"tests": 1, "wall": 4.0, "cpu": 4.0, "child": 0.0, "started": 1}}
+    text = tool.report(records, workers=2)
+    assert text.startswith("3 tests: 14 s CPU in the test processes, 25 s CPU in the processes they started and "
+                           "reaped, 3 processes started\nin-process CPU alone on 2 perfectly balanced workers: 7 s")
+    assert text.index("| tests/a.py | 2 | 40.0 | 10.0 | 25.0 | 2 |") < text.index("| tests/b.py |")
+    assert "started: lerobot-train x1, git x1, <os.fork> x1" in text
+
+
+def test_the_readme_command_keeps_temporary_files_on_a_ram_disk_when_there_is_one():
+    """.ci/test.sh exports TMPDIR=/dev/shm/sr_tests where /dev/shm is writable with 4 GB free (unless SR_TEST_TMPDIR
+    says otherwise): small files' fsync and unlink cost milliseconds on this project's VMs' disks."""
+    import shutil
+    import tempfile
+
+    if not os.environ.get("SR_TEST_OVERLAY") or "SR_TEST_TMPDIR" in os.environ:
+        pytest.skip("not under .ci/test.sh's defaults")
+    room = os.access("/dev/shm", os.W_OK) and shutil.disk_usage("/dev/shm").free >= 4000000 * 1024
+    assert (tempfile.gettempdir() == "/dev/shm/sr_tests") == bool(room), (tempfile.gettempdir(), room)
