@@ -11,13 +11,14 @@ source .ci/env.sh
 workers="${SR_TEST_WORKERS:-2}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 # Temporary files (pytest's tmp_path and every tempfile of the tests and of the processes they start) on a RAM disk
-# where the machine has one with room: on this project's VMs (ext4 mounted with discard) a small file's fsync costs
-# about 4 ms and its unlink 3.4 ms, on /dev/shm 0.08 and 0.05 ms (docs/BENCHMARKS.md), and the suite writes, fsyncs
-# and deletes thousands. pytest keeps its last three sessions' folders there (each a few hundred MB of RAM).
+# where the machine has one with room. On this project's VMs (ext4 mounted with discard) an unlink costs 3.4 ms, so
+# deleting an earlier full session's folder (23 000 files) stalled the next small pytest session for 70-90 s; on
+# /dev/shm it takes about a second (the whole suite's own time did not change measurably; docs/BENCHMARKS.md). Passed
+# tests' folders are removed at the session's end (pyproject.toml), so little RAM stays in use after it.
 # SR_TEST_TMPDIR=<folder> puts them elsewhere; SR_TEST_TMPDIR= (empty) leaves TMPDIR as it is.
 tmp="${SR_TEST_TMPDIR-/dev/shm/sr_tests}"
 if [ -n "$tmp" ] && mkdir -p "$tmp" 2>/dev/null && [ -w "$tmp" ] \
-    && [ "$(df --output=avail -k "$tmp" | tail -n 1)" -ge 4000000 ]; then
+    && [ "$(df --output=avail -k "$tmp" 2>/dev/null | tail -n 1)" -ge 4000000 ] 2>/dev/null; then
   export TMPDIR="$tmp"
 fi
 # tests/test_install.py fails (instead of skipping) unless the tests run under this clone's overlay.
