@@ -39,18 +39,8 @@ def _worker_flags() -> list[str]:
 
 
 def test_each_test_file_runs_on_one_worker(tmp_path):
-    (tmp_path / "files").mkdir()
-    for name in ("test_one", "test_two", "test_three"):
-        (tmp_path / "files" / f"{name}.py").write_text(_TEST_FILE)
-    (tmp_path / "pytest.ini").write_text("[pytest]\n")  # not the project's settings
     log = tmp_path / "where.jsonl"
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-n", "2", *_worker_flags(),
-                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
-                           # its own temporary folder, not a numbered one beside this session's
-                           f"--basetemp={tmp_path / 'basetemp'}", str(tmp_path / "files")],
-                          cwd=tmp_path, env={**_env(), "WHERE_LOG": str(log)}, capture_output=True, text=True,
-                          timeout=300)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    _inner_session(tmp_path, _TEST_FILE, ("test_one", "test_two", "test_three"), {"WHERE_LOG": str(log)})
     rows = [json.loads(line) for line in log.read_text().splitlines()]
     assert len(rows) == 18
     pids = {module: {pid for m, _, pid in rows if m == module} for module in {m for m, _, _ in rows}}
@@ -75,11 +65,7 @@ def test_the_heaviest_files_go_first_each_in_its_own_order():
 
 
 def test_the_durations_come_from_pytests_report(tmp_path):
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("test_durations", ROOT / "tools" / "test_durations.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = _tool("test_durations")
     log = ("12.50s call     tests/x/test_a.py::test_one[p-1]\n3.30s setup    tests/x/test_a.py::test_two\n"
            "0.20s teardown tests/test_b.py::test_b\nnot a duration line tests/test_c.py::t\n"
            "1010 passed in 783.00s\n")
@@ -91,6 +77,30 @@ def test_the_durations_come_from_pytests_report(tmp_path):
 
 def _env() -> dict[str, str]:
     return {k: v for k, v in os.environ.items() if not k.startswith("PYTEST_")}
+
+
+def _inner_session(tmp_path: Path, text: str, names: tuple[str, ...], env: dict[str, str], *flags: str) -> None:
+    """A pytest session of its own under .ci/test.sh's worker flags (two workers) over the test files ``names``, each
+    holding ``text``; not the project's settings, its own temporary folder. Fails unless every test passes."""
+    (tmp_path / "files").mkdir()
+    for name in names:
+        (tmp_path / "files" / f"{name}.py").write_text(text)
+    (tmp_path / "pytest.ini").write_text("[pytest]\n")
+    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", *flags, *_worker_flags(),
+                           "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
+                           f"--basetemp={tmp_path / 'basetemp'}", str(tmp_path / "files")],
+                          cwd=tmp_path, env={**_env(), **env}, capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+
+
+def _tool(name: str):
+    """``tools/<name>.py`` as a module (tools/ is not a package)."""
+    import importlib.util
+
+    spec = importlib.util.spec_from_file_location(f"tool_{name}", ROOT / "tools" / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 _COST_FILE = '''
@@ -105,17 +115,9 @@ def test_works_here():
 
 
 def test_the_cost_plugin_records_each_test_once_with_its_children_under_two_workers(tmp_path):
-    (tmp_path / "files").mkdir()
-    for name in ("test_one", "test_two"):
-        (tmp_path / "files" / f"{name}.py").write_text(_COST_FILE)
-    (tmp_path / "pytest.ini").write_text("[pytest]\n")
     out = tmp_path / "cost"
-    proc = subprocess.run([sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-p", "test_cost",
-                           *_worker_flags(), "-c", str(tmp_path / "pytest.ini"), "--rootdir", str(tmp_path),
-                           f"--basetemp={tmp_path / 'basetemp'}", str(tmp_path / "files")], cwd=tmp_path,
-                          env={**_env(), "PYTHONPATH": str(ROOT / "tools"), "SR_TEST_COST": str(out)},
-                          capture_output=True, text=True, timeout=300)
-    assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
+    _inner_session(tmp_path, _COST_FILE, ("test_one", "test_two"),
+                   {"PYTHONPATH": str(ROOT / "tools"), "SR_TEST_COST": str(out)}, "-p", "test_cost")
     records = [json.loads(line) for path in out.glob("*.jsonl") for line in path.read_text().splitlines()]
     assert len(list(out.glob("*.jsonl"))) == 2  # the two workers wrote; the controller, which runs no test, did not
     assert sorted(r["nodeid"].rsplit("/", 1)[-1] for r in records) == [  # each test once
@@ -130,11 +132,7 @@ def test_the_cost_plugin_records_each_test_once_with_its_children_under_two_work
 
 
 def test_the_cost_report_sums_per_file_and_gives_the_in_process_floor():
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location("test_cost_tool", ROOT / "tools" / "test_cost.py")
-    tool = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(tool)
+    tool = _tool("test_cost")
     records = [{"nodeid": "tests/a.py::t1", "wall": 10.0, "cpu": 8.0, "child": 0.0, "started": []},
                {"nodeid": "tests/a.py::t2[x]", "wall": 30.0, "cpu": 2.0, "child": 25.0,
                 "started": ["/venv/bin/lerobot-train --steps=4", "/usr/bin/git status"]},

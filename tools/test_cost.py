@@ -22,6 +22,7 @@ from collections import Counter, defaultdict
 from pathlib import Path
 
 _started: list[str] = []
+"""The commands the current test started (audit hook)."""
 
 
 def _audit(event: str, args: tuple) -> None:
@@ -38,6 +39,7 @@ def _children_cpu() -> float:
 
 
 _open: dict = {}
+"""Whether this process records (``active``) and the current test's ``nodeid`` and starting clocks."""
 
 
 def pytest_configure(config) -> None:
@@ -82,8 +84,8 @@ def per_file(records: list[dict]) -> dict[str, dict]:
 def report(records: list[dict], workers: int = 2, top: int = 25) -> str:
     """The totals, the floor of the in-process part on ``workers`` workers, the heaviest files and what was started."""
     cpu, child = sum(r["cpu"] for r in records), sum(r["child"] for r in records)
-    started = Counter(command.split()[0].rsplit("/", 1)[-1] if command.split() else command
-                      for r in records for command in r["started"])
+    started = Counter(command.split(maxsplit=1)[0].rsplit("/", 1)[-1] for r in records for command in r["started"]
+                      if command.strip())
     lines = [f"{len(records)} tests: {cpu:.0f} s CPU in the test processes, {child:.0f} s CPU in the processes they "
              f"started and reaped, {sum(started.values())} processes started",
              f"in-process CPU alone on {workers} perfectly balanced workers: {cpu / workers:.0f} s of wall time",
