@@ -1,0 +1,259 @@
+"""Step B of issue 59's protocol (docs/RESULTS.md, "a SAC sleep that keeps what its wakes learn"): rule B on the
+full runs of the step-A winner and of Reset & Distill's wake with SR's consolidation, against the calibration runs.
+
+    python -m sr_imitation.experiments.sleep_step_b --archive=docs/results/sac_sleep_step_b \\
+        --calibration=docs/results/sac_sleep_calibration --variants=[sr_b1,sr_c_b1]
+
+Reads ``<archive>/<variant>_seed<seed>/results.json`` and ``<calibration>/sr_seed<seed>/results.json`` (checksums
+checked) for the calibration seeds 100-102. Before any number is used, each step-B run is checked to be what its name
+says: its seed, and its settings equal to the calibration run's of that seed except exactly the keys its variant's
+flags set (:data:`~sr_imitation.experiments.mt5_compare.VARIANTS`), each at the flag's value; a run that is not is
+one line naming the file and the key. Then ``step_b.json`` / ``step_b.md`` / ``step_b.png`` in ``--output`` (default
+the archive): per variant and seed the final AFSR, BWT against both references, success per skill after its own wake
+and at the end, each sleep's stop iteration and reason, the code commit and CPU; per variant the mean +- SE over the
+seeds and the paired difference to the calibration SR runs; and rule B as written (:func:`rule_b`), decided only when
+every variant has every one of the protocol's seeds. Everything here is exploratory (calibration seeds); it decides
+which variant V the confirmation runs, and the decision is written in RESULTS before any test-seed run of V.
+"""
+
+from __future__ import annotations
+
+import io
+import logging
+import sys
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sr_imitation.experiments.mt5_compare import VARIANTS
+from sr_imitation.experiments.sleep_screening import PROTOCOL_SEEDS, mean_se
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
+from sr_imitation.stream.config import check_choices
+
+logger = logging.getLogger(__name__)
+PROG = "python -m sr_imitation.experiments.sleep_step_b"
+
+MARGIN = 0.05
+"""Rule B: V's mean final AFSR must exceed the calibration SR runs' mean by at least this (the protocol's 0.05)."""
+UNCHECKED = frozenset({"output_dir"})
+"""Settings that may differ between a step-B run and its calibration run without changing results."""
+
+
+@dataclass
+class StepBConfig:
+    """The command line."""
+
+    archive: Path = Path("docs/results/sac_sleep_step_b")
+    """The step-B runs' archive (``<variant>_seed<seed>``)."""
+    calibration: Path = Path("docs/results/sac_sleep_calibration")
+    """The calibration SR runs' archive (``sr_seed<seed>``)."""
+    variants: list[str] = field(default_factory=lambda: ["sr_b1", "sr_c_b1"])
+    """The step-B variants (``mt5_compare``'s names): the A-winner's ``sr_<x>`` and ``sr_c_<x>``."""
+    seeds: list[int] = field(default_factory=lambda: list(PROTOCOL_SEEDS))
+    """Calibration seeds; rule B decides only on the protocol's 100-102 (unless ``decide_on_any_seeds``)."""
+    output: Path | None = None
+    """Where ``step_b.json`` / ``.md`` / ``.png`` go; ``None``: ``archive``."""
+    decide_on_any_seeds: bool = False
+    """Apply rule B to whatever seeds are given (tests)."""
+
+    def __post_init__(self) -> None:
+        check_choices("variants", self.variants, VARIANTS)
+        if not self.variants or not self.seeds:
+            raise ValueError("variants, seeds: give at least one of each")
+
+
+def flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    """``{"sleep": {"lr": 5e-4}}`` -> ``{"sleep.lr": 5e-4}``; ``method_options`` stays one value (one flag sets it)."""
+    out: dict[str, Any] = {}
+    for key, value in config.items():
+        if isinstance(value, Mapping) and value and key != "method_options":
+            out.update(flat(value, f"{prefix}{key}."))
+        else:
+            out[prefix + key] = value
+    return out
+
+
+def flag_settings(flags: Sequence[str]) -> dict[str, Any]:
+    """``["--sleep.early_stop_tol=0", "--method_options={a: b}"]`` -> ``{"sleep.early_stop_tol": 0,
+    "method_options": {"a": "b"}}`` (values read as the command line's YAML, as draccus reads them)."""
+    out = {}
+    for flag in flags:
+        key, _, value = flag.removeprefix("--").partition("=")
+        out[key] = yaml.safe_load(value)
+    return out
+
+
+def check_run(path: Path, results: Mapping[str, Any], calibration: Mapping[str, Any], variant: str,
+              seed: int) -> None:
+    """Raise ``ValueError`` (one line naming the file and the key) unless ``results`` is ``variant`` on ``seed``:
+    the calibration run's settings, except exactly the keys ``variant``'s flags set, at their values."""
+    expected = flag_settings(VARIANTS[variant])
+    mine, theirs = flat(results["config"]), flat(calibration["config"])
+    if mine.get("seed") != seed:
+        raise ValueError(f"{path}: seed is {mine.get('seed')}, its folder says {seed}")
+    for key in sorted((set(mine) | set(theirs)) - UNCHECKED):
+        want = expected[key] if key in expected else theirs.get(key)
+        if mine.get(key) != want:
+            raise ValueError(f"{path}: {key} is {mine.get(key)!r}, {variant} on seed {seed} needs {want!r} "
+                             f"(the calibration run's, with {' '.join(VARIANTS[variant]) or 'no flags'})")
+
+
+def row_of(variant: str, seed: int, results: Mapping[str, Any]) -> dict[str, Any]:
+    """One run's line of the table."""
+    metrics = results["metrics"]
+    sleeps = [s["sleep"] for s in results["stages"] if s.get("sleep")]
+    return {"variant": variant, "seed": seed, "final_afsr": metrics["afsr"]["final"],
+            "bwt": metrics["bwt"]["final"], "bwt_wake": metrics["bwt_wake"]["final"],
+            "success_after_own_wake": list(results["success_after_own_wake"]),
+            "final_success": list(results["success_matrix"][-1]),
+            "sleep_stops": [[s["stop_iteration"], s["stop_reason"]] for s in sleeps],
+            "commit": results["code"]["commit"], "machine": results.get("machine")}
+
+
+def rule_b(means: Mapping[str, float], calibration_mean: float) -> dict[str, Any]:
+    """The protocol's rule B: V is the variant with the highest mean final AFSR if that mean exceeds the calibration
+    SR runs' mean by at least :data:`MARGIN`; otherwise no variant (and no confirmatory run). Two variants with
+    exactly the same best mean: the protocol names no order, so no V is picked here (RESULTS must say how)."""
+    if not means:
+        return {"variant": None, "reason": "no variant"}
+    best = max(means.values())
+    tied = [v for v, m in means.items() if m == best]
+    if len(tied) > 1:
+        return {"variant": None, "reason": f"{' and '.join(tied)} tie at {best:.3f}: the protocol names no order"}
+    pick, gain = tied[0], best - calibration_mean
+    if gain >= MARGIN:
+        return {"variant": pick, "gain": gain,
+                "reason": f"{pick} {best:.3f} >= calibration SR {calibration_mean:.3f} + {MARGIN}"}
+    return {"variant": None, "best": pick, "gain": gain,
+            "reason": f"no variant exceeds the calibration SR runs by {MARGIN} (best {pick}: {gain:+.3f})"}
+
+
+def summarize(rows: Sequence[Mapping[str, Any]], calibration: Sequence[Mapping[str, Any]], variants: Sequence[str],
+              seeds: Sequence[int], decide_on_any_seeds: bool = False) -> dict[str, Any]:
+    """Per variant the mean +- SE over its seeds and the paired difference to the calibration runs; rule B only when
+    complete and on the protocol's seeds (unless ``decide_on_any_seeds``)."""
+    by = {(r["variant"], r["seed"]): r for r in rows}
+    base = {r["seed"]: r for r in calibration}
+    per: dict[str, Any] = {}
+    for v in variants:
+        done = [s for s in seeds if (v, s) in by]
+        if done:
+            per[v] = {"seeds": done, **mean_se([by[(v, s)]["final_afsr"] for s in done]),
+                      "minus_calibration": mean_se([by[(v, s)]["final_afsr"] - base[s]["final_afsr"] for s in done])}
+    cal = mean_se([base[s]["final_afsr"] for s in seeds])
+    missing = [f"{v}_seed{s}" for v in variants for s in seeds if (v, s) not in by]
+    if missing:
+        decision = {"variant": None, "reason": f"incomplete: rule B waits for {', '.join(missing)}"}
+    elif tuple(sorted(seeds)) != PROTOCOL_SEEDS and not decide_on_any_seeds:
+        decision = {"variant": None, "reason": f"rule B decides on seeds {list(PROTOCOL_SEEDS)} together; these "
+                                               f"are {list(seeds)}"}
+    else:
+        decision = rule_b({v: e["mean"] for v, e in per.items()}, cal["mean"])
+    return {"seeds": list(seeds), "calibration": {**cal, "rows": list(calibration)}, "variants": per,
+            "missing": missing, "rule_b": decision, "rows": list(rows)}
+
+
+def _se(se: float | None) -> str:
+    return "n/a (one seed)" if se is None else f"{se:.3f}"
+
+
+def _skills(values: Sequence[float]) -> str:
+    return " / ".join(f"{x:.2f}" for x in values)
+
+
+def render(summary: Mapping[str, Any]) -> str:
+    """``step_b.md``."""
+    cal = summary["calibration"]
+    lines = ["# Issue 59, step B: full runs on the calibration seeds (exploratory)", "",
+             f"Seeds {summary['seeds']}. Calibration SR (`sr`): {cal['mean']:.3f} +- {_se(cal['se'])}.", "",
+             "| variant | flags | mean final AFSR +- SE | minus calibration SR +- SE (paired) | seeds |",
+             "|---|---|---|---|---|"]
+    for v, e in summary["variants"].items():
+        d = e["minus_calibration"]
+        lines.append(f"| {v} | `{' '.join(VARIANTS[v])}` | {e['mean']:.3f} +- {_se(e['se'])} | "
+                     f"{d['mean']:+.3f} +- {_se(d['se'])} | {e['seeds']} |")
+    decision = summary["rule_b"]
+    lines += ["", f"Rule B: {decision['reason']}" + (f" -> **V = {decision['variant']}**" if decision.get("variant")
+                                                     else ""), "",
+              "| run | seed | final AFSR | BWT / BWT_wake | success after own wake | final success | sleeps stop at "
+              "| commit | CPU |", "|---|---|---|---|---|---|---|---|---|"]
+    for r in [*[{**c, "variant": "sr (calibration)"} for c in cal["rows"]],
+              *sorted(summary["rows"], key=lambda r: (r["variant"], r["seed"]))]:
+        stops = ", ".join(f"{i} ({why})" for i, why in r["sleep_stops"])
+        cpu = (r.get("machine") or {}).get("cpu", "not recorded")
+        lines.append(f"| {r['variant']} | {r['seed']} | {r['final_afsr']:.3f} | {r['bwt']:+.3f} / "
+                     f"{r['bwt_wake']:+.3f} | {_skills(r['success_after_own_wake'])} | {_skills(r['final_success'])} "
+                     f"| {stops} | {r['commit'][:7]} | {cpu} |")
+    if summary["missing"]:
+        lines += ["", f"Not archived yet: {', '.join(summary['missing'])}."]
+    return "\n".join(lines) + "\n"
+
+
+def plot(summary: Mapping[str, Any], path: Path) -> None:
+    """One column per arm (calibration SR, then each variant): each seed's final AFSR as a dot, joined across arms
+    by seed (the pairing), the mean as a bar; the dashed line is rule B's bar (calibration mean + margin)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    cal = summary["calibration"]
+    arms = {"sr (calibration)": {r["seed"]: r["final_afsr"] for r in cal["rows"]}}
+    for v in summary["variants"]:
+        arms[v] = {r["seed"]: r["final_afsr"] for r in summary["rows"] if r["variant"] == v}
+    fig, ax = plt.subplots(figsize=(1.6 + 1.4 * len(arms), 3.6))
+    names = list(arms)
+    for i, name in enumerate(names):
+        values = list(arms[name].values())
+        ax.bar(i, sum(values) / len(values), color="#c9d9ec", width=0.6)
+    for seed in summary["seeds"]:
+        xs = [i for i, n in enumerate(names) if seed in arms[n]]
+        ax.plot(xs, [arms[names[i]][seed] for i in xs], marker="o", ms=4, lw=0.8, label=f"seed {seed}")
+    ax.axhline(cal["mean"] + MARGIN, color="k", ls="--", lw=0.8, label=f"calibration mean + {MARGIN}")
+    ax.set_xticks(range(len(names)), names, fontsize=8)
+    ax.set_ylim(0, 1.02)
+    ax.set_ylabel("final AFSR")
+    ax.set_title("step B (calibration seeds, exploratory)", fontsize=9)
+    ax.legend(fontsize=7, frameon=False, loc="lower right")
+    fig.tight_layout()
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    plt.close(fig)
+    atomic_write_bytes(path, buf.getvalue())
+
+
+def run_step_b(cfg: StepBConfig) -> dict[str, Any]:
+    """Read and check every archived run (a missing step-B run is reported, a missing calibration run is an
+    error), then write the table, the figure and the decision."""
+    calibration, rows = [], []
+    for seed in cfg.seeds:
+        cal = read_checked_json(cfg.calibration / f"sr_seed{seed}" / "results.json")
+        calibration.append(row_of("sr", seed, cal))
+        for v in cfg.variants:
+            path = cfg.archive / f"{v}_seed{seed}" / "results.json"
+            if not path.is_file():
+                continue
+            results = read_checked_json(path)
+            check_run(path, results, cal, v, seed)
+            rows.append(row_of(v, seed, results))
+    summary = summarize(rows, calibration, cfg.variants, cfg.seeds, cfg.decide_on_any_seeds)
+    target = cfg.output or cfg.archive
+    write_checked_json(target / "step_b.json", summary)
+    atomic_write_bytes(target / "step_b.md", render(summary).encode())
+    plot(summary, target / "step_b.png")
+    logger.info("rule B: %s", summary["rule_b"]["reason"])
+    return summary
+
+
+def main(args: list[str] | None = None) -> None:
+    setup_logging()
+    run_step_b(parse_command(StepBConfig, list(sys.argv[1:] if args is None else args), prog=PROG))
+
+
+if __name__ == "__main__":
+    run_cli(PROG, main)
