@@ -155,7 +155,9 @@ def summarize(rows: Sequence[Mapping[str, Any]], calibration: Sequence[Mapping[s
     else:
         decision = rule_b({v: e["mean"] for v, e in per.items()}, cal["mean"])
     return {"seeds": list(seeds), "calibration": {**cal, "rows": list(calibration)}, "variants": per,
-            "missing": missing, "rule_b": decision, "rows": list(rows)}
+            "missing": missing, "rule_b": decision, "rows": list(rows),
+            "commits": sorted({r["commit"] for r in rows}),
+            "cpus": sorted({(r.get("machine") or {}).get("cpu", "not recorded") for r in rows})}
 
 
 def _se(se: float | None) -> str:
@@ -178,6 +180,9 @@ def render(summary: Mapping[str, Any]) -> str:
         lines.append(f"| {v} | `{' '.join(VARIANTS[v])}` | {e['mean']:.3f} +- {_se(e['se'])} | "
                      f"{d['mean']:+.3f} +- {_se(d['se'])} | {e['seeds']} |")
     decision = summary["rule_b"]
+    one = "every step-B run" if len(summary["commits"]) == 1 else "NOT one commit: the runs are not comparable as made"
+    lines += ["", f"Code of the step-B runs: {', '.join(c[:7] for c in summary['commits'])} ({one}); CPU: "
+                  f"{'; '.join(summary['cpus'])}."]
     lines += ["", f"Rule B: {decision['reason']}" + (f" -> **V = {decision['variant']}**" if decision.get("variant")
                                                      else ""), "",
               "| run | seed | final AFSR | BWT / BWT_wake | success after own wake | final success | sleeps stop at "

@@ -90,6 +90,8 @@ def test_rule_b_waits_for_every_run_then_decides_and_writes_the_table(tmp_path):
     assert "| sr_c_b1 | `--method_options={reset_wake: true, expert_memory: instead}` | 0.650 +- 0.029 |" in table
     assert "| sr (calibration) | 100 | 0.288 |" in table and "| 5545b02 | AMD EPYC" in table
     assert "| e89c5b1 | not recorded |" in table  # the calibration runs' code recorded no CPU
+    assert ("Code of the step-B runs: 5545b02 (every step-B run); CPU: AMD EPYC (family 25, model 1; avx2, fma)."
+            in table)
     assert (archive / "step_b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # seeds other than the protocol's are reported, not decided
     other = run_step_b(StepBConfig(archive=archive, calibration=CALIBRATION, seeds=[100, 101],
