@@ -1,6 +1,7 @@
 """The run queue's shell tools (tools/experiments): what a session leaves for the next one."""
 
 import subprocess
+from datetime import UTC
 from pathlib import Path
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools" / "experiments"
@@ -118,3 +119,42 @@ def test_resuming_while_a_worker_of_the_clone_runs_queues_nothing_twice(tmp_path
     assert ("queue_resume: 1 worker(s) of this clone running: outputs/queue.txt left as it is (the pending lines "
             "may be running now)") in out.stderr.splitlines()
     assert out.stderr.count("would start a worker") == min(len(os.sched_getaffinity(0)), 2) - 1
+
+
+def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_queued(tmp_path):
+    """queue_status.py on a queue whose run "a" ended, "b" was cut (no process of it) mid-wake and "c" is queued."""
+    import importlib.util
+    from datetime import datetime
+
+    spec = importlib.util.spec_from_file_location("queue_status", TOOLS / "queue_status.py")
+    status = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(status)
+    queue = tmp_path / "queue.txt"
+    queue.write_text("# header\nc -m x --output_root=/nowhere/c\n")
+    (tmp_path / "queue.txt.taken").write_text("a -m x --output_root=/nowhere/a\nb -m x --output_root=/nowhere/b\n")
+    (tmp_path / "queue.txt.done").write_text(
+        "2026-11-30T00:00:00Z start a on AMD EPYC, family 25 model 1, no AVX-512\n2026-11-30T01:00:00Z a rc=0\n"
+        "2026-11-30T01:00:01Z start b on AMD EPYC, family 25 model 1, no AVX-512\n")
+    logs = tmp_path / "qlogs"
+    logs.mkdir()
+    (logs / "b.log").write_text(
+        "2026-11-30 01:00:05,000 INFO sr_imitation.stream.engine: stage 1 (reach-v3): wake\n"
+        "2026-11-30 01:05:00,000 INFO sr_imitation.substrates.sac.wake: wake reach-v3: 10/300 (3%), 5m elapsed, "
+        "~2h left; reward=1.0\n"
+        "2026-11-30 02:00:00,000 INFO sr_imitation.stream.engine: stage 2 (door-open-v3): wake\n")
+    text = status.report(queue, logs, now=datetime(2026, 11, 30, 2, 31, tzinfo=UTC))
+    assert status.last_position(logs / "b.log") == ("stage 2 (door-open-v3) wake", "")
+    with (logs / "b.log").open("a") as log:
+        log.write("2026-11-30 02:05:00,000 INFO sr_imitation.substrates.sac.wake: wake door-open-v3: 80/800 (10%), "
+                  "5m elapsed, ~45m left; reward=2.0\n")
+    assert status.last_position(logs / "b.log") == (
+        "stage 2 (door-open-v3) wake", "wake door-open-v3: 80/800 (10%), 5m elapsed, ~45m left; reward=2.0")
+    lines = text.splitlines()
+    assert lines[0] == f"queue {queue}: 1 in flight, 1 queued, 1 finished"
+    assert lines[1] == ("  b: NOT running (cut: queue_requeue.sh puts it back); last started 2026-11-30T01:00:01Z "
+                        "(1 h 30 min ago) on AMD EPYC, family 25 model 1, no AVX-512")
+    assert lines[2] == "    stage 2 (door-open-v3) wake"  # the progress line was stage 1's
+    assert lines[3:] == ["  next: c", "  ended 2026-11-30T01:00:00Z: a rc=0"]
+    missing = subprocess.run(["python3", str(TOOLS / "queue_status.py"), str(tmp_path / "none.txt")],
+                             capture_output=True, text=True, check=False)
+    assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "none.txt: no queue here" in missing.stderr

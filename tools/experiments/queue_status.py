@@ -1,0 +1,107 @@
+"""Where the experiment queue stands, in one screen (tools/experiments/queue_worker.sh's files; reads only):
+
+    python3 tools/experiments/queue_status.py                      # outputs/queue.txt, logs in outputs/qlogs
+    python3 tools/experiments/queue_status.py <queue file> <log folder>
+
+For each run in flight (started in ``<queue>.done`` with no exit line after its last start): when it started, on
+which CPU, the stage and phase its log reached last, and its last progress line (the wake's "n/N (p%) ... left");
+whether its worker still runs (a ``python`` process whose command line holds the run's ``--output_root``) or the run
+was cut (a session's end: requeue it). Then the queued lines and the last finished runs with their exit status.
+Standard library only, so it works before the environment is built.
+"""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from datetime import UTC, datetime
+from pathlib import Path
+
+STAGE = re.compile(r"stage (\d+) \(([^)]+)\): ([\w.]+)")
+PROGRESS = re.compile(r"(\d+/\d+ \(\d+%\).*?left)")
+START = re.compile(r"^(\S+) start (\S+)(?: on (.*))?$")
+END = re.compile(r"^(\S+) (\S+) rc=(-?\d+)$")
+
+
+def _lines(path: Path) -> list[str]:
+    return [line for line in path.read_text().splitlines() if line.strip()] if path.is_file() else []
+
+
+def _queued(queue: Path) -> list[str]:
+    return [line.split()[0] for line in _lines(queue) if not line.startswith("#")]
+
+
+def runs(done: Path) -> tuple[dict[str, dict], list[dict]]:
+    """``(in_flight, finished)`` from the worker's start and exit lines, oldest first."""
+    flight: dict[str, dict] = {}
+    finished = []
+    for line in _lines(done):
+        if m := START.match(line):
+            flight[m[2]] = {"name": m[2], "started": m[1], "cpu": m[3] or "not named"}
+        elif m := END.match(line):
+            flight.pop(m[2], None)
+            finished.append({"name": m[2], "ended": m[1], "rc": int(m[3])})
+    return flight, finished
+
+
+def last_position(log: Path) -> tuple[str, str]:
+    """The last ``stage k (skill): phase`` of a run's log and the last progress text since it ("" where none)."""
+    stage = progress = ""
+    for line in _lines(log):
+        if m := STAGE.search(line):
+            stage, progress = f"stage {m[1]} ({m[2]}) {m[3]}", ""  # an earlier phase's progress is not this one's
+        if m := PROGRESS.search(line):
+            progress = line[line.find(": ", line.find(" INFO ")) + 2:] if " INFO " in line else m[1]
+    return stage, progress
+
+
+def _alive(name: str, queue: Path) -> bool:
+    """Whether a process runs this queue line's command (matched by its ``--output_root``)."""
+    line = next((ln for ln in _lines(queue.with_name(queue.name + ".taken")) if ln.split()[0] == name), "")
+    root = next((a for a in line.split() if a.startswith("--output_root=")), None)
+    if root is None:
+        return False
+    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=False).stdout
+    return any(root in p and "python" in p for p in ps.splitlines())
+
+
+def _since(stamp: str, now: datetime) -> str:
+    try:
+        then = datetime.strptime(stamp, "%Y-%m-%dT%H:%M:%SZ").replace(tzinfo=UTC)
+    except ValueError:
+        return "?"
+    minutes = int((now - then).total_seconds() // 60)
+    return f"{minutes // 60} h {minutes % 60:02d} min ago"
+
+
+def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) -> str:
+    now = now or datetime.now(UTC)
+    flight, finished = runs(queue.with_name(queue.name + ".done"))
+    out = [f"queue {queue}: {len(flight)} in flight, {len(_queued(queue))} queued, {len(finished)} finished"]
+    for r in flight.values():
+        stage, progress = last_position(logs / f"{r['name']}.log")
+        state = "running" if _alive(r["name"], queue) else "NOT running (cut: queue_requeue.sh puts it back)"
+        out.append(f"  {r['name']}: {state}; last started {r['started']} ({_since(r['started'], now)}) on {r['cpu']}")
+        out.append(f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}")
+    queued = _queued(queue)
+    if queued:
+        out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
+    for r in finished[-last:]:
+        out.append(f"  ended {r['ended']}: {r['name']} rc={r['rc']}")
+    return "\n".join(out)
+
+
+def main(argv: list[str]) -> int:
+    root = Path(__file__).resolve().parents[2]
+    queue = Path(argv[0]) if argv else root / "outputs" / "queue.txt"
+    logs = Path(argv[1]) if len(argv) > 1 else queue.parent / "qlogs"
+    if not queue.is_file() and not queue.with_name(queue.name + ".done").is_file():
+        sys.stderr.write(f"queue_status: {queue}: no queue here (tools/experiments/queue_resume.sh starts one)\n")
+        return 2
+    sys.stdout.write(report(queue, logs) + "\n")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main(sys.argv[1:]))
