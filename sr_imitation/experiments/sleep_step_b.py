@@ -12,8 +12,9 @@ one line naming the file and the key. Then ``step_b.json`` / ``step_b.md`` / ``s
 the archive): per variant and seed the final AFSR, BWT against both references, success per skill after its own wake
 and at the end, each sleep's stop iteration and reason, the code commit and CPU; per variant the mean +- SE over the
 seeds and the paired difference to the calibration SR runs; and rule B as written (:func:`rule_b`), decided only when
-every variant has every one of the protocol's seeds. Everything here is exploratory (calibration seeds); it decides
-which variant V the confirmation runs, and the decision is written in RESULTS before any test-seed run of V.
+every variant has every one of the protocol's seeds (an exact tie: the earlier variant of ``--variants``).
+Everything here is exploratory (calibration seeds); it decides which variant V the confirmation runs, and the
+decision is written in RESULTS before any test-seed run of V.
 """
 
 from __future__ import annotations
@@ -117,18 +118,18 @@ def row_of(variant: str, seed: int, results: Mapping[str, Any]) -> dict[str, Any
 
 def rule_b(means: Mapping[str, float], calibration_mean: float) -> dict[str, Any]:
     """The protocol's rule B: V is the variant with the highest mean final AFSR if that mean exceeds the calibration
-    SR runs' mean by at least :data:`MARGIN`; otherwise no variant (and no confirmatory run). Two variants with
-    exactly the same best mean: the protocol names no order, so no V is picked here (RESULTS must say how)."""
+    SR runs' mean by at least :data:`MARGIN`; otherwise no variant (and no confirmatory run). The protocol names no
+    order for two exactly equal means; our choice, written in RESULTS' record (2026-11-30 02:37 UTC) before any
+    step-B result: the earlier in ``means``' order wins (``sr_b1`` before ``sr_c_b1``: one change from SR, not two)."""
     if not means:
         return {"variant": None, "reason": "no variant"}
     best = max(means.values())
     tied = [v for v, m in means.items() if m == best]
-    if len(tied) > 1:
-        return {"variant": None, "reason": f"{' and '.join(tied)} tie at {best:.3f}: the protocol names no order"}
     pick, gain = tied[0], best - calibration_mean
+    tie = f" ({' and '.join(tied)} tie: the earlier in the order wins)" if len(tied) > 1 else ""
     if gain >= MARGIN:
         return {"variant": pick, "gain": gain,
-                "reason": f"{pick} {best:.3f} >= calibration SR {calibration_mean:.3f} + {MARGIN}"}
+                "reason": f"{pick} {best:.3f} >= calibration SR {calibration_mean:.3f} + {MARGIN}{tie}"}
     return {"variant": None, "best": pick, "gain": gain,
             "reason": f"no variant exceeds the calibration SR runs by {MARGIN} (best {pick}: {gain:+.3f})"}
 

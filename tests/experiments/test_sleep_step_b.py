@@ -34,8 +34,10 @@ def test_rule_b_picks_the_higher_mean_only_by_the_margin():
     assert short["variant"] is None and short["best"] == "sr_b1"
     assert short["reason"] == "no variant exceeds the calibration SR runs by 0.05 (best sr_b1: +0.049)"
     assert rule_b({"sr_b1": 0.384}, 0.333)["variant"] == "sr_b1"  # +0.051
-    tie = rule_b({"sr_b1": 0.70, "sr_c_b1": 0.70}, 0.333)
-    assert tie["variant"] is None and tie["reason"] == "sr_b1 and sr_c_b1 tie at 0.700: the protocol names no order"
+    tie = rule_b({"sr_b1": 0.70, "sr_c_b1": 0.70}, 0.333)  # RESULTS' record: the earlier in the order wins
+    assert tie["variant"] == "sr_b1"
+    assert tie["reason"].endswith("(sr_b1 and sr_c_b1 tie: the earlier in the order wins)")
+    assert rule_b({"sr_c_b1": 0.70, "sr_b1": 0.70}, 0.333)["variant"] == "sr_c_b1"
     assert rule_b({}, 0.333)["variant"] is None
 
 
