@@ -16,6 +16,8 @@ from pathlib import Path
 
 import pytest
 
+from tests.tool_loader import load_tool
+
 ROOT = Path(__file__).resolve().parents[1]
 
 _TEST_FILE = '''
@@ -65,7 +67,7 @@ def test_the_heaviest_files_go_first_each_in_its_own_order():
 
 
 def test_the_durations_come_from_pytests_report(tmp_path):
-    tool = _tool("test_durations")
+    tool = load_tool("test_durations")
     log = ("12.50s call     tests/x/test_a.py::test_one[p-1]\n3.30s setup    tests/x/test_a.py::test_two\n"
            "0.20s teardown tests/test_b.py::test_b\nnot a duration line tests/test_c.py::t\n"
            "1010 passed in 783.00s\n")
@@ -91,16 +93,6 @@ def _inner_session(tmp_path: Path, text: str, names: tuple[str, ...], env: dict[
                            f"--basetemp={tmp_path / 'basetemp'}", str(tmp_path / "files")],
                           cwd=tmp_path, env={**_env(), **env}, capture_output=True, text=True, timeout=300)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-2000:]
-
-
-def _tool(name: str):
-    """``tools/<name>.py`` as a module (tools/ is not a package)."""
-    import importlib.util
-
-    spec = importlib.util.spec_from_file_location(f"tool_{name}", ROOT / "tools" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 _COST_FILE = '''
@@ -132,7 +124,7 @@ def test_the_cost_plugin_records_each_test_once_with_its_children_under_two_work
 
 
 def test_the_cost_report_sums_per_file_and_gives_the_in_process_floor():
-    tool = _tool("test_cost")
+    tool = load_tool("test_cost")
     records = [{"nodeid": "tests/a.py::t1", "wall": 10.0, "cpu": 8.0, "child": 0.0, "started": []},
                {"nodeid": "tests/a.py::t2[x]", "wall": 30.0, "cpu": 2.0, "child": 25.0,
                 "started": ["/venv/bin/lerobot-train --steps=4", "/usr/bin/git status"]},

@@ -1,8 +1,10 @@
 """The run queue's shell tools (tools/experiments): what a session leaves for the next one."""
 
 import subprocess
-from datetime import UTC
+from datetime import UTC, datetime
 from pathlib import Path
+
+from tests.tool_loader import load_tool
 
 TOOLS = Path(__file__).resolve().parents[1] / "tools" / "experiments"
 
@@ -123,12 +125,7 @@ def test_resuming_while_a_worker_of_the_clone_runs_queues_nothing_twice(tmp_path
 
 def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_queued(tmp_path):
     """queue_status.py on a queue whose run "a" ended, "b" was cut (no process of it) mid-wake and "c" is queued."""
-    import importlib.util
-    from datetime import datetime
-
-    spec = importlib.util.spec_from_file_location("queue_status", TOOLS / "queue_status.py")
-    status = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(status)
+    status = load_tool("experiments/queue_status")
     queue = tmp_path / "queue.txt"
     queue.write_text("# header\nc -m x --output_root=/nowhere/c\n")
     (tmp_path / "queue.txt.taken").write_text("a -m x --output_root=/nowhere/a\nb -m x --output_root=/nowhere/b\n")

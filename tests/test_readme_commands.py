@@ -6,21 +6,19 @@ clone (that whole run is an hour of CPU and lives outside the suite; these check
 
 from __future__ import annotations
 
-import importlib.util
 import shlex
 from pathlib import Path
 
 import draccus
 import pytest
 
+from tests.tool_loader import load_tool
+
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def _routes():
-    spec = importlib.util.spec_from_file_location("check_readme_routes", ROOT / "tools" / "check_readme_routes.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    return load_tool("check_readme_routes")
 
 
 @pytest.fixture(scope="module")

@@ -192,7 +192,8 @@ def summarize(rows: Sequence[Mapping[str, Any]], before: Mapping[int, Mapping[st
             "rule_a": decision, "before": {str(s): dict(b) for s, b in before.items()}, "rows": list(rows)}
 
 
-def _se(se: float | None) -> str:
+def se_text(se: float | None) -> str:
+    """A standard error for a table (``None``: one seed, no SE)."""
     return "n/a (one seed)" if se is None else f"{se:.3f}"
 
 
@@ -204,8 +205,8 @@ def render(summary: Mapping[str, Any]) -> str:
              "| candidate | mean final AFSR +- SE | minus control +- SE | seeds |", "|---|---|---|---|"]
     for c, e in summary["candidates"].items():
         diff = e.get("minus_control")
-        minus = "" if diff is None else f"{diff['mean']:+.3f} +- {_se(diff['se'])}"
-        lines.append(f"| {c} | {e['mean']:.3f} +- {_se(e['se'])} | {minus} | {e['seeds']} |")
+        minus = "" if diff is None else f"{diff['mean']:+.3f} +- {se_text(diff['se'])}"
+        lines.append(f"| {c} | {e['mean']:.3f} +- {se_text(e['se'])} | {minus} | {e['seeds']} |")
     lines += ["", f"Controls reproduce their archived runs: {summary['controls_reproduce']}.",
               f"Rule A: {summary['rule_a']['reason']}" + (f" -> **{summary['rule_a']['winner']}**"
                                                          if summary["rule_a"].get("winner") else ""), "",

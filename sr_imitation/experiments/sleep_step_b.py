@@ -30,9 +30,10 @@ from typing import Any
 import yaml
 
 from sr_imitation.experiments.mt5_compare import VARIANTS
-from sr_imitation.experiments.sleep_screening import PROTOCOL_SEEDS, mean_se
+from sr_imitation.experiments.sleep_screening import PROTOCOL_SEEDS, mean_se, se_text
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.fingerprint import flatten_settings
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.stream.config import check_choices
 
@@ -68,17 +69,6 @@ class StepBConfig:
             raise ValueError("variants, seeds: give at least one of each")
 
 
-def flat(config: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
-    """``{"sleep": {"lr": 5e-4}}`` -> ``{"sleep.lr": 5e-4}``; ``method_options`` stays one value (one flag sets it)."""
-    out: dict[str, Any] = {}
-    for key, value in config.items():
-        if isinstance(value, Mapping) and value and key != "method_options":
-            out.update(flat(value, f"{prefix}{key}."))
-        else:
-            out[prefix + key] = value
-    return out
-
-
 def flag_settings(flags: Sequence[str]) -> dict[str, Any]:
     """``["--sleep.early_stop_tol=0", "--method_options={a: b}"]`` -> ``{"sleep.early_stop_tol": 0,
     "method_options": {"a": "b"}}`` (values read as the command line's YAML, as draccus reads them)."""
@@ -92,13 +82,16 @@ def flag_settings(flags: Sequence[str]) -> dict[str, Any]:
 def check_run(path: Path, results: Mapping[str, Any], calibration: Mapping[str, Any], variant: str,
               seed: int) -> None:
     """Raise ``ValueError`` (one line naming the file and the key) unless ``results`` is ``variant`` on ``seed``:
-    the calibration run's settings, except exactly the keys ``variant``'s flags set, at their values."""
-    expected = flag_settings(VARIANTS[variant])
-    mine, theirs = flat(results["config"]), flat(calibration["config"])
-    if mine.get("seed") != seed:
-        raise ValueError(f"{path}: seed is {mine.get('seed')}, its folder says {seed}")
+    the calibration run's settings (dotted keys, :func:`~sr_imitation.infra.fingerprint.flatten_settings`), except
+    that every key at or below one of ``variant``'s flags holds the flag's value instead."""
+    flags = flag_settings(VARIANTS[variant])
+    expected = flatten_settings(flags) if flags else {}
+    mine, theirs = flatten_settings(results["config"]), flatten_settings(calibration["config"])
+    if theirs.get("seed") != seed:
+        raise ValueError(f"{path}: its calibration run's seed is {theirs.get('seed')}, not {seed}")
     for key in sorted((set(mine) | set(theirs)) - UNCHECKED):
-        want = expected[key] if key in expected else theirs.get(key)
+        flagged = any(key == f or key.startswith(f"{f}.") for f in flags)
+        want = expected.get(key) if flagged else theirs.get(key)
         if mine.get(key) != want:
             raise ValueError(f"{path}: {key} is {mine.get(key)!r}, {variant} on seed {seed} needs {want!r} "
                              f"(the calibration run's, with {' '.join(VARIANTS[variant]) or 'no flags'})")
@@ -161,10 +154,6 @@ def summarize(rows: Sequence[Mapping[str, Any]], calibration: Sequence[Mapping[s
             "cpus": sorted({(r.get("machine") or {}).get("cpu", "not recorded") for r in rows})}
 
 
-def _se(se: float | None) -> str:
-    return "n/a (one seed)" if se is None else f"{se:.3f}"
-
-
 def _skills(values: Sequence[float]) -> str:
     return " / ".join(f"{x:.2f}" for x in values)
 
@@ -173,13 +162,13 @@ def render(summary: Mapping[str, Any]) -> str:
     """``step_b.md``."""
     cal = summary["calibration"]
     lines = ["# Issue 59, step B: full runs on the calibration seeds (exploratory)", "",
-             f"Seeds {summary['seeds']}. Calibration SR (`sr`): {cal['mean']:.3f} +- {_se(cal['se'])}.", "",
+             f"Seeds {summary['seeds']}. Calibration SR (`sr`): {cal['mean']:.3f} +- {se_text(cal['se'])}.", "",
              "| variant | flags | mean final AFSR +- SE | minus calibration SR +- SE (paired) | seeds |",
              "|---|---|---|---|---|"]
     for v, e in summary["variants"].items():
         d = e["minus_calibration"]
-        lines.append(f"| {v} | `{' '.join(VARIANTS[v])}` | {e['mean']:.3f} +- {_se(e['se'])} | "
-                     f"{d['mean']:+.3f} +- {_se(d['se'])} | {e['seeds']} |")
+        lines.append(f"| {v} | `{' '.join(VARIANTS[v])}` | {e['mean']:.3f} +- {se_text(e['se'])} | "
+                     f"{d['mean']:+.3f} +- {se_text(d['se'])} | {e['seeds']} |")
     decision = summary["rule_b"]
     one = "every step-B run" if len(summary["commits"]) == 1 else "NOT one commit: the runs are not comparable as made"
     lines += ["", f"Code of the step-B runs: {', '.join(c[:7] for c in summary['commits'])} ({one}); CPU: "
@@ -233,21 +222,26 @@ def plot(summary: Mapping[str, Any], path: Path) -> None:
     atomic_write_bytes(path, buf.getvalue())
 
 
-def run_step_b(cfg: StepBConfig) -> dict[str, Any]:
-    """Read and check every archived run (a missing step-B run is reported, a missing calibration run is an
-    error), then write the table, the figure and the decision."""
+def read_runs(cfg: StepBConfig) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """``(rows, calibration)``: every archived step-B run of ``cfg``, each checked (:func:`check_run`), and the
+    calibration SR runs, as table rows. A missing step-B run is left out (reported); a missing calibration run is an
+    error."""
     calibration, rows = [], []
     for seed in cfg.seeds:
         cal = read_checked_json(cfg.calibration / f"sr_seed{seed}" / "results.json")
         calibration.append(row_of("sr", seed, cal))
         for v in cfg.variants:
             path = cfg.archive / f"{v}_seed{seed}" / "results.json"
-            if not path.is_file():
-                continue
-            results = read_checked_json(path)
-            check_run(path, results, cal, v, seed)
-            rows.append(row_of(v, seed, results))
-    summary = summarize(rows, calibration, cfg.variants, cfg.seeds, cfg.decide_on_any_seeds)
+            if path.is_file():
+                results = read_checked_json(path)
+                check_run(path, results, cal, v, seed)
+                rows.append(row_of(v, seed, results))
+    return rows, calibration
+
+
+def run_step_b(cfg: StepBConfig) -> dict[str, Any]:
+    """Read and check every archived run (:func:`read_runs`), then write the table, the figure and the decision."""
+    summary = summarize(*read_runs(cfg), cfg.variants, cfg.seeds, cfg.decide_on_any_seeds)
     target = cfg.output or cfg.archive
     write_checked_json(target / "step_b.json", summary)
     atomic_write_bytes(target / "step_b.md", render(summary).encode())

@@ -16,8 +16,10 @@ from sr_imitation.experiments.sleep_step_b import (
     check_run,
     flag_settings,
     main,
+    read_runs,
     rule_b,
     run_step_b,
+    summarize,
 )
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.io import read_checked_json, write_checked_json
@@ -127,16 +129,6 @@ def test_the_archived_step_b_decision_recomputes():
     if not (archive / "step_b.json").is_file():
         pytest.skip("step B is not archived yet")
     stored = read_checked_json(archive / "step_b.json")
-    from sr_imitation.experiments.sleep_step_b import row_of, summarize
-
-    rows, calibration = [], []
-    for seed in stored["seeds"]:
-        cal = read_checked_json(CALIBRATION / f"sr_seed{seed}" / "results.json")
-        calibration.append(row_of("sr", seed, cal))
-        for variant in ("sr_b1", "sr_c_b1"):
-            path = archive / f"{variant}_seed{seed}" / "results.json"
-            if path.is_file():
-                results = read_checked_json(path)
-                check_run(path, results, cal, variant, seed)
-                rows.append(row_of(variant, seed, results))
-    assert json.loads(json.dumps(summarize(rows, calibration, ["sr_b1", "sr_c_b1"], stored["seeds"]))) == stored
+    cfg = StepBConfig(archive=archive, calibration=CALIBRATION, seeds=stored["seeds"])
+    recomputed = summarize(*read_runs(cfg), cfg.variants, cfg.seeds)
+    assert json.loads(json.dumps(recomputed)) == stored

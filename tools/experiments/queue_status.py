@@ -56,14 +56,10 @@ def last_position(log: Path) -> tuple[str, str]:
     return stage, progress
 
 
-def _alive(name: str, queue: Path) -> bool:
-    """Whether a process runs this queue line's command (matched by its ``--output_root``)."""
+def _output_root(name: str, queue: Path) -> str | None:
+    """The ``--output_root`` of queue line ``name`` as a worker took it (``<queue>.taken``)."""
     line = next((ln for ln in _lines(queue.with_name(queue.name + ".taken")) if ln.split()[0] == name), "")
-    root = next((a for a in line.split() if a.startswith("--output_root=")), None)
-    if root is None:
-        return False
-    ps = subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=False).stdout
-    return any(root in p and "python" in p for p in ps.splitlines())
+    return next((a for a in line.split() if a.startswith("--output_root=")), None)
 
 
 def _since(stamp: str, now: datetime) -> str:
@@ -78,13 +74,17 @@ def _since(stamp: str, now: datetime) -> str:
 def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) -> str:
     now = now or datetime.now(UTC)
     flight, finished = runs(queue.with_name(queue.name + ".done"))
-    out = [f"queue {queue}: {len(flight)} in flight, {len(_queued(queue))} queued, {len(finished)} finished"]
+    queued = _queued(queue)
+    out = [f"queue {queue}: {len(flight)} in flight, {len(queued)} queued, {len(finished)} finished"]
+    ps = [p for p in subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=False).stdout
+          .splitlines() if "python" in p]
     for r in flight.values():
         stage, progress = last_position(logs / f"{r['name']}.log")
-        state = "running" if _alive(r["name"], queue) else "NOT running (cut: queue_requeue.sh puts it back)"
+        root = _output_root(r["name"], queue)  # a run's process is the python whose command line holds its output root
+        alive = root is not None and any(root in p for p in ps)
+        state = "running" if alive else "NOT running (cut: queue_requeue.sh puts it back)"
         out.append(f"  {r['name']}: {state}; last started {r['started']} ({_since(r['started'], now)}) on {r['cpu']}")
         out.append(f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}")
-    queued = _queued(queue)
     if queued:
         out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
     for r in finished[-last:]:
