@@ -10,7 +10,8 @@ says: its seed, and its settings equal to the calibration run's of that seed exc
 flags set (:data:`~sr_imitation.experiments.mt5_compare.VARIANTS`), each at the flag's value; a run that is not is
 one line naming the file and the key. Then ``step_b.json`` / ``step_b.md`` / ``step_b.png`` in ``--output`` (default
 the archive): per variant and seed the final AFSR, BWT against both references, success per skill after its own wake
-and at the end, each sleep's stop iteration and reason, the code commit and CPU; per variant the mean +- SE over the
+and at the end, each sleep's stop iteration and reason, the code commit and CPU; each sleep's success before and
+after, memory losses and Nash weights (:func:`sleeps_of`); per variant the mean +- SE over the
 seeds and the paired difference to the calibration SR runs; and rule B as written (:func:`rule_b`), decided only when
 every variant has every one of the protocol's seeds (an exact tie: the earlier variant of ``--variants``).
 Everything here is exploratory (calibration seeds); it decides which variant V the confirmation runs, and the
@@ -97,15 +98,41 @@ def check_run(path: Path, results: Mapping[str, Any], calibration: Mapping[str, 
                              f"(the calibration run's, with {' '.join(VARIANTS[variant]) or 'no flags'})")
 
 
+def sleeps_of(results: Mapping[str, Any]) -> list[dict[str, Any]]:
+    """Each sleep of a run, as issue 59's item 3 asks it reported: the stage, what the newest skill's success was
+    after its wake and after the sleep (the only skill evaluated between the two), every learned skill's success at
+    the end of the previous stage and of this one (wake and sleep together: older skills are not evaluated after the
+    wake), each memory's loss at the sleep's first and last iteration (frozen-critic memories: the negated critic
+    value; ``expert_memory: instead``: the distillation loss), the Nash weights at the end, and the stop."""
+    matrix = results["success_matrix"]
+    out = []
+    for stage in results["stages"]:
+        sleep = stage.get("sleep")
+        if not sleep:
+            continue
+        k = int(stage["stage"])
+        out.append({"stage": k, "skill": stage["skill"],
+                    "newest_after_wake": results["success_after_own_wake"][k],
+                    "newest_after_sleep": matrix[k][k],
+                    "success_before_stage": [matrix[k - 1][j] for j in range(k)] if k else [],
+                    "success_after_stage": [matrix[k][j] for j in range(k + 1)],
+                    "memory_skills": list(sleep["skills"]),
+                    "initial_memory_losses": list(sleep.get("initial_memory_losses") or []),
+                    "final_memory_losses": list(sleep.get("final_memory_losses") or []),
+                    "final_alpha": list(sleep.get("final_alpha") or []),
+                    "stop_iteration": sleep["stop_iteration"], "stop_reason": sleep["stop_reason"]})
+    return out
+
+
 def row_of(variant: str, seed: int, results: Mapping[str, Any]) -> dict[str, Any]:
-    """One run's line of the table."""
+    """One run's line of the table, with its sleeps (:func:`sleeps_of`)."""
     metrics = results["metrics"]
-    sleeps = [s["sleep"] for s in results["stages"] if s.get("sleep")]
+    sleeps = sleeps_of(results)
     return {"variant": variant, "seed": seed, "final_afsr": metrics["afsr"]["final"],
             "bwt": metrics["bwt"]["final"], "bwt_wake": metrics["bwt_wake"]["final"],
             "success_after_own_wake": list(results["success_after_own_wake"]),
             "final_success": list(results["success_matrix"][-1]),
-            "sleep_stops": [[s["stop_iteration"], s["stop_reason"]] for s in sleeps],
+            "sleep_stops": [[s["stop_iteration"], s["stop_reason"]] for s in sleeps], "sleeps": sleeps,
             "commit": results["code"]["commit"], "machine": results.get("machine")}
 
 
@@ -184,6 +211,23 @@ def render(summary: Mapping[str, Any]) -> str:
         lines.append(f"| {r['variant']} | {r['seed']} | {r['final_afsr']:.3f} | {r['bwt']:+.3f} / "
                      f"{r['bwt_wake']:+.3f} | {_skills(r['success_after_own_wake'])} | {_skills(r['final_success'])} "
                      f"| {stops} | {r['commit'][:7]} | {cpu} |")
+    lines += ["", "Each sleep (newest skill: success after its wake -> after the sleep; the skills before it: at the "
+                  "end of the previous stage -> of this one, the wake and the sleep together, since they are not "
+                  "evaluated after the wake; each memory's loss at the sleep's first -> last iteration: the negated "
+                  "frozen-critic value, or the distillation loss under `expert_memory: instead`):", "",
+              "| run | seed | stage | newest skill | earlier skills | memory losses | Nash weights | stop |",
+              "|---|---|---|---|---|---|---|---|"]
+    for r in [*[{**c, "variant": "sr (calibration)"} for c in cal["rows"]],
+              *sorted(summary["rows"], key=lambda r: (r["variant"], r["seed"]))]:
+        for s in r["sleeps"]:
+            pairs = zip(s["success_before_stage"], s["success_after_stage"][:-1], strict=True)
+            earlier = ", ".join(f"{a:.2f} -> {b:.2f}" for a, b in pairs) or "none"
+            losses = ", ".join(f"{a:.3g} -> {b:.3g}" for a, b in zip(s["initial_memory_losses"],
+                                                                  s["final_memory_losses"], strict=True))
+            lines.append(f"| {r['variant']} | {r['seed']} | {s['stage'] + 1} ({s['skill']}) | "
+                         f"{s['newest_after_wake']:.2f} -> {s['newest_after_sleep']:.2f} | {earlier} | {losses} | "
+                         f"{' / '.join(f'{a:.2f}' for a in s['final_alpha'])} | {s['stop_iteration']} "
+                         f"({s['stop_reason']}) |")
     if summary["missing"]:
         lines += ["", f"Not archived yet: {', '.join(summary['missing'])}."]
     return "\n".join(lines) + "\n"

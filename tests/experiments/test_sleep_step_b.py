@@ -94,6 +94,11 @@ def test_rule_b_waits_for_every_run_then_decides_and_writes_the_table(tmp_path):
     assert "| sr_c_b1 | `--method_options={reset_wake: true, expert_memory: instead}` | 0.650 +- 0.029 |" in table
     assert "| sr (calibration) | 100 | 0.288 |" in table and "| 5545b02 | AMD EPYC" in table
     assert "| e89c5b1 | not recorded |" in table  # the calibration runs' code recorded no CPU
+    # each sleep (issue 59 item 3), read off calibration seed 100's archive: success matrix rows [0.88] and
+    # [0.54, 1.0], door-open 1.0 after its wake, memory losses -877.27 -> -880.87 and -1064.63 -> -1075.09
+    assert ("| sr (calibration) | 100 | 2 (door-open-v3) | 1.00 -> 1.00 | 0.88 -> 0.54 | -877 -> -881, "
+            "-1.06e+03 -> -1.08e+03 | 0.50 / 0.50 | 200 (plateau) |") in table
+    assert table.count("| sr_b1 | 101 | ") == 4 + 1  # its line in the runs' table and its four sleeps
     assert ("Code of the step-B runs: 5545b02 (every step-B run); CPU: AMD EPYC (family 25, model 1; avx2, fma)."
             in table)
     assert (archive / "step_b.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
