@@ -619,6 +619,33 @@ def test_g1_the_sac_gate_s_test_recomputes(text, readme):
     assert short in readme and short in text  # README's SAC bullet and RESULTS' first paragraph
 
 
+SLEEP_FAMILY = DOCS / "results" / "sac_mt5_gate_avx2"
+"""Issue 59's confirmation: the archive its family is computed in (RESULTS' record, 2026-11-30 03:40 UTC: the
+agreement check's second route)."""
+
+
+def test_the_sleep_family_recomputes():
+    """Issue 59's confirmatory family as its protocol declares it (RESULTS, "a SAC sleep that keeps what its wakes
+    learn"): V1 = V > SR (one-sided), V2 = V != Reset & Distill (two-sided), paired over training seeds 0-4, Holm over
+    exactly these two, V being rule B's choice (step_b.json). Once archived, the stored statistics equal a recompute
+    from the archived runs, are labelled pre-registered and have their figure (skipped before)."""
+    stored_path = SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.json"
+    if not stored_path.is_file():
+        pytest.skip("the family is computed only when V's five test-seed runs are archived")
+    v = read_checked_json(DOCS / "results" / "sac_sleep_step_b" / "step_b.json")["rule_b"]["variant"]
+    assert v is not None, "a family without a V: rule B chose none, so no confirmatory run may exist"
+    family = run_tests(HypothesesConfig(archive=SLEEP_FAMILY, holm=True,
+                                        tests=[f"V1={v}>sr@0-4", f"V2={v}!=reset_distill@0-4"]))
+    assert [(r["name"], r["a"], r["b"], r["alternative"], r["seeds"]) for r in family] == \
+        [("V1", v, "sr", "greater", [0, 1, 2, 3, 4]), ("V2", v, "reset_distill", "two-sided", [0, 1, 2, 3, 4])]
+    keys = ("name", "a", "b", "alternative", "seeds", "a_values", "b_values", "mean", "sem", "t", "p", "sign_flip_p",
+            "p_holm", "sign_flip_p_holm", "significant_holm")
+    stored = json.loads(stored_path.read_text())["tests"]
+    assert [[t[k] for k in keys] for t in stored] == [[r[k] for k in keys] for r in family]
+    assert (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.md").read_text().startswith("Pre-registered")
+    assert (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
 def test_the_mt5_family_recomputes(text, readme):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
