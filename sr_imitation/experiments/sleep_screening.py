@@ -197,6 +197,16 @@ def se_text(se: float | None) -> str:
     return "n/a (one seed)" if se is None else f"{se:.3f}"
 
 
+def losses_text(first: Sequence[float], last: Sequence[float]) -> str:
+    """Each memory's loss at a sleep's first and last iteration, for a table cell."""
+    return ", ".join(f"{a:.3g} -> {b:.3g}" for a, b in zip(first, last, strict=True))
+
+
+def weights_text(alpha: Sequence[float] | None) -> str:
+    """A sleep's final Nash weights, for a table cell."""
+    return " / ".join(f"{a:.2f}" for a in (alpha or []))
+
+
 def render(summary: Mapping[str, Any]) -> str:
     """``screening.md``."""
     named = [f"{c} ({' '.join(CANDIDATES[c]) or 'the run as it was'})" for c in summary["candidates"]]
@@ -216,11 +226,9 @@ def render(summary: Mapping[str, Any]) -> str:
         before = summary["before"].get(str(r["seed"]), {}).get("success")
         skills = " / ".join(f"{a:.2f}" + (f" ({b:.2f})" if before else "")
                             for a, b in zip(r["final_success"], before or r["final_success"], strict=True))
-        losses = ", ".join(f"{a:.3g} -> {b:.3g}" for a, b in zip(r["initial_memory_losses"],
-                                                                  r["final_memory_losses"], strict=True))
-        alpha = " / ".join(f"{a:.2f}" for a in (r["final_alpha"] or []))
         lines.append(f"| {r['candidate']} | {r['seed']} | {skills} | {r['final_afsr']:.3f} | {r['stop_iteration']} "
-                     f"({r['stop_reason']}) | {losses} | {alpha} |")
+                     f"({r['stop_reason']}) | {losses_text(r['initial_memory_losses'], r['final_memory_losses'])} | "
+                     f"{weights_text(r['final_alpha'])} |")
     return "\n".join(lines) + "\n"
 
 

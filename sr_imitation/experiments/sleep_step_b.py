@@ -31,7 +31,7 @@ from typing import Any
 import yaml
 
 from sr_imitation.experiments.mt5_compare import VARIANTS
-from sr_imitation.experiments.sleep_screening import PROTOCOL_SEEDS, mean_se, se_text
+from sr_imitation.experiments.sleep_screening import PROTOCOL_SEEDS, losses_text, mean_se, se_text, weights_text
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import flatten_settings
@@ -222,12 +222,10 @@ def render(summary: Mapping[str, Any]) -> str:
         for s in r["sleeps"]:
             pairs = zip(s["success_before_stage"], s["success_after_stage"][:-1], strict=True)
             earlier = ", ".join(f"{a:.2f} -> {b:.2f}" for a, b in pairs) or "none"
-            losses = ", ".join(f"{a:.3g} -> {b:.3g}" for a, b in zip(s["initial_memory_losses"],
-                                                                  s["final_memory_losses"], strict=True))
             lines.append(f"| {r['variant']} | {r['seed']} | {s['stage'] + 1} ({s['skill']}) | "
-                         f"{s['newest_after_wake']:.2f} -> {s['newest_after_sleep']:.2f} | {earlier} | {losses} | "
-                         f"{' / '.join(f'{a:.2f}' for a in s['final_alpha'])} | {s['stop_iteration']} "
-                         f"({s['stop_reason']}) |")
+                         f"{s['newest_after_wake']:.2f} -> {s['newest_after_sleep']:.2f} | {earlier} | "
+                         f"{losses_text(s['initial_memory_losses'], s['final_memory_losses'])} | "
+                         f"{weights_text(s['final_alpha'])} | {s['stop_iteration']} ({s['stop_reason']}) |")
     if summary["missing"]:
         lines += ["", f"Not archived yet: {', '.join(summary['missing'])}."]
     return "\n".join(lines) + "\n"
