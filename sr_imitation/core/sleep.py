@@ -152,6 +152,12 @@ class SleepResult:
     skipped_steps: list[dict[str, Any]] = field(default_factory=list)
     early_stop_scale: float | None = None
     """The memories' scale the plateau rule was measured against (``early_stop_scale=memory_scale``); else none."""
+    cosines_first_last: list[list[list[float]]] = field(default_factory=list)
+    """The cosine matrix C of the memory gradients (the matrix Eq. 1 bargains over, ``aggregation/_nash.py``) at the
+    sleep's first and last iteration; a zero gradient's row and column are 0. Our addition for reading the weights:
+    Eq. 1's optimum is the uniform point whenever C's rows have equal sums (e.g. C near the identity, gradients
+    nearly orthogonal), so weights that stay uniform say how the memories' gradients relate, not that the solver
+    did nothing."""
 
     def to_dict(self) -> dict[str, Any]:
         out = asdict(self)
@@ -175,6 +181,14 @@ class SleepResult:
             "solver_status": dict(self.solver_status),
             **({} if self.early_stop_scale is None else {"early_stop_scale": self.early_stop_scale}),
         }
+
+
+def cosine_matrix(gram: np.ndarray) -> list[list[float]]:
+    """The cosine matrix of the gradients whose Gram matrix is ``gram`` (a zero gradient's row and column: 0)."""
+    norms = np.sqrt(np.clip(np.diag(gram), 0.0, None))
+    scale = np.where(norms > 0.0, norms, 1.0)
+    cos = np.where(np.outer(norms, norms) > 0.0, gram / np.outer(scale, scale), 0.0)
+    return [[float(x) for x in row] for row in cos]
 
 
 def parameter_distance(params: Sequence[Tensor], reference: Sequence[Tensor]) -> float:
@@ -446,6 +460,8 @@ def sleep_consolidate(
 
         alpha = agg.alpha
         objective = float(np.dot(alpha, losses)) + 0.5 * lam * anchor_term + reg_value
+        cosines = cosine_matrix(gram)
+        result.cosines_first_last = [result.cosines_first_last[0] if result.cosines_first_last else cosines, cosines]
         result.alpha.append([float(a) for a in alpha])
         result.grad_norms.append([float(x) for x in np.sqrt(np.clip(np.diag(gram), 0, None))])
         result.memory_losses.append(losses)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 
+import numpy as np
 import pytest
 import torch
 from torch import nn
@@ -14,6 +15,7 @@ from sr_imitation.core.sleep import (
     SleepConfig,
     anchor_coefficient,
     anchor_gate_decides,
+    cosine_matrix,
     parameter_distance,
     sleep_consolidate,
 )
@@ -265,3 +267,27 @@ def test_per_memory_losses_equal_separate_losses(stream):
     joint = per_memory_losses(memories, _policy(net0), batches)
     separate = [m.loss(_policy(net0), b) for m, b in zip(memories, batches, strict=True)]
     torch.testing.assert_close(torch.stack(joint), torch.stack(separate))
+
+
+def test_cosine_matrix_of_known_gradients():
+    g = np.array([[3.0, 0.0, 0.0], [0.0, 2.0, 0.0], [-1.0, 1.0, 0.0], [0.0, 0.0, 0.0]])  # the last one is zero
+    cos = np.array(cosine_matrix(g @ g.T))
+    s = 1 / np.sqrt(2)
+    expected = [[1, 0, -s, 0], [0, 1, s, 0], [-s, s, 1, 0], [0, 0, 0, 0]]
+    np.testing.assert_allclose(cos, expected, atol=1e-12)
+
+
+def test_the_sleep_records_its_memories_cosines_first_and_last(stream):
+    """The cosine matrix Eq. 1 bargains over, at the first and the last iteration. At the first, the newest memory
+    (skill b, stored from this very network) has loss and gradient 0: its row and column are 0; by the last, both
+    memories pull: unit diagonal, symmetric, a cosine in [-1, 1] that is the one the solver saw."""
+    net0, _, _, memories = stream
+    net = copy.deepcopy(net0)
+    result = sleep_consolidate(list(net.parameters()), _policy(net), memories, _config(), progress=False)
+    first, last = (np.array(c) for c in result.cosines_first_last)
+    assert first.shape == last.shape == (2, 2)
+    np.testing.assert_allclose(np.diag(first), [1.0, 0.0], atol=1e-12)
+    assert first[0, 1] == first[1, 0] == 0.0
+    np.testing.assert_allclose(np.diag(last), 1.0, atol=1e-12)
+    assert last[0, 1] == last[1, 0] and -1 <= last[0, 1] <= 1 and last[0, 1] != 0
+    assert result.to_dict()["cosines_first_last"] == result.cosines_first_last
