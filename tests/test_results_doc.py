@@ -646,6 +646,25 @@ def test_the_sleep_family_recomputes():
     assert (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def test_the_sac_sleeps_cosines_recompute(text):
+    """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
+    stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
+    for run, folder in (("sr (calibration)", "sr_seed100"), ("sr_b1 (step B)", "sr_b1_seed100")):
+        base = DOCS / "results" / "sac_sleep_cosines" / folder
+        diag = read_checked_json(base / "stage5_sleep_diagnostics.json")
+        cells = []
+        for c in diag["cosines_first_last"]:
+            c = np.array(c)
+            pulling = np.diag(c) > 0.5
+            off = c[~np.eye(len(c), dtype=bool) & np.outer(pulling, pulling)]
+            assert np.abs(off).max() < 0.2  # the claim: nearly orthogonal
+            cells.append(f"{off.min():+.3f} to {off.max():+.3f}")
+        alpha = diag["alpha"][-1]
+        assert (f"| {run} seed 100 | {diag['stop_iteration']} iterations ({diag['stop_reason']}) | {cells[0]} | "
+                f"{cells[1]} | {min(alpha):.3f}-{max(alpha):.3f} |") in text
+        assert "the runs differ in 0 values; every number equal" in (base / "compare.txt").read_text()
+
+
 def test_the_mt5_family_recomputes(text, readme):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
