@@ -460,8 +460,9 @@ def sleep_consolidate(
 
         alpha = agg.alpha
         objective = float(np.dot(alpha, losses)) + 0.5 * lam * anchor_term + reg_value
-        cosines = cosine_matrix(gram)
-        result.cosines_first_last = [result.cosines_first_last[0] if result.cosines_first_last else cosines, cosines]
+        if not result.cosines_first_last:
+            result.cosines_first_last = [cosine_matrix(gram)]
+        last_gram = gram
         result.alpha.append([float(a) for a in alpha])
         result.grad_norms.append([float(x) for x in np.sqrt(np.clip(np.diag(gram), 0, None))])
         result.memory_losses.append(losses)
@@ -479,6 +480,8 @@ def sleep_consolidate(
             result.stop_reason = "plateau"
             break
     bar.close()
+    if result.cosines_first_last:  # the last applied iteration's matrix, made once here rather than every iteration
+        result.cosines_first_last.append(cosine_matrix(last_gram))
     logger.info("sleep stopped at iteration %d (%s); final memory losses %s", result.stop_iteration,
                 result.stop_reason, result.memory_losses[-1] if result.memory_losses else None)
     return result
