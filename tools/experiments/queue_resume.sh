@@ -28,6 +28,8 @@ py="$root/.venv/bin/python"; [ "$dry" = 1 ] || py="$(bash .ci/venv.sh | tail -n 
 
 # shellcheck source=tools/experiments/worktree.sh
 source tools/experiments/worktree.sh
+# shellcheck source=tools/experiments/isa_env.sh
+[ -f tools/experiments/isa_env.sh ] && source tools/experiments/isa_env.sh  # recordings too: the workers' code paths
 for folder in $(grep -o 'dataset_root=datasets/[A-Za-z0-9_.-]*' <<< "$lines" | sort -u | cut -d/ -f2); do
   entry="$(grep -v '^#' "$manifest" | awk -v f="$folder" '$1 == f' | head -n 1)"
   [ -n "$entry" ] || { say "datasets/$folder: read by a pending line, not in $manifest (add its recipe)"; exit 2; }

@@ -19,6 +19,8 @@ default_commit="$1"; queue="$(realpath "$2")"; logs="$(mkdir -p "$3" && realpath
 
 # shellcheck source=tools/experiments/worktree.sh
 source "$root/tools/experiments/worktree.sh"
+# shellcheck source=tools/experiments/isa_env.sh
+[ -f "$root/tools/experiments/isa_env.sh" ] && source "$root/tools/experiments/isa_env.sh"
 
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 touch "$queue"
@@ -33,7 +35,8 @@ while true; do
   name="${line%% *}"; args="${line#* }"; commit="$default_commit"
   if [[ "$args" == @* ]]; then commit="${args%% *}"; commit="${commit#@}"; args="${args#* }"; fi
   cpu="$(awk -F": " '/^model name/ {m=$2} /^cpu family/ {f=$2} /^model\t/ {n=$2} /^flags/ {a=($0 ~ /avx512f/) ? "AVX-512" : "no AVX-512"} END {print m ", family " f " model " n ", " a}' /proc/cpuinfo)"
-  echo "$(date -u +%FT%TZ) start $name on $cpu" >> "$queue.done"
+  isa="${MKL_ENABLE_INSTRUCTIONS:+, libraries capped at $MKL_ENABLE_INSTRUCTIONS (tools/experiments/isa_env.sh)}"
+  echo "$(date -u +%FT%TZ) start $name on $cpu$isa" >> "$queue.done"
   if wt="$(pinned_worktree "$root" "$commit")"; then
     # shellcheck disable=SC2086  (the line's arguments are split as a shell splits them, without globbing)
     (cd "$wt" && set -f && export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr" \
