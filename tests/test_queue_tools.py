@@ -155,3 +155,34 @@ def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_qu
     missing = subprocess.run(["python3", str(TOOLS / "queue_status.py"), str(tmp_path / "none.txt")],
                              capture_output=True, text=True, check=False)
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "none.txt: no queue here" in missing.stderr
+
+
+def test_every_queued_run_is_capped_at_avx2_unless_told_otherwise_and_its_start_line_says_so(tmp_path):
+    """tools/experiments/isa_env.sh caps MKL, ATen, oneDNN, OpenBLAS and numpy at AVX2 (RESULTS' 2026-11-30 07:30
+    line); SR_NATIVE_ISA=1 leaves them alone; a worker sources it and names the cap in the run's start line."""
+    show = "source {}; echo \"$MKL_ENABLE_INSTRUCTIONS|$ATEN_CPU_CAPABILITY|$ONEDNN_MAX_CPU_ISA|$OPENBLAS_CORETYPE|" \
+           "$NPY_DISABLE_CPU_FEATURES\"".format(TOOLS / "isa_env.sh")
+    clean = {"PATH": "/usr/bin:/bin"}
+    capped = subprocess.run(["bash", "-c", show], capture_output=True, text=True, env=clean).stdout.strip()
+    assert capped.split("|")[:4] == ["AVX2", "avx2", "AVX2", "Haswell"]
+    assert capped.split("|")[4].split() == ["AVX512F", "AVX512CD", "AVX512_SKX", "AVX512_CLX", "AVX512_CNL",
+                                            "AVX512_ICL"]
+    native = subprocess.run(["bash", "-c", show], capture_output=True, text=True,
+                            env={**clean, "SR_NATIVE_ISA": "1"}).stdout.strip()
+    assert native == "||||"
+    # A worker in a throwaway folder (no git: the line's worktree cannot be made, so it ends at once with rc=2).
+    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    for name in ("queue_worker.sh", "worktree.sh", "isa_env.sh"):
+        (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
+    queue = tmp_path / "q.txt"
+    queue.write_text("one @abc1234 -m nothing\n")
+    for extra, says in (({}, True), ({"SR_NATIVE_ISA": "1"}, False)):
+        queue.write_text("one @abc1234 -m nothing\n")
+        done = tmp_path / "q.txt.done"
+        done.unlink(missing_ok=True)
+        subprocess.run(["bash", str(tmp_path / "tools" / "experiments" / "queue_worker.sh"), "abc1234", str(queue),
+                        str(tmp_path / "logs")], capture_output=True, text=True, check=True,
+                       env={**clean, "HOME": str(tmp_path), **extra})
+        start, end = done.read_text().splitlines()
+        assert (", libraries capped at AVX2 (tools/experiments/isa_env.sh)" in start) is says
+        assert start.split()[1:3] == ["start", "one"] and end.endswith("one rc=2")
