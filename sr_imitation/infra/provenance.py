@@ -9,7 +9,9 @@ from __future__ import annotations
 
 import functools
 import logging
+import os
 import subprocess
+from collections.abc import Mapping
 from pathlib import Path
 from typing import Any
 
@@ -49,9 +51,24 @@ def log_code_version(logger: logging.Logger) -> dict[str, Any]:
     imported, not a later checkout) and log it with the CPU (:func:`cpu_signature`); every runner calls this before
     its first phase."""
     code = process_code_version()
-    logger.info("code: commit %s%s; CPU: %s", code["commit"] or "unknown (not a git checkout)",
-                " with uncommitted changes" if code["dirty"] else "", cpu_signature()["name"])
+    caps = library_caps()
+    logger.info("code: commit %s%s; CPU: %s%s", code["commit"] or "unknown (not a git checkout)",
+                " with uncommitted changes" if code["dirty"] else "", cpu_signature()["name"],
+                "; libraries: " + ", ".join(f"{k}={v}" for k, v in caps.items()) if caps else "")
     return code
+
+
+LIBRARY_ISA_VARIABLES = ("MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR", "ATEN_CPU_CAPABILITY", "ONEDNN_MAX_CPU_ISA",
+                         "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
+"""Environment variables that make the numerical libraries pick other kernels on the same CPU (MKL behind torch's
+Linear, torch's ATen kernels, oneDNN, OpenBLAS and numpy behind numpy), so other floats from the same seed:
+tools/experiments/isa_env.sh sets them for queued runs (docs/RESULTS.md, issue 59's 2026-11-30 07:30 line)."""
+
+
+def library_caps(environ: Mapping[str, str] | None = None) -> dict[str, str]:
+    """The :data:`LIBRARY_ISA_VARIABLES` set in ``environ`` (this process's environment by default), by name."""
+    env = os.environ if environ is None else environ
+    return {k: env[k] for k in LIBRARY_ISA_VARIABLES if env.get(k)}
 
 
 @functools.lru_cache(maxsize=1)

@@ -44,7 +44,7 @@ import numpy as np
 
 from sr_imitation.core.memory import memory_contents
 from sr_imitation.core.metrics import afsr_curve, bwt_curve, mean_sem, prs_curve
-from sr_imitation.infra.provenance import cpu_signature, process_code_version
+from sr_imitation.infra.provenance import cpu_signature, library_caps, process_code_version
 from sr_imitation.io import (
     JSON_CHECKSUM,
     CorruptFileError,
@@ -191,7 +191,9 @@ def build_results(*, substrate: str, method: str, sleep_enabled: bool, seed: int
         "config": dict(config),
         "extra": dict(extra or {}),
         "code": dict(process_code_version()),
-        "machine": {"cpu": cpu_signature()["name"], "avx512": cpu_signature()["avx512"]},  # of the run's last phase
+        # of the run's last phase; library_caps: the kernel choices forced by the environment (provenance.py)
+        "machine": {"cpu": cpu_signature()["name"], "avx512": cpu_signature()["avx512"],
+                    "library_caps": library_caps()},
     }
     if evaluation is not None:
         results["evaluation"] = evaluation

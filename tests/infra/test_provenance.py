@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import logging
 import subprocess
+from pathlib import Path
 
 import pytest
 
@@ -51,3 +52,24 @@ def test_a_run_logs_the_code_version_it_records(caplog):
         code = log_code_version(logger)
     assert code is process_code_version()
     assert f"code: commit {code['commit'] or 'unknown'}" in caplog.text
+
+
+def test_the_library_caps_a_run_records_are_the_isa_variables_set_and_only_those():
+    from sr_imitation.infra.provenance import LIBRARY_ISA_VARIABLES, library_caps
+    assert library_caps({}) == {}
+    env = {"MKL_ENABLE_INSTRUCTIONS": "AVX2", "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD", "PATH": "/bin",
+           "OPENBLAS_CORETYPE": ""}  # an empty variable leaves the library its choice: not a cap
+    assert library_caps(env) == {"MKL_ENABLE_INSTRUCTIONS": "AVX2", "NPY_DISABLE_CPU_FEATURES": "AVX512F AVX512CD"}
+    # the variables tools/experiments/isa_env.sh sets are all recorded
+    script = (Path(__file__).resolve().parents[2] / "tools" / "experiments" / "isa_env.sh").read_text()
+    assert {v for v in LIBRARY_ISA_VARIABLES if f"{v}=" in script} == set(LIBRARY_ISA_VARIABLES) - {"MKL_CBWR"}
+
+
+def test_a_run_logs_the_library_caps_it_runs_under(caplog, monkeypatch):
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")
+    for name in ("MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "OPENBLAS_CORETYPE",
+                 "NPY_DISABLE_CPU_FEATURES"):
+        monkeypatch.delenv(name, raising=False)
+    with caplog.at_level(logging.INFO):
+        log_code_version(logging.getLogger("test"))
+    assert caplog.records[-1].getMessage().endswith("; libraries: ATEN_CPU_CAPABILITY=avx2")
