@@ -175,7 +175,6 @@ def test_every_queued_run_is_capped_at_avx2_unless_told_otherwise_and_its_start_
     for name in ("queue_worker.sh", "worktree.sh", "isa_env.sh"):
         (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
     queue = tmp_path / "q.txt"
-    queue.write_text("one @abc1234 -m nothing\n")
     for extra, says in (({}, True), ({"SR_NATIVE_ISA": "1"}, False)):
         queue.write_text("one @abc1234 -m nothing\n")
         done = tmp_path / "q.txt.done"

@@ -66,10 +66,10 @@ def test_the_library_caps_a_run_records_are_the_isa_variables_set_and_only_those
 
 
 def test_a_run_logs_the_library_caps_it_runs_under(caplog, monkeypatch):
-    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")
-    for name in ("MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR", "ONEDNN_MAX_CPU_ISA", "OPENBLAS_CORETYPE",
-                 "NPY_DISABLE_CPU_FEATURES"):
+    from sr_imitation.infra.provenance import LIBRARY_ISA_VARIABLES
+    for name in LIBRARY_ISA_VARIABLES:
         monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("ATEN_CPU_CAPABILITY", "avx2")
     with caplog.at_level(logging.INFO):
         log_code_version(logging.getLogger("test"))
     assert caplog.records[-1].getMessage().endswith("; libraries: ATEN_CPU_CAPABILITY=avx2")
