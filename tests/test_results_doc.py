@@ -619,9 +619,9 @@ def test_g1_the_sac_gate_s_test_recomputes(text, readme):
     assert short in readme and short in text  # README's SAC bullet and RESULTS' first paragraph
 
 
-SLEEP_FAMILY = DOCS / "results" / "sac_mt5_gate_avx2"
-"""Issue 59's confirmation: the archive its family is computed in (RESULTS' record, 2026-11-30 03:40 UTC: the
-agreement check's second route)."""
+SLEEP_FAMILY = DOCS / "results" / "sac_mt5_gate_xeon"
+"""Issue 59's confirmation: the archive its family is computed in (RESULTS' record, 2026-11-30 10:20 UTC: the Intel Xeon
+family 6 model 167 with the libraries capped at AVX2, the type of all fifteen of its runs)."""
 
 
 def test_the_sleep_family_recomputes():
