@@ -147,11 +147,21 @@ def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_qu
     assert status.last_position(logs / "b.log") == (
         "stage 2 (door-open-v3) wake", "wake door-open-v3: 80/800 (10%), 5m elapsed, ~45m left; reward=2.0")
     lines = text.splitlines()
-    assert lines[0] == f"queue {queue}: 1 in flight, 1 queued, 1 finished"
+    assert lines[0] == f"queue {queue}: 1 in flight, 1 queued (0 of them requeued), 1 finished"
     assert lines[1] == ("  b: NOT running (cut: queue_requeue.sh puts it back); last started 2026-11-30T01:00:01Z "
                         "(1 h 30 min ago) on AMD EPYC, family 25 model 1, no AVX-512")
     assert lines[2] == "    stage 2 (door-open-v3) wake"  # the progress line was stage 1's
     assert lines[3:] == ["  next: c", "  ended 2026-11-30T01:00:00Z: a rc=0"]
+    # queue_requeue.sh put b back: it is queued again, no longer taken, so not in flight
+    queue.write_text("# header\nb -m x --output_root=/nowhere/b\nc -m x --output_root=/nowhere/c\n")
+    (tmp_path / "queue.txt.taken").write_text("a -m x --output_root=/nowhere/a\n")
+    lines = status.report(queue, logs, now=datetime(2026, 11, 30, 2, 31, tzinfo=UTC)).splitlines()
+    assert lines[0] == f"queue {queue}: 0 in flight, 2 queued (1 of them requeued), 1 finished"
+    assert lines[1:3] == [
+        "  b: requeued (resumes from its outputs when a worker takes it); last started 2026-11-30T01:00:01Z "
+        "(1 h 30 min ago) on AMD EPYC, family 25 model 1, no AVX-512",
+        "    stage 2 (door-open-v3) wake: wake door-open-v3: 80/800 (10%), 5m elapsed, ~45m left; reward=2.0"]
+    assert lines[3] == "  next: b, c"
     missing = subprocess.run(["python3", str(TOOLS / "queue_status.py"), str(tmp_path / "none.txt")],
                              capture_output=True, text=True, check=False)
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "none.txt: no queue here" in missing.stderr

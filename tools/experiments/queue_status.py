@@ -6,7 +6,9 @@
 For each run in flight (started in ``<queue>.done`` with no exit line after its last start): when it started, on
 which CPU, the stage and phase its log reached last, and its last progress line (the wake's "n/N (p%) ... left");
 whether its worker still runs (a ``python`` process whose command line holds the run's ``--output_root``) or the run
-was cut (a session's end: requeue it). Then the queued lines and the last finished runs with their exit status.
+was cut (a session's end: requeue it). A cut run already put back in the queue (``queue_requeue.sh``: in the queue,
+not in ``<queue>.taken``) is not in flight: it is listed as requeued, with where its outputs stopped. Then the queued
+lines and the last finished runs with their exit status.
 Standard library only, so it works before the environment is built.
 """
 
@@ -75,7 +77,11 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
     now = now or datetime.now(UTC)
     flight, finished = runs(queue.with_name(queue.name + ".done"))
     queued = _queued(queue)
-    out = [f"queue {queue}: {len(flight)} in flight, {len(queued)} queued, {len(finished)} finished"]
+    taken = {ln.split()[0] for ln in _lines(queue.with_name(queue.name + ".taken"))}
+    requeued = {n: r for n, r in flight.items() if n in queued and n not in taken}
+    flight = {n: r for n, r in flight.items() if n not in requeued}
+    out = [f"queue {queue}: {len(flight)} in flight, {len(queued)} queued ({len(requeued)} of them requeued), "
+           f"{len(finished)} finished"]
     ps = [p for p in subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=False).stdout
           .splitlines() if "python" in p]
     for r in flight.values():
@@ -84,6 +90,11 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
         alive = root is not None and any(root in p for p in ps)
         state = "running" if alive else "NOT running (cut: queue_requeue.sh puts it back)"
         out.append(f"  {r['name']}: {state}; last started {r['started']} ({_since(r['started'], now)}) on {r['cpu']}")
+        out.append(f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}")
+    for r in requeued.values():
+        stage, progress = last_position(logs / f"{r['name']}.log")
+        out.append(f"  {r['name']}: requeued (resumes from its outputs when a worker takes it); last started "
+                   f"{r['started']} ({_since(r['started'], now)}) on {r['cpu']}")
         out.append(f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}")
     if queued:
         out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
