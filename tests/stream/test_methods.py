@@ -301,7 +301,7 @@ def test_every_grid_variant_of_the_needle_comparison_sets_existing_options_of_it
 
     OPTIONS = {variant: spec.options for variant, spec in VARIANTS.items() if spec.options}  # noqa: N806
 
-    assert {"ewc_lam100", "lwf_w0.1", "m2distill_w0.01"} <= set(OPTIONS)
+    assert {"ewc_lam100", "lwf_w0.1", "m2distill_w0.01", "sr_c"} <= set(OPTIONS)
     for variant, options in OPTIONS.items():
         method = METHODS[VARIANTS[variant][0]](MethodSettings(options=options))
         assert {k: getattr(method.config, k) for k in options} == options, variant
