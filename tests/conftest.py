@@ -2,8 +2,10 @@
 
 from __future__ import annotations
 
+import atexit
 import json
 import os
+import shutil
 import tempfile
 from pathlib import Path
 
@@ -16,8 +18,12 @@ from sr_imitation.offscreen import setup_offscreen_rendering
 os.environ.setdefault("HF_HUB_OFFLINE", "1")
 os.environ.setdefault("HF_DATASETS_OFFLINE", "1")
 # The datasets' digest cache (substrates/act/dataset_identity.py) of this test process, not the user's: the suite
-# hashes thousands of throwaway datasets. Subprocesses inherit it.
-os.environ.setdefault("SR_DIGEST_CACHE", os.path.join(tempfile.mkdtemp(prefix="sr_digest_cache_"), "file_digests.json"))
+# hashes thousands of throwaway datasets. Subprocesses (and xdist's workers) inherit it; the process that made the
+# folder removes it when it exits.
+if "SR_DIGEST_CACHE" not in os.environ:
+    _digest_dir = tempfile.mkdtemp(prefix="sr_digest_cache_")
+    atexit.register(shutil.rmtree, _digest_dir, ignore_errors=True)
+    os.environ["SR_DIGEST_CACHE"] = os.path.join(_digest_dir, "file_digests.json")
 setup_offscreen_rendering()
 
 
