@@ -305,6 +305,12 @@ def test_the_reexpress_inputs_check_recomputes(text, readme):
 PROTOCOL_COMMIT, GATE_COMMIT, TEST_CODE = "67f93d6", "1702742", "c8c03d9"
 """The imitation protocol's commit, the SAC gate statement's, and the code every calibration and test run of the
 imitation protocol was recorded to run from (RESULTS)."""
+SLEEP_PROTOCOL, SLEEP_CODE, RD_ACT_CODE = "e89c5b1", "5545b02", "268706b"
+"""Issue 59's protocol commit ("a SAC sleep that keeps what its wakes learn"), the code of its step-B runs and of
+its confirmation's runs (RESULTS' 2026-11-29 20:40 and 2026-11-30 10:20 lines), and the code of Reset & Distill's MT5
+imitation runs (queue lines rd_mt5_*)."""
+RD = "reset_distill_"
+"""The run-name prefix of Reset & Distill's runs, which issue 59 added to the imitation protocol's archive."""
 
 
 def _flat(d: dict, prefix: str = "") -> dict:
@@ -319,21 +325,29 @@ def _git(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(["git", "-C", str(DOCS.parent), *args], capture_output=True, text=True, check=False)
 
 
-@pytest.mark.parametrize("archives, statement, code", [
+@pytest.mark.parametrize("archives, statement, code, rd", [
     (["metaworld_mt5_imitation_calibration", "metaworld_mt5_imitation_calibration_k1",
       "metaworld_mt5_imitation_calibration_k2", "metaworld_mt5_imitation_calibration_k3",
       "metaworld_mt5_imitation_calibration_k4", "needle_cpu_m16_replication", "metaworld_mt5_imitation_compare"],
-     PROTOCOL_COMMIT, TEST_CODE),
-    (["sac_mt5_gate"], GATE_COMMIT, None),
+     PROTOCOL_COMMIT, TEST_CODE, False),
+    (["sac_mt5_gate"], GATE_COMMIT, None, None),
+    (["sac_sleep_calibration", "sac_sleep_screening", "sac_mt5_gate_avx2"], SLEEP_PROTOCOL, None, None),
+    (["sac_sleep_step_b", "sac_mt5_gate_xeon"], SLEEP_PROTOCOL, SLEEP_CODE, None),
+    (["metaworld_mt5_imitation_compare"], SLEEP_PROTOCOL, RD_ACT_CODE, True),
 ])
-def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code):
+def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code, rd):
     """A run cannot start before the code it ran from exists: every archived run of a protocol (its results.json
     ``code``) ran from a clean checkout of a commit that descends from the commit stating the protocol, so git shows
-    the statement first. The imitation protocol's runs all ran from the one recorded code commit."""
+    the statement first. The imitation protocol's runs all ran from the one recorded code commit; so did issue 59's
+    step-B and confirmation runs, and its Reset & Distill runs in the imitation archive (``rd``: only those runs,
+    True; all but those, False; every run, None)."""
     if _git("rev-parse", "--is-shallow-repository").stdout.strip() != "false":
         pytest.skip("needs the repository's history (a shallow clone has none)")
     runs = [run for name in archives if (DOCS / "results" / name).is_dir()
-            for run in sorted((DOCS / "results" / name).glob("*_seed*")) if (run / "results.json").is_file()]
+            for run in sorted((DOCS / "results" / name).glob("*_seed*")) if (run / "results.json").is_file()
+            and (rd is None or run.name.startswith(RD) == rd)]
+    if statement == SLEEP_PROTOCOL and rd is None:
+        assert runs  # the calibration and step-B runs are there to check
     if statement == PROTOCOL_COMMIT:
         assert len(runs) >= 46  # calibration (36 runs over five steps) and N1 (10): the runs are there to check
     commits = {}
@@ -347,9 +361,10 @@ def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archiv
             assert commit.startswith(_git("rev-parse", code).stdout.strip()), (commit, commits[commit])
 
 
-PREREGISTERED = {"metaworld_mt5_imitation_compare", "needle_cpu_m16_replication", "sac_mt5_gate"}
-"""The archives whose tests were stated before any run of their preset: M1 and M2, N1 (the imitation protocol), G1
-(the SAC gate)."""
+PREREGISTERED = {("metaworld_mt5_imitation_compare", "hypotheses"), ("needle_cpu_m16_replication", "hypotheses"),
+                 ("sac_mt5_gate", "hypotheses"), ("sac_mt5_gate_xeon", "hypotheses_sleep")}
+"""The archives (and folders) whose tests were stated before any run of their preset: M1 and M2, N1 (the imitation
+protocol), G1 (the SAC gate), V1 and V2 (issue 59's confirmation, RESULTS' 10:20 line)."""
 
 
 def test_only_tests_stated_before_any_run_are_labelled_pre_registered_in_an_archive():
@@ -362,7 +377,7 @@ def test_only_tests_stated_before_any_run_are_labelled_pre_registered_in_an_arch
     for md in found:
         head = md.read_text().splitlines()[0]
         if head.startswith("Pre-registered"):
-            assert md.parent.name == "hypotheses" and md.parents[1].name in PREREGISTERED, md
+            assert (md.parents[1].name, md.parent.name) in PREREGISTERED, md
         else:
             assert head.startswith("Exploratory (not pre-registered)"), md
     for name in ("needle_cpu_m16_compare", "needle_cpu_vision_compare"):
