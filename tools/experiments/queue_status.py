@@ -73,6 +73,13 @@ def _since(stamp: str, now: datetime) -> str:
     return f"{minutes // 60} h {minutes % 60:02d} min ago"
 
 
+def _entry(run: dict, state: str, logs: Path, now: datetime) -> list[str]:
+    """A started run's two lines: its state, start and CPU; the stage and progress its log reached last."""
+    stage, progress = last_position(logs / f"{run['name']}.log")
+    return [f"  {run['name']}: {state}; last started {run['started']} ({_since(run['started'], now)}) on {run['cpu']}",
+            f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}"]
+
+
 def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) -> str:
     now = now or datetime.now(UTC)
     flight, finished = runs(queue.with_name(queue.name + ".done"))
@@ -85,17 +92,11 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
     ps = [p for p in subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=False).stdout
           .splitlines() if "python" in p]
     for r in flight.values():
-        stage, progress = last_position(logs / f"{r['name']}.log")
         root = _output_root(r["name"], queue)  # a run's process is the python whose command line holds its output root
         alive = root is not None and any(root in p for p in ps)
-        state = "running" if alive else "NOT running (cut: queue_requeue.sh puts it back)"
-        out.append(f"  {r['name']}: {state}; last started {r['started']} ({_since(r['started'], now)}) on {r['cpu']}")
-        out.append(f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}")
+        out += _entry(r, "running" if alive else "NOT running (cut: queue_requeue.sh puts it back)", logs, now)
     for r in requeued.values():
-        stage, progress = last_position(logs / f"{r['name']}.log")
-        out.append(f"  {r['name']}: requeued (resumes from its outputs when a worker takes it); last started "
-                   f"{r['started']} ({_since(r['started'], now)}) on {r['cpu']}")
-        out.append(f"    {stage or 'no stage yet'}{': ' + progress if progress else ''}")
+        out += _entry(r, "requeued (resumes from its outputs when a worker takes it)", logs, now)
     if queued:
         out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
     for r in finished[-last:]:
