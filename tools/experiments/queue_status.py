@@ -58,9 +58,8 @@ def last_position(log: Path) -> tuple[str, str]:
     return stage, progress
 
 
-def _output_root(name: str, queue: Path) -> str | None:
-    """The ``--output_root`` of queue line ``name`` as a worker took it (``<queue>.taken``)."""
-    line = next((ln for ln in _lines(queue.with_name(queue.name + ".taken")) if ln.split()[0] == name), "")
+def _output_root(line: str) -> str | None:
+    """The ``--output_root`` of a queue line as a worker took it (``<queue>.taken``)."""
     return next((a for a in line.split() if a.startswith("--output_root=")), None)
 
 
@@ -84,7 +83,7 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
     now = now or datetime.now(UTC)
     flight, finished = runs(queue.with_name(queue.name + ".done"))
     queued = _queued(queue)
-    taken = {ln.split()[0] for ln in _lines(queue.with_name(queue.name + ".taken"))}
+    taken = {ln.split()[0]: ln for ln in _lines(queue.with_name(queue.name + ".taken"))}
     requeued = {n: r for n, r in flight.items() if n in queued and n not in taken}
     flight = {n: r for n, r in flight.items() if n not in requeued}
     out = [f"queue {queue}: {len(flight)} in flight, {len(queued)} queued ({len(requeued)} of them requeued), "
@@ -92,7 +91,8 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
     ps = [p for p in subprocess.run(["ps", "-eo", "args"], capture_output=True, text=True, check=False).stdout
           .splitlines() if "python" in p]
     for r in flight.values():
-        root = _output_root(r["name"], queue)  # a run's process is the python whose command line holds its output root
+        # a run's process is the python whose command line holds its output root
+        root = _output_root(taken.get(r["name"], ""))
         alive = root is not None and any(root in p for p in ps)
         out += _entry(r, "running" if alive else "NOT running (cut: queue_requeue.sh puts it back)", logs, now)
     for r in requeued.values():
