@@ -311,6 +311,9 @@ its confirmation's runs (RESULTS' 2026-11-29 20:40 and 2026-11-30 10:20 lines), 
 imitation runs (queue lines rd_mt5_*)."""
 RD = "reset_distill_"
 """The run-name prefix of Reset & Distill's runs, which issue 59 added to the imitation protocol's archive."""
+V_ACT_CODE, V_ACT = "0ceecc3", "sr_c_seed"
+"""The code of V on ACT (``needle_compare``'s variant ``sr_c``, queue lines src_needle_m16_* and src_mt5_*; RESULTS'
+2026-11-30 16:30 line) and its runs' name prefix, which issue 59 added to the needle m16 and imitation archives."""
 
 
 def _flat(d: dict, prefix: str = "") -> dict:
@@ -325,29 +328,30 @@ def _git(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run(["git", "-C", str(DOCS.parent), *args], capture_output=True, text=True, check=False)
 
 
-@pytest.mark.parametrize("archives, statement, code, rd", [
+@pytest.mark.parametrize("archives, statement, code, only, but", [
     (["metaworld_mt5_imitation_calibration", "metaworld_mt5_imitation_calibration_k1",
       "metaworld_mt5_imitation_calibration_k2", "metaworld_mt5_imitation_calibration_k3",
       "metaworld_mt5_imitation_calibration_k4", "needle_cpu_m16_replication", "metaworld_mt5_imitation_compare"],
-     PROTOCOL_COMMIT, TEST_CODE, False),
-    (["sac_mt5_gate"], GATE_COMMIT, None, None),
-    (["sac_sleep_calibration", "sac_sleep_screening", "sac_mt5_gate_avx2"], SLEEP_PROTOCOL, None, None),
-    (["sac_sleep_step_b", "sac_mt5_gate_xeon"], SLEEP_PROTOCOL, SLEEP_CODE, None),
-    (["metaworld_mt5_imitation_compare"], SLEEP_PROTOCOL, RD_ACT_CODE, True),
+     PROTOCOL_COMMIT, TEST_CODE, "", (RD, V_ACT)),
+    (["sac_mt5_gate"], GATE_COMMIT, None, "", ()),
+    (["sac_sleep_calibration", "sac_sleep_screening", "sac_mt5_gate_avx2"], SLEEP_PROTOCOL, None, "", ()),
+    (["sac_sleep_step_b", "sac_mt5_gate_xeon"], SLEEP_PROTOCOL, SLEEP_CODE, "", ()),
+    (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare"], SLEEP_PROTOCOL, RD_ACT_CODE, RD, ()),
+    (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare"], SLEEP_PROTOCOL, V_ACT_CODE, V_ACT, ()),
 ])
-def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code, rd):
+def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code, only, but):
     """A run cannot start before the code it ran from exists: every archived run of a protocol (its results.json
     ``code``) ran from a clean checkout of a commit that descends from the commit stating the protocol, so git shows
     the statement first. The imitation protocol's runs all ran from the one recorded code commit; so did issue 59's
-    step-B and confirmation runs, and its Reset & Distill runs in the imitation archive (``rd``: only those runs,
-    True; all but those, False; every run, None)."""
+    step-B and confirmation runs, its Reset & Distill runs in the imitation and needle m16 archives, and V on ACT's
+    runs there (the runs checked: those whose names start with ``only`` and with none of ``but``)."""
     if _git("rev-parse", "--is-shallow-repository").stdout.strip() != "false":
         pytest.skip("needs the repository's history (a shallow clone has none)")
     runs = [run for name in archives if (DOCS / "results" / name).is_dir()
             for run in sorted((DOCS / "results" / name).glob("*_seed*")) if (run / "results.json").is_file()
-            and (rd is None or run.name.startswith(RD) == rd)]
-    if statement == SLEEP_PROTOCOL and rd is None:
-        assert runs  # the calibration and step-B runs are there to check
+            and run.name.startswith(only) and not run.name.startswith(but)]
+    if statement == SLEEP_PROTOCOL and code != V_ACT_CODE:
+        assert runs  # the calibration, step-B and Reset & Distill runs are there to check
     if statement == PROTOCOL_COMMIT:
         assert len(runs) >= 46  # calibration (36 runs over five steps) and N1 (10): the runs are there to check
     commits = {}
