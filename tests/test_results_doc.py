@@ -684,6 +684,23 @@ def test_the_sac_sleeps_cosines_recompute(text):
         assert "the runs differ in 0 values; every number equal" in (base / "compare.txt").read_text()
 
 
+def test_the_1745_cosines_line_recomputes(text):
+    """RESULTS' 17:45 cosine numbers (issue 59, exploratory) against the archive's summary, which
+    tests/experiments/test_sleep_cosines.py recomputes from the archived re-sleeps: each repeat equal to its run, the
+    largest off-diagonal cosines, the weights' and Eq. 1's optimum's distance from 1/5."""
+    runs = {r["run"]: r for r in read_checked_json(DOCS / "results" / "sac_sleep_cosines" / "cosines.json")["runs"]}
+    line = text[text.index("*2026-11-30 17:45 UTC"):text.index("## Protocol: the MT5 skills as an imitation stream")]
+    for name in ("sr_c_b1_seed102", "sr_b1_seed102", "sr_seed0"):
+        r = runs[name]
+        assert r["differing_values"] == 0 and not r["settings_changed"], name
+        assert f"**{r['largest_off_diagonal_first']:.3f} / {r['largest_off_diagonal_last']:.3f}**" in line, name
+        assert r["largest_weight_deviation"] <= 0.030 and max(abs(a - 0.2) for a in r["nash_optimum_on_last"]) <= 0.008
+    counts = [int(c) for c in re.findall(r"(\d+) measured values", "".join(
+        (DOCS / "results" / "sac_sleep_cosines" / n / "compare.txt").read_text()
+        for n in ("sr_c_b1_seed102", "sr_b1_seed102", "sr_seed0")))]
+    assert f"0 of {counts[0]}, {counts[1]} and {counts[2]} values differ" in line
+
+
 def test_the_mt5_family_recomputes(text, readme):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""

@@ -7,12 +7,15 @@ that Eq. 1 bargains over, read from re-sleeps of archived stages.
 A re-sleep (``sr-sac-sleep`` with the source's settings: it repeats the source's sleep) records C at the sleep's first
 and last applied iteration in its ``sleep_diagnostics.json`` (:class:`~sr_imitation.core.sleep.SleepResult`), which
 runs made before that record existed lack. ``--runs``: finished re-sleeps, each copied first into
-``<archive>/<its folder name>/`` (:data:`KEPT`, each checksum-checked on the way; the folder replaced atomically).
-Then, for every re-sleep in the archive (:func:`summarize_run`): C at the first and last iteration, its largest
-|off-diagonal| entry, Eq. 1's optimum on C (a cold exact solve, :func:`~sr_imitation.core.aggregation.nash_weights`),
-the weights the sleep recorded at its last iteration, and their largest distance from 1/k over every iteration after
-the first (at the first, a memory of the actor the sleep starts from has a zero gradient and is masked). Written to
-``cosines.json`` / ``cosines.md`` / ``cosines.png`` in the archive.
+``<archive>/<its folder name>/`` (:func:`collect`: its ``resleep.json``, results and settings, the re-slept stage's
+diagnostics as ``stage<k>_sleep_diagnostics.json``, each checksum-checked on the way, and ``compare.txt``, the
+re-sleep against the run it repeats, as ``python -m sr_imitation.reporting.compare`` prints it; the folder replaced
+atomically). Then, for every re-sleep in the archive (:func:`summarize_run`): whether it repeated its run (no
+measured value differs), C at the first and last iteration, its largest |off-diagonal| entry, Eq. 1's optimum on C
+(a cold exact solve, :func:`~sr_imitation.core.aggregation.nash_weights`), the weights the sleep recorded at its last
+iteration, and their largest distance from 1/k over every iteration after the first (at the first, a memory of the
+actor the sleep starts from has a zero gradient and is masked). Written to ``cosines.json`` / ``cosines.md`` /
+``cosines.png`` in the archive.
 
 What it tells: on unit directions Eq. 1 maximizes sum_i log (C alpha)_i over the simplex (``aggregation/_nash.py``);
 for C = I the optimum is alpha = 1/k, the mean of the normalized gradients. So weights at 1/k with C near I say the
@@ -25,6 +28,7 @@ from __future__ import annotations
 
 import io
 import logging
+import re
 import shutil
 import sys
 import tempfile
@@ -40,14 +44,21 @@ from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, read_fingerprint
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
+from sr_imitation.reporting.compare import report_text
 
 logger = logging.getLogger(__name__)
 PROG = "python -m sr_imitation.experiments.sleep_cosines"
 
 DIAGNOSTICS = "sleep_diagnostics.json"
-KEPT = ("resleep.json", "results.json", "settings_fingerprint.json", DIAGNOSTICS)
-"""What the archive keeps of a re-sleep: what was re-slept from what, its results and settings, and the re-slept
-stage's sleep diagnostics (the cosine matrices and every iteration's weights)."""
+KEPT = ("resleep.json", "results.json", FINGERPRINT_FILE)
+"""What the archive keeps of a re-sleep besides the stage's diagnostics and ``compare.txt``: what was re-slept from
+what, its results and its settings."""
+COMPARE = "compare.txt"
+
+
+def archived_diagnostics(folder: Path, stage: int) -> Path:
+    """Where the archive keeps a re-sleep's stage-``stage`` sleep diagnostics (RESULTS' 2026-11-30 06:30 layout)."""
+    return folder / f"stage{stage}_{DIAGNOSTICS}"
 
 
 @dataclass
@@ -71,18 +82,26 @@ def stage_diagnostics(run: Path) -> Path:
 
 
 def collect(run: Path, archive: Path) -> Path:
-    """Copy the re-sleep ``run``'s :data:`KEPT` files into ``archive / run.name`` (each checked first), replacing an
-    older copy atomically; returns the archived folder."""
+    """Copy the re-sleep ``run`` into ``archive / run.name`` (see the module docstring; every file checked first, the
+    run it repeats compared), replacing an older copy atomically; returns the archived folder."""
     run = Path(run)
-    files = {name: run / name for name in KEPT[:-1]} | {DIAGNOSTICS: stage_diagnostics(run)}
+    resleep = read_checked_json(run / "resleep.json")
+    files = {name: run / name for name in KEPT}
+    files[archived_diagnostics(Path(), resleep["stage"]).name] = stage_diagnostics(run)
     for name, path in files.items():  # a damaged file stops here, before the archive changes
         read_fingerprint(path) if name == FINGERPRINT_FILE else read_checked_json(path)
+    repeated = Path(resleep["archived"])
+    if not (repeated / "results.json").is_file():
+        raise FileNotFoundError(f"{repeated}: the run {run / 'resleep.json'} repeats is not here (run from the "
+                                "repository root)")
+    compare, _ = report_text(repeated, run)
     target = archive / run.name
     archive.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{run.name}.", suffix=".tmp", dir=archive))
     try:
         for name, path in files.items():
             shutil.copy2(path, tmp / name)
+        atomic_write_bytes(tmp / COMPARE, compare.encode())
         old = None
         if target.exists():
             old = target.with_name(f".{run.name}.old")
@@ -98,6 +117,14 @@ def collect(run: Path, archive: Path) -> Path:
     return target
 
 
+def differing_values(compare: str) -> int | None:
+    """How many measured values ``compare.txt`` says differ (0 when the runs agree); None when it says neither."""
+    found = re.search(r"measured values compared: (?:the runs (agree)|the runs differ in (\d+) values)", compare)
+    if found is None:
+        return None
+    return 0 if found.group(1) else int(found.group(2))
+
+
 def largest_off_diagonal(cosine: np.ndarray) -> float:
     """max |C_ij| over i != j among the memories with a non-zero gradient (a zero gradient's diagonal entry is 0)."""
     live = np.diag(cosine) > 0.5
@@ -109,17 +136,21 @@ def largest_off_diagonal(cosine: np.ndarray) -> float:
 def summarize_run(folder: Path) -> dict[str, Any]:
     """One archived re-sleep's row (see the module docstring)."""
     resleep = read_checked_json(folder / "resleep.json")
-    diagnostics = read_checked_json(folder / DIAGNOSTICS)
+    path = archived_diagnostics(folder, resleep["stage"])
+    diagnostics = read_checked_json(path)
     results = read_checked_json(folder / "results.json")
     matrices = [np.asarray(c, dtype=float) for c in diagnostics.get("cosines_first_last", [])]
     if len(matrices) != 2:
-        raise ValueError(f"{folder / DIAGNOSTICS}: no cosine matrices (a sleep recorded before they existed)")
+        raise ValueError(f"{path}: no cosine matrices (a sleep recorded before they existed)")
     alpha = np.asarray(diagnostics["alpha"], dtype=float)
     k = alpha.shape[1]
     optimum = nash_weights(matrices[1]).alpha
     return {
         "run": folder.name,
         "source": resleep["source"],
+        "repeats": resleep["archived"],
+        "settings_changed": resleep["changed"],
+        "differing_values": differing_values((folder / COMPARE).read_text()),
         "stage": resleep["stage"],
         "skills": diagnostics["skills"],
         "commit": results["code"]["commit"][:7],
@@ -151,12 +182,15 @@ def render(summary: Mapping[str, Any]) -> str:
         "Re-sleeps of archived stages with the source's settings (`sr-sac-sleep`), which repeat the source's sleep and",
         "record the cosine matrix C of the memory gradients at its first and last applied iteration. Eq. 1's optimum",
         "for C = I is 1/k (the mean of the normalized gradients).", "",
-        "| re-sleep | stage | final AFSR | stop | largest off-diagonal abs(C): first / last | weights at the end |"
+        "| re-sleep | repeats | values differing from it | stage | final AFSR | stop |"
+        " largest off-diagonal abs(C): first / last | weights at the end |"
         " Eq. 1's optimum on the last C | weights' largest distance from 1/k (after iteration 0) | commit |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
     for r in summary["runs"]:
-        lines.append(f"| {r['run']} | {r['stage']} | {r['final_afsr']:.3f} | {r['stop_iteration']} ({r['stop_reason']})"
+        same = "not read" if r["differing_values"] is None else r["differing_values"]
+        lines.append(f"| {r['run']} | `{r['repeats']}` | {same} | {r['stage']} | {r['final_afsr']:.3f}"
+                     f" | {r['stop_iteration']} ({r['stop_reason']})"
                      f" | {r['largest_off_diagonal_first']:.3f} / {r['largest_off_diagonal_last']:.3f}"
                      f" | {_vector(r['weights_last'])} | {_vector(r['nash_optimum_on_last'])}"
                      f" | {r['largest_weight_deviation']:.3f} | {r['commit']} |")

@@ -11,9 +11,11 @@ import numpy as np
 import pytest
 
 from sr_imitation.core.aggregation import nash_weights
+from sr_imitation.experiments import sleep_cosines
 from sr_imitation.experiments.sleep_cosines import (
     CosinesConfig,
     collect,
+    differing_values,
     largest_off_diagonal,
     main,
     run_cosines,
@@ -36,7 +38,9 @@ def fake_resleep(root: Path, name: str, first: list[list[float]], last: list[lis
     """A finished re-sleep's files, as ``sr-sac-sleep`` leaves them (only what the summary reads)."""
     run = root / name
     k = len(last)
-    write_checked_json(run / "resleep.json", {"source": f"store/{name}", "archived": f"archive/{name}",
+    repeated = root / "archived" / name
+    write_checked_json(repeated / "results.json", {"code": {"commit": "fedcba9876543210", "dirty": False}})
+    write_checked_json(run / "resleep.json", {"source": f"store/{name}", "archived": str(repeated),
                                               "stage": stage, "changes": [], "changed": []})
     write_checked_json(run / "results.json", {"code": {"commit": "0123456789abcdef", "dirty": False},
                                               "metrics": {"afsr": {"final": 0.5}}})
@@ -45,6 +49,18 @@ def fake_resleep(root: Path, name: str, first: list[list[float]], last: list[lis
                        {"skills": [f"s{i}" for i in range(k)], "alpha": alpha, "cosines_first_last": [first, last],
                         "stop_iteration": len(alpha), "stop_reason": "plateau"})
     return run
+
+
+@pytest.fixture(autouse=True)
+def compared(monkeypatch):
+    """The comparison with the repeated run (``reporting.compare``, tested on its own) as a fixed text: these fake
+    re-sleeps have no progress record to compare. ``compared.text`` can be changed by a test."""
+    class Compared:
+        text = "A = a\nB = b\nsettings: the same\n12 measured values compared: the runs differ in 0 values; " \
+               "every number equal\n"
+
+    monkeypatch.setattr(sleep_cosines, "report_text", lambda a, b: (Compared.text, {}))
+    return Compared
 
 
 def test_eq1_optimum_on_families_of_cosine_matrices(tmp_path):
@@ -85,10 +101,11 @@ def test_the_summary_archives_and_writes_json_md_and_png(tmp_path):
     summary = run_cosines(CosinesConfig(archive=archive, runs=runs))
     assert [r["run"] for r in summary["runs"]] == ["r0", "r1"]
     assert sorted(p.name for p in (archive / "r0").iterdir()) == [
-        "resleep.json", "results.json", "settings_fingerprint.json", "sleep_diagnostics.json"]
+        "compare.txt", "resleep.json", "results.json", "settings_fingerprint.json", "stage3_sleep_diagnostics.json"]
+    assert summary["runs"][0]["differing_values"] == 0
     assert read_checked_json(archive / "cosines.json") == json.loads(json.dumps(summary))
     md = (archive / "cosines.md").read_text()
-    assert "| r0 | 3 | 0.500 | 3 (plateau) | 0.196 / 0.196 |" in md
+    assert f"| r0 | `{tmp_path / 'runs' / 'archived' / 'r0'}` | 0 | 3 | 0.500 | 3 (plateau) | 0.196 / 0.196 |" in md
     assert (archive / "cosines.png").read_bytes()[:4] == b"\x89PNG"
     again = run_cosines(CosinesConfig(archive=archive))  # from the archive alone
     assert again == summary
@@ -99,7 +116,7 @@ def test_a_damaged_file_stops_before_the_archive_changes(tmp_path, capsys):
     run = fake_resleep(tmp_path / "runs", "r", c, c, [[0.5, 0.5]])
     archive = tmp_path / "archive"
     collect(run, archive)
-    before = (archive / "r" / "sleep_diagnostics.json").read_bytes()
+    before = (archive / "r" / "stage3_sleep_diagnostics.json").read_bytes()
     diag = run / "stages" / "03_skill" / "sleep" / "sleep_diagnostics.json"
     diag.write_text(diag.read_text().replace('"plateau"', '"max_iterations"'))
     with pytest.raises(SystemExit) as stop:
@@ -107,7 +124,7 @@ def test_a_damaged_file_stops_before_the_archive_changes(tmp_path, capsys):
     assert stop.value.code == 2
     err = capsys.readouterr().err.splitlines()
     assert len(err) == 1 and str(diag) in err[0], err
-    assert (archive / "r" / "sleep_diagnostics.json").read_bytes() == before  # the archived copy is untouched
+    assert (archive / "r" / "stage3_sleep_diagnostics.json").read_bytes() == before  # the archived copy stays
     assert not (archive / "cosines.json").exists()
 
 
@@ -120,6 +137,24 @@ def test_a_run_without_cosines_or_without_its_stage_is_named(tmp_path):
     diag.unlink()
     with pytest.raises(FileNotFoundError, match="not a finished re-sleep"):
         collect(run, tmp_path / "archive2")
+    other = fake_resleep(tmp_path / "runs", "lost", np.eye(2).tolist(), np.eye(2).tolist(), [[0.5, 0.5]])
+    (tmp_path / "runs" / "archived" / "lost" / "results.json").unlink()
+    with pytest.raises(FileNotFoundError, match="repeats is not here"):
+        collect(other, tmp_path / "archive3")
+    assert not (tmp_path / "archive3" / "lost").exists()
+
+
+def test_the_comparison_verdict_is_read_from_compare_txt(tmp_path, compared):
+    assert differing_values("2766 measured values compared: the runs differ in 0 values; every number equal") == 0
+    assert differing_values("40 measured values compared: the runs differ in 3 values; largest numeric ...") == 3
+    assert differing_values("40 measured values compared: the runs agree; every number equal") == 0
+    assert differing_values("no verdict") is None
+    compared.text = "A = a\nB = b\n9 measured values compared: the runs differ in 2 values; largest ...\n"
+    c = np.eye(2).tolist()
+    summary = run_cosines(CosinesConfig(archive=tmp_path / "a", runs=[fake_resleep(tmp_path / "runs", "d", c, c,
+                                                                                     [[0.5, 0.5]])]))
+    assert summary["runs"][0]["differing_values"] == 2
+    assert "| 2 | 3 |" in (tmp_path / "a" / "cosines.md").read_text()
 
 
 def test_the_archived_cosines_recompute():
