@@ -684,7 +684,7 @@ def test_the_sac_sleeps_cosines_recompute(text):
         assert "the runs differ in 0 values; every number equal" in (base / "compare.txt").read_text()
 
 
-def test_the_1745_cosines_line_recomputes(text):
+def test_the_1745_cosines_line_recomputes(text, readme):
     """RESULTS' 17:45 cosine numbers (issue 59, exploratory) against the archive's summary, which
     tests/experiments/test_sleep_cosines.py recomputes from the archived re-sleeps: each repeat equal to its run, the
     largest off-diagonal cosines, the weights' and Eq. 1's optimum's distance from 1/5."""
@@ -699,6 +699,9 @@ def test_the_1745_cosines_line_recomputes(text):
         (DOCS / "results" / "sac_sleep_cosines" / n / "compare.txt").read_text()
         for n in ("sr_c_b1_seed102", "sr_b1_seed102", "sr_seed0")))]
     assert f"0 of {counts[0]}, {counts[1]} and {counts[2]} values differ" in line
+    first, last = (max(r[f"largest_off_diagonal_{w}"] for r in runs.values()) for w in ("first", "last"))
+    assert len(runs) == 5 and "every SAC sleep whose gradients were recorded (five, " in readme
+    assert f"(off-diagonal cosines at most {first:.3f} at a sleep's start and {last:.3f} at its end)" in readme
 
 
 def test_the_mt5_family_recomputes(text, readme):
