@@ -313,7 +313,7 @@ RD = "reset_distill_"
 """The run-name prefix of Reset & Distill's runs, which issue 59 added to the imitation protocol's archive."""
 V_ACT_CODE, V_ACT = "0ceecc3", "sr_c_seed"
 """The code of V on ACT (``needle_compare``'s variant ``sr_c``, queue lines src_needle_m16_* and src_mt5_*; RESULTS'
-2026-11-30 16:30 line) and its runs' name prefix, which issue 59 added to the needle m16 and imitation archives."""
+2026-11-30 16:25 line) and its runs' name prefix, which issue 59 added to the needle m16 and imitation archives."""
 
 
 def _flat(d: dict, prefix: str = "") -> dict:
@@ -684,12 +684,12 @@ def test_the_sac_sleeps_cosines_recompute(text):
         assert "the runs differ in 0 values; every number equal" in (base / "compare.txt").read_text()
 
 
-def test_the_1745_cosines_line_recomputes(text, readme):
-    """RESULTS' 17:45 cosine numbers (issue 59, exploratory) against the archive's summary, which
+def test_the_1735_cosines_line_recomputes(text, readme):
+    """RESULTS' 17:35 cosine numbers (issue 59, exploratory) against the archive's summary, which
     tests/experiments/test_sleep_cosines.py recomputes from the archived re-sleeps: each repeat equal to its run, the
     largest off-diagonal cosines, the weights' and Eq. 1's optimum's distance from 1/5."""
     runs = {r["run"]: r for r in read_checked_json(DOCS / "results" / "sac_sleep_cosines" / "cosines.json")["runs"]}
-    line = text[text.index("*2026-11-30 17:45 UTC"):text.index("## Protocol: the MT5 skills as an imitation stream")]
+    line = text[text.index("*2026-11-30 17:35 UTC"):text.index("## Protocol: the MT5 skills as an imitation stream")]
     for name in ("sr_c_b1_seed102", "sr_b1_seed102", "sr_seed0"):
         r = runs[name]
         assert r["differing_values"] == 0 and not r["settings_changed"], name
