@@ -43,6 +43,7 @@ from sr_imitation.core.aggregation import nash_weights
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, read_fingerprint
+from sr_imitation.infra.weight_store import replace_dir
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.reporting.compare import report_text
 
@@ -102,14 +103,7 @@ def collect(run: Path, archive: Path) -> Path:
         for name, path in files.items():
             shutil.copy2(path, tmp / name)
         atomic_write_bytes(tmp / COMPARE, compare.encode())
-        old = None
-        if target.exists():
-            old = target.with_name(f".{run.name}.old")
-            shutil.rmtree(old, ignore_errors=True)
-            target.rename(old)
-        tmp.rename(target)
-        if old is not None:
-            shutil.rmtree(old)
+        replace_dir(tmp, target)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
