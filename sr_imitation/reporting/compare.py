@@ -169,6 +169,17 @@ def compare_folders(folder_a: Path, folder_b: Path, tol: float = 0.0) -> tuple[s
     return "\n".join(lines) + "\n", ok
 
 
+def report_text(run_a: Path, run_b: Path, tol: float = 0.0, show: int = 20) -> tuple[str, dict[str, Any]]:
+    """Two runs' comparison as this command prints it (their paths and commits, whether their settings differ,
+    :func:`render`), and the report (:func:`compare_runs`)."""
+    report = compare_runs(run_a, run_b, tol)
+    settings = settings_differences(run_a, run_b)
+    context = ("settings: not recorded by both" if settings is None else
+               "settings: the same" if not settings else f"settings differ in: {', '.join(settings)}")
+    return (f"A = {run_a} ({run_commit(run_a)})\nB = {run_b} ({run_commit(run_b)})\n{context}\n"
+            + render(report, show)), report
+
+
 def main(args: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("run_a", help="a run directory, or a folder of runs (then run_b is one too)")
@@ -184,17 +195,6 @@ def main(args: list[str] | None = None) -> int:
     text, report = report_text(run_a, run_b, ns.tol, ns.show)
     print(text, end="")  # noqa: T201 (command output)
     return 0 if _agrees(report) else 1
-
-
-def report_text(run_a: Path, run_b: Path, tol: float = 0.0, show: int = 20) -> tuple[str, dict[str, Any]]:
-    """Two runs' comparison as this command prints it (their paths and commits, whether their settings differ,
-    :func:`render`), and the report (:func:`compare_runs`)."""
-    report = compare_runs(run_a, run_b, tol)
-    settings = settings_differences(run_a, run_b)
-    context = ("settings: not recorded by both" if settings is None else
-               "settings: the same" if not settings else f"settings differ in: {', '.join(settings)}")
-    return (f"A = {run_a} ({run_commit(run_a)})\nB = {run_b} ({run_commit(run_b)})\n{context}\n"
-            + render(report, show)), report
 
 
 if __name__ == "__main__":
