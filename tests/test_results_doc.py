@@ -704,6 +704,30 @@ def test_the_1735_cosines_line_recomputes(text, readme):
     assert f"(off-diagonal cosines at most {first:.3f} at a sleep's start and {last:.3f} at its end)" in readme
 
 
+def test_the_1752_drawer_open_line_recomputes(text):
+    """RESULTS' 17:52 observation (exploratory): drawer-open's success right after its own wake, per archived run."""
+    def own_wake(archive: str, run: str) -> float:
+        results = json.loads((DOCS / "results" / archive / run / "results.json").read_text())
+        return results["success_after_own_wake"][results["skills"].index("drawer-open")]
+
+    line = text[text.index("*2026-11-30 17:52 UTC"):text.index("## Protocol: the MT5 skills as an imitation stream")]
+    for variant in ("sr", "wake_only", "reset_distill"):
+        values = " / ".join(f"{own_wake('sac_mt5_gate', f'{variant}_seed{s}'):.2f}" for s in range(5))
+        assert f"`{variant}` {values}" in line, variant
+    assert all(own_wake("sac_sleep_calibration", f"sr_seed{s}") == 1.0 for s in (100, 101, 102))
+    assert f"`sr_b1` seed 100 (AMD): {own_wake('sac_sleep_step_b', 'sr_b1_seed100'):.2f}" in line
+    xeon = [("sac_sleep_step_b", f"{v}_seed{s}") for v, s in (("sr_b1", 101), ("sr_b1", 102), ("sr_c_b1", 100),
+                                                             ("sr_c_b1", 101), ("sr_c_b1", 102))]
+    xeon.append(("sac_mt5_gate_xeon", "sr_seed0"))
+    for archive, run in xeon:
+        assert own_wake(archive, run) == 0.0, run
+        assert "Xeon" in json.loads((DOCS / "results" / archive / run / "results.json").read_text())["machine"]["cpu"]
+    assert own_wake("sac_mt5_gate_avx2", "sr_seed0") == 1.0
+    learned = sum(own_wake("sac_mt5_gate", f"{v}_seed{s}") >= 0.5
+                  for v in ("sr", "wake_only", "reset_distill") for s in range(5))
+    assert f"it learned the skill in {learned} of 15 wakes" in line
+
+
 def test_the_mt5_family_recomputes(text, readme):
     """M1 and M2's table and the family's Holm-adjusted verdict against the archived runs (SR, wake-only and replay on
     seeds 0-9, N1's ten runs); the stored hypotheses equal a recompute; a test cannot run on seeds it lacks."""
