@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import logging
 import shutil
-import tempfile
 from collections.abc import Callable, Mapping
 from pathlib import Path
 from typing import Any
@@ -39,7 +38,7 @@ from sr_imitation.infra.fingerprint import (
     diff_settings,
     read_fingerprint,
 )
-from sr_imitation.infra.weight_store import WEIGHTS_FILE, replace_dir, store_weights, weight_store
+from sr_imitation.infra.weight_store import WEIGHTS_FILE, staged_replacement, store_weights, weight_store
 from sr_imitation.io import write_checked_json
 from sr_imitation.stream.rundir import OverwriteRefusedError, few_names
 
@@ -83,18 +82,12 @@ def archive_run(run: Path, archive: Path, name: str, keep_weights: bool = False)
         raise OverwriteRefusedError(f"{target}: not replaced by the archived run: it holds "
                                     f"{few_names(foreign) or 'a file'}, which an archived run does not; remove or "
                                     "move it yourself (nothing was removed)")
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=target.parent))
-    try:
+    with staged_replacement(target) as tmp:
         for file in ARCHIVED_FILES:
             if (run / file).is_file() and file != WEIGHTS_FILE:
                 shutil.copy2(run / file, tmp / file)
         if keep_weights:
             write_checked_json(tmp / WEIGHTS_FILE, store_weights(run, weight_store(archive) / name))
-        replace_dir(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     logger.info("archived %s -> %s", run, target)
     return target
 

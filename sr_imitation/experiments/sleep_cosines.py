@@ -31,7 +31,6 @@ import logging
 import re
 import shutil
 import sys
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -43,7 +42,7 @@ from sr_imitation.core.aggregation import nash_weights
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, read_fingerprint
-from sr_imitation.infra.weight_store import replace_dir
+from sr_imitation.infra.weight_store import staged_replacement
 from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked_json
 from sr_imitation.reporting.compare import report_text
 
@@ -97,16 +96,10 @@ def collect(run: Path, archive: Path) -> Path:
                                 "repository root)")
     compare, _ = report_text(repeated, run)
     target = archive / run.name
-    archive.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{run.name}.", suffix=".tmp", dir=archive))
-    try:
+    with staged_replacement(target) as tmp:
         for name, path in files.items():
             shutil.copy2(path, tmp / name)
         atomic_write_bytes(tmp / COMPARE, compare.encode())
-        replace_dir(tmp, target)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     logger.info("archived %s -> %s", run, target)
     return target
 

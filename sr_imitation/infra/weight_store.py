@@ -11,10 +11,12 @@ library and ``sr_imitation.io`` only.
 
 from __future__ import annotations
 
+import contextlib
 import fnmatch
 import os
 import shutil
 import tempfile
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -43,19 +45,13 @@ def store_weights(run: Path, store: Path) -> dict[str, Any]:
     "sha256"}}}``, ``store`` relative to the archive's parent."""
     run, store = Path(run), Path(store)
     files = sorted(p for p in run.rglob("*") if p.is_file() and not p.is_symlink() and _stored(p.relative_to(run)))
-    store.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{store.name}.", suffix=".tmp", dir=store.parent))
     listing: dict[str, dict[str, Any]] = {}
-    try:
+    with staged_replacement(store) as tmp:
         for path in files:
             rel = path.relative_to(run)
             (tmp / rel).parent.mkdir(parents=True, exist_ok=True)
             shutil.copy2(path, tmp / rel)
             listing[rel.as_posix()] = {"bytes": (tmp / rel).stat().st_size, "sha256": file_digest(tmp / rel)}
-        replace_dir(tmp, store)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return {"format": WEIGHTS_FORMAT, "store": f"{store.parent.name}/{store.name}", "files": listing}
 
 
@@ -74,6 +70,20 @@ def verify_weights(archived: Path, store: Path | None = None) -> Path:
         if path.stat().st_size != want["bytes"] or file_digest(path) != want["sha256"]:
             raise CorruptFileError(path, f"differs from its checksum in {archived / WEIGHTS_FILE}")
     return Path(store)
+
+
+@contextlib.contextmanager
+def staged_replacement(target: Path) -> Iterator[Path]:
+    """A temporary folder beside ``target`` to fill; when the block ends without an error it replaces ``target``
+    (:func:`replace_dir`), on any error it is removed and ``target`` is untouched."""
+    target.parent.mkdir(parents=True, exist_ok=True)
+    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=target.parent))
+    try:
+        yield tmp
+        replace_dir(tmp, target)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
 
 
 def replace_dir(tmp: Path, target: Path) -> None:
