@@ -151,7 +151,10 @@ def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_qu
     assert lines[1] == ("  b: NOT running (cut: queue_requeue.sh puts it back); last started 2026-11-30T01:00:01Z "
                         "(1 h 30 min ago) on AMD EPYC, family 25 model 1, no AVX-512")
     assert lines[2] == "    stage 2 (door-open-v3) wake"  # the progress line was stage 1's
-    assert lines[3:] == ["  next: c", "  ended 2026-11-30T01:00:00Z: a rc=0"]
+    assert lines[3:] == ["  next: c",
+                         "  queued work: about 0.0 core-hours (1 of no known preset, not counted), runs in flight "
+                         "not counted",
+                         "  ended 2026-11-30T01:00:00Z: a rc=0"]
     # queue_requeue.sh put b back: it is queued again, no longer taken, so not in flight
     queue.write_text("# header\nb -m x --output_root=/nowhere/b\nc -m x --output_root=/nowhere/c\n")
     (tmp_path / "queue.txt.taken").write_text("a -m x --output_root=/nowhere/a\n")
@@ -162,6 +165,15 @@ def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_qu
         "(1 h 30 min ago) on AMD EPYC, family 25 model 1, no AVX-512",
         "    stage 2 (door-open-v3) wake: wake door-open-v3: 80/800 (10%), 5m elapsed, ~45m left; reward=2.0"]
     assert lines[3] == "  next: b, c"
+    # the estimate counts each queued line once, by the preset it names
+    queue.write_text("# header\nd -m x --preset=configs/sac_mt5_gate.json\n"
+                     "e -m x --preset=configs/needle_cpu_m16.json\n"
+                     "f -m x --preset=configs/sac_mt5_gate.json --seeds=[1]\ng -m x --preset=configs/other.json\n")
+    assert status.queued_hours(queue) == (
+        "  queued work: about 4.8 core-hours (2 x configs/sac_mt5_gate.json ~2.3 h; 1 x configs/needle_cpu_m16.json "
+        "~0.25 h; 1 of no known preset, not counted), runs in flight not counted")
+    assert status.queued_hours(queue, {"configs/other.json": 1.5}).startswith(
+        "  queued work: about 1.5 core-hours (1 x configs/other.json ~1.5 h; 3 of no known preset")
     missing = subprocess.run(["python3", str(TOOLS / "queue_status.py"), str(tmp_path / "none.txt")],
                              capture_output=True, text=True, check=False)
     assert missing.returncode == 2 and missing.stderr.count("\n") == 1 and "none.txt: no queue here" in missing.stderr

@@ -8,7 +8,8 @@ which CPU, the stage and phase its log reached last, and its last progress line 
 whether its worker still runs (a ``python`` process whose command line holds the run's ``--output_root``) or the run
 was cut (a session's end: requeue it). A cut run already put back in the queue (``queue_requeue.sh``: in the queue,
 not in ``<queue>.taken``) is not in flight: it is listed as requeued, with where its outputs stopped. Then the queued
-lines and the last finished runs with their exit status.
+lines, with an estimate of the core-hours they hold (``HOURS_PER_RUN``), and the last finished runs with their exit
+status.
 Standard library only, so it works before the environment is built.
 """
 
@@ -24,6 +25,11 @@ STAGE = re.compile(r"stage (\d+) \(([^)]+)\): ([\w.]+)")
 PROGRESS = re.compile(r"(\d+/\d+ \(\d+%\).*?left)")
 START = re.compile(r"^(\S+) start (\S+)(?: on (.*))?$")
 END = re.compile(r"^(\S+) (\S+) rc=(-?\d+)$")
+PRESET = re.compile(r"--preset=(\S+)")
+# One run's wall time on one core, by preset: measured on the Intel Xeon family 6 model 167 with the libraries capped
+# at AVX2 (2026-11-30; docs/RESULTS.md's dated lines give each run's start and end). An estimate for planning only.
+HOURS_PER_RUN = {"configs/sac_mt5_gate.json": 2.3, "configs/metaworld_mt5_imitation.json": 1.0,
+                 "configs/needle_cpu_m16.json": 0.25}
 
 
 def _lines(path: Path) -> list[str]:
@@ -32,6 +38,21 @@ def _lines(path: Path) -> list[str]:
 
 def _queued(queue: Path) -> list[str]:
     return [line.split()[0] for line in _lines(queue) if not line.startswith("#")]
+
+
+def queued_hours(queue: Path, hours: dict[str, float] = HOURS_PER_RUN) -> str:
+    """One line: the queued runs' core-hours by preset (``HOURS_PER_RUN``); runs of other presets are counted apart."""
+    count: dict[str, int] = {}
+    for line in _lines(queue):
+        if not line.startswith("#"):
+            m = PRESET.search(line)
+            key = m[1] if m and m[1] in hours else "other"
+            count[key] = count.get(key, 0) + 1
+    total = sum(hours[k] * n for k, n in count.items() if k != "other")
+    parts = [f"{n} x {k} ~{hours[k]:g} h" for k, n in count.items() if k != "other"]
+    if "other" in count:
+        parts.append(f"{count['other']} of no known preset, not counted")
+    return f"  queued work: about {total:.1f} core-hours ({'; '.join(parts)}), runs in flight not counted"
 
 
 def runs(done: Path) -> tuple[dict[str, dict], list[dict]]:
@@ -99,6 +120,7 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
         out += _entry(r, "requeued (resumes from its outputs when a worker takes it)", logs, now)
     if queued:
         out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
+        out.append(queued_hours(queue))
     for r in finished[-last:]:
         out.append(f"  ended {r['ended']}: {r['name']} rc={r['rc']}")
     return "\n".join(out)
