@@ -169,10 +169,10 @@ def test_the_status_names_runs_in_flight_with_their_last_position_and_what_is_qu
     queue.write_text("# header\nd -m x --preset=configs/sac_mt5_gate.json\n"
                      "e -m x --preset=configs/needle_cpu_m16.json\n"
                      "f -m x --preset=configs/sac_mt5_gate.json --seeds=[1]\ng -m x --preset=configs/other.json\n")
-    assert status.queued_hours(queue) == (
+    assert status.queued_hours(status._queued(queue)) == (
         "  queued work: about 4.8 core-hours (2 x configs/sac_mt5_gate.json ~2.3 h; 1 x configs/needle_cpu_m16.json "
         "~0.25 h; 1 of no known preset, not counted), runs in flight not counted")
-    assert status.queued_hours(queue, {"configs/other.json": 1.5}).startswith(
+    assert status.queued_hours(status._queued(queue), {"configs/other.json": 1.5}).startswith(
         "  queued work: about 1.5 core-hours (1 x configs/other.json ~1.5 h; 3 of no known preset")
     missing = subprocess.run(["python3", str(TOOLS / "queue_status.py"), str(tmp_path / "none.txt")],
                              capture_output=True, text=True, check=False)

@@ -18,6 +18,7 @@ from __future__ import annotations
 import re
 import subprocess
 import sys
+from collections import Counter
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -37,21 +38,19 @@ def _lines(path: Path) -> list[str]:
 
 
 def _queued(queue: Path) -> list[str]:
-    return [line.split()[0] for line in _lines(queue) if not line.startswith("#")]
+    """The queue's run lines (comments dropped), read once so that the names and the estimate agree."""
+    return [line for line in _lines(queue) if not line.startswith("#")]
 
 
-def queued_hours(queue: Path, hours: dict[str, float] = HOURS_PER_RUN) -> str:
-    """One line: the queued runs' core-hours by preset (``HOURS_PER_RUN``); runs of other presets are counted apart."""
-    count: dict[str, int] = {}
-    for line in _lines(queue):
-        if not line.startswith("#"):
-            m = PRESET.search(line)
-            key = m[1] if m and m[1] in hours else "other"
-            count[key] = count.get(key, 0) + 1
-    total = sum(hours[k] * n for k, n in count.items() if k != "other")
-    parts = [f"{n} x {k} ~{hours[k]:g} h" for k, n in count.items() if k != "other"]
-    if "other" in count:
-        parts.append(f"{count['other']} of no known preset, not counted")
+def queued_hours(lines: list[str], hours: dict[str, float] = HOURS_PER_RUN) -> str:
+    """One line: the queued ``lines``' core-hours by preset (``HOURS_PER_RUN``); runs of other presets are counted
+    apart."""
+    count = Counter(m[1] if (m := PRESET.search(line)) and m[1] in hours else None for line in lines)
+    unknown = count.pop(None, 0)
+    parts = [f"{n} x {k} ~{hours[k]:g} h" for k, n in count.items()]
+    if unknown:
+        parts.append(f"{unknown} of no known preset, not counted")
+    total = sum(hours[k] * n for k, n in count.items())
     return f"  queued work: about {total:.1f} core-hours ({'; '.join(parts)}), runs in flight not counted"
 
 
@@ -103,7 +102,8 @@ def _entry(run: dict, state: str, logs: Path, now: datetime) -> list[str]:
 def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) -> str:
     now = now or datetime.now(UTC)
     flight, finished = runs(queue.with_name(queue.name + ".done"))
-    queued = _queued(queue)
+    lines = _queued(queue)
+    queued = [line.split()[0] for line in lines]
     taken = {ln.split()[0]: ln for ln in _lines(queue.with_name(queue.name + ".taken"))}
     requeued = {n: r for n, r in flight.items() if n in queued and n not in taken}
     flight = {n: r for n, r in flight.items() if n not in requeued}
@@ -120,7 +120,7 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
         out += _entry(r, "requeued (resumes from its outputs when a worker takes it)", logs, now)
     if queued:
         out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
-        out.append(queued_hours(queue))
+        out.append(queued_hours(lines))
     for r in finished[-last:]:
         out.append(f"  ended {r['ended']}: {r['name']} rc={r['rc']}")
     return "\n".join(out)
