@@ -967,3 +967,42 @@ def test_the_which_method_where_table_recomputes():
             assert stated in rows[preset], (preset, stated)
         best = max(values, key=lambda v: np.mean(values[v]))
         assert cells[1].startswith(NAMES[best]), (preset, best)
+
+
+RD_ON_ACT = {  # README row (its preset) -> the archive of Reset & Distill on ACT and the archives of SR's seeds 0-9
+    "configs/needle_cpu_m16.json": ("needle_cpu_m16_compare", ("needle_cpu_m16_compare", "needle_cpu_m16_replication")),
+    "configs/metaworld_mt5_imitation.json": ("metaworld_mt5_imitation_compare", ("metaworld_mt5_imitation_compare",)),
+}
+"""Issue 59 item 5's rows (descriptive). The runs sit outside ``WHICH_METHOD``: they were made on another CPU type than
+their rows' other runs, so they name no method highest."""
+
+
+def test_the_reset_and_distill_on_act_cells_recompute():
+    """README's Reset & Distill on ACT cells and sentence: every seed's final AFSR in seed order and their mean +- SE,
+    on how many seeds SR's archived run ended higher, and the BWT against its own wakes, from the archives; the
+    archived summary beside the runs holds the same numbers."""
+    readme = (DOCS.parent / "README.md").read_text()
+    lines = readme.split("## Which method where", 1)[1].split("\n## ", 1)[0]
+    rows = {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
+    below, bwt_wake = [], []
+    for preset, (archive, sr_archives) in RD_ON_ACT.items():
+        got = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
+        assert sorted(got) == list(range(10)), (preset, sorted(got))
+        values = [got[s] for s in range(10)]
+        listed = ", ".join(f"{v:.3f}" for v in values)
+        assert f"Reset & Distill on ACT {_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in rows[preset]
+        sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
+        assert sorted(sr) == list(range(10)), (preset, sorted(sr))
+        below.append(sum(got[s] < sr[s] for s in range(10)))
+        wake = list(archived_values(DOCS / "results" / archive, "reset_distill", "bwt_wake").values())
+        bwt_wake.append(_mean_se(wake))
+        summary = json.loads((DOCS / "results" / archive / "summary_reset_distill" / "summary.json").read_text())
+        variant = summary["variants"]["reset_distill"]
+        assert variant["afsr"]["per_seed"] == pytest.approx(values)
+        assert f"{variant['bwt_wake']['mean']:.3f} +- {variant['bwt_wake']['sem']:.3f}" == _mean_se(wake)
+    assert f"below SR on {below[0]} of 10 needle seeds and {below[1]} of 10 MT5 seeds" in " ".join(readme.split())
+    assert f"{bwt_wake[0]} on the needle, {bwt_wake[1]} on MT5" in " ".join(readme.split())
+    mt5 = list(archived_values(DOCS / "results" / "metaworld_mt5_imitation_compare", "reset_distill", "bwt").values())
+    results = " ".join((DOCS / "RESULTS.md").read_text().split())  # RESULTS' line on all ten MT5 seeds
+    assert (f"mean **{_mean_se(values)}**; BWT {_signed(mt5)} against the previous stage and {bwt_wake[1]} against "
+            "its own wakes") in results
