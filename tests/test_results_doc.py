@@ -978,7 +978,7 @@ their rows' other runs, so they name no method highest."""
 
 
 def test_the_reset_and_distill_on_act_cells_recompute():
-    """README's Reset & Distill on ACT cells and sentence: every seed's final AFSR in seed order and their mean +- SE,
+    """README's Reset & Distill on ACT cells and sentences: every seed's final AFSR in seed order and their mean +- SE,
     on how many seeds SR's archived run ended higher, and the BWT against its own wakes, from the archives; the
     archived summary beside the runs holds the same numbers."""
     readme = (DOCS.parent / "README.md").read_text()
@@ -991,6 +991,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
         values = [got[s] for s in range(10)]
         listed = ", ".join(f"{v:.3f}" for v in values)
         assert f"Reset & Distill on ACT {_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in rows[preset]
+        assert f"Reset & Distill on ACT {_mean_se(values)} (10 seeds, another CPU type" in " ".join(readme.split())
         sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
         assert sorted(sr) == list(range(10)), (preset, sorted(sr))
         below.append(sum(got[s] < sr[s] for s in range(10)))
