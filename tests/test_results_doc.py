@@ -946,13 +946,18 @@ NAMES = {"sr": "SR", "wake_only": "wake-only", "replay": "replay", "reset_distil
          "sequential_bc": "sequential BC"}
 
 
+def _which_method_rows() -> dict[str, str]:
+    """README's "Which method where" table: each row's line, by the preset it names first."""
+    lines = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
+    return {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
+
+
 def test_the_which_method_where_table_recomputes():
     """README's table: each row's means +- SE from its archive, and the method it names highest is the highest of
     those it lists (not of the oracle, which is not a continual method)."""
     from sr_imitation.experiments.hypotheses import archived_values
 
-    lines = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
-    rows = {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
+    rows = _which_method_rows()
     assert set(rows) == set(WHICH_METHOD)
     for preset, (archive, variants) in WHICH_METHOD.items():
         cells = rows[preset].split(" | ")
@@ -982,8 +987,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     on how many seeds SR's archived run ended higher, and the BWT against its own wakes, from the archives; the
     archived summary beside the runs holds the same numbers."""
     readme = (DOCS.parent / "README.md").read_text()
-    lines = readme.split("## Which method where", 1)[1].split("\n## ", 1)[0]
-    rows = {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
+    rows = _which_method_rows()
     below, bwt_wake = [], []
     for preset, (archive, sr_archives) in RD_ON_ACT.items():
         got = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
