@@ -1011,3 +1011,9 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     results = " ".join((DOCS / "RESULTS.md").read_text().split())  # RESULTS' line on all ten MT5 seeds
     assert (f"mean **{_mean_se(values)}**; BWT {_signed(mt5)} against the previous stage and {bwt_wake[1]} against "
             "its own wakes") in results
+    runs = [json.loads((DOCS / "results" / "metaworld_mt5_imitation_compare" / f"{RD}seed{s}" / "results.json")
+                       .read_text()) for s in range(10)]
+    newest = [r["success_matrix"][k][k] for r in runs for k in range(1, 5)]  # right after skill k's distillation
+    own = [r["success_after_own_wake"][k] for r in runs for k in range(1, 5)]
+    assert (f"the newest skill stands at {np.mean(newest):.3f} on average (0.00 in {newest.count(0.0)} of those "
+            f"{len(newest)} stages) against {np.mean(own):.3f} after its own wake") in results
