@@ -986,33 +986,35 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     """README's Reset & Distill on ACT cells and sentences: every seed's final AFSR in seed order and their mean +- SE,
     on how many seeds SR's archived run ended higher, and the BWT against its own wakes, from the archives; the
     archived summary beside the runs holds the same numbers."""
-    readme = (DOCS.parent / "README.md").read_text()
+    readme = " ".join((DOCS.parent / "README.md").read_text().split())  # the sentences, whatever their wrapping
     rows = _which_method_rows()
-    below, bwt_wake = [], []
+    values, below, bwt_wake = {}, {}, {}
     for preset, (archive, sr_archives) in RD_ON_ACT.items():
         got = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
         assert sorted(got) == list(range(10)), (preset, sorted(got))
-        values = [got[s] for s in range(10)]
-        listed = ", ".join(f"{v:.3f}" for v in values)
-        assert f"Reset & Distill on ACT {_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in rows[preset]
-        assert f"Reset & Distill on ACT {_mean_se(values)} (10 seeds, another CPU type" in " ".join(readme.split())
+        values[preset] = [got[s] for s in range(10)]
+        listed = ", ".join(f"{v:.3f}" for v in values[preset])
+        stated = f"Reset & Distill on ACT {_mean_se(values[preset])}"
+        assert f"{stated} (seeds 0-9: {listed}; descriptive, no test" in rows[preset]
+        assert f"{stated} (10 seeds, another CPU type" in readme
         sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
         assert sorted(sr) == list(range(10)), (preset, sorted(sr))
-        below.append(sum(got[s] < sr[s] for s in range(10)))
+        below[preset] = sum(got[s] < sr[s] for s in range(10))
         wake = list(archived_values(DOCS / "results" / archive, "reset_distill", "bwt_wake").values())
-        bwt_wake.append(_mean_se(wake))
+        bwt_wake[preset] = _mean_se(wake)
         summary = json.loads((DOCS / "results" / archive / "summary_reset_distill" / "summary.json").read_text())
         variant = summary["variants"]["reset_distill"]
-        assert variant["afsr"]["per_seed"] == pytest.approx(values)
-        assert f"{variant['bwt_wake']['mean']:.3f} +- {variant['bwt_wake']['sem']:.3f}" == _mean_se(wake)
-    assert f"below SR on {below[0]} of 10 needle seeds and {below[1]} of 10 MT5 seeds" in " ".join(readme.split())
-    assert f"{bwt_wake[0]} on the needle, {bwt_wake[1]} on MT5" in " ".join(readme.split())
-    mt5 = list(archived_values(DOCS / "results" / "metaworld_mt5_imitation_compare", "reset_distill", "bwt").values())
+        assert variant["afsr"]["per_seed"] == pytest.approx(values[preset])
+        assert f"{variant['bwt_wake']['mean']:.3f} +- {variant['bwt_wake']['sem']:.3f}" == bwt_wake[preset]
+    needle, mt5 = RD_ON_ACT  # its two rows, in the order written
+    assert f"below SR on {below[needle]} of 10 needle seeds and {below[mt5]} of 10 MT5 seeds" in readme
+    assert f"{bwt_wake[needle]} on the needle, {bwt_wake[mt5]} on MT5" in readme
+    bwt = list(archived_values(DOCS / "results" / RD_ON_ACT[mt5][0], "reset_distill", "bwt").values())
     results = " ".join((DOCS / "RESULTS.md").read_text().split())  # RESULTS' line on all ten MT5 seeds
-    assert (f"mean **{_mean_se(values)}**; BWT {_signed(mt5)} against the previous stage and {bwt_wake[1]} against "
-            "its own wakes") in results
-    runs = [json.loads((DOCS / "results" / "metaworld_mt5_imitation_compare" / f"{RD}seed{s}" / "results.json")
-                       .read_text()) for s in range(10)]
+    assert (f"mean **{_mean_se(values[mt5])}**; BWT {_signed(bwt)} against the previous stage and {bwt_wake[mt5]} "
+            "against its own wakes") in results
+    runs = [json.loads((DOCS / "results" / RD_ON_ACT[mt5][0] / f"{RD}seed{s}" / "results.json").read_text())
+            for s in range(10)]
     newest = [r["success_matrix"][k][k] for r in runs for k in range(1, 5)]  # right after skill k's distillation
     own = [r["success_after_own_wake"][k] for r in runs for k in range(1, 5)]
     assert (f"the newest skill stands at {np.mean(newest):.3f} on average (0.00 in {newest.count(0.0)} of those "
