@@ -665,6 +665,32 @@ def test_the_sleep_family_recomputes():
     assert (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+CROSS_CPU = DOCS / "results" / "sac_gate_cross_cpu"
+"""The agreement checks between CPU types (RESULTS' 2026-11-30 07:30 and 2026-12-01 22:49 lines)."""
+
+
+def test_the_sleep_family_is_of_one_cpu_type():
+    """The family is computed over one CPU type only. Its runs were made on the Intel Xeon family 6 model 167; a run
+    made on model 207 joins it only because a whole run of the family made there (``sr_c_b1`` seed 1, all five
+    stages) equals its model 167 archive in every measured value (RESULTS' 2026-12-01 22:49 rule), and that
+    comparison is archived and re-checked here."""
+    models = {}
+    for run in sorted(p for p in SLEEP_FAMILY.iterdir() if (p / "results.json").is_file()):
+        cpu = read_checked_json(run / "results.json")["machine"]["cpu"]
+        models[run.name] = re.search(r"family 6, model (\d+);", cpu).group(1)
+    assert set(models.values()) <= {"167", "207"}, models
+    if "207" in models.values():
+        from sr_imitation.reporting.compare import compare_runs
+
+        agreement = CROSS_CPU / "sr_c_b1_seed1_m207"
+        assert read_checked_json(agreement / "results.json")["machine"]["cpu"].startswith(
+            "Intel(R) Xeon(R) Processor (family 6, model 207;")
+        assert models["sr_c_b1_seed1"] == "167"
+        report = compare_runs(SLEEP_FAMILY / "sr_c_b1_seed1", agreement)
+        assert report["compared"] > 2000 and not (report["differences"] or report["only_a"] or report["only_b"])
+        assert "the runs differ in 0 values" in (CROSS_CPU / "compare_sr_c_b1_seed1_m207.txt").read_text()
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
