@@ -335,9 +335,10 @@ def _git(*args: str) -> subprocess.CompletedProcess:
      PROTOCOL_COMMIT, TEST_CODE, "", (RD, V_ACT)),
     (["sac_mt5_gate"], GATE_COMMIT, None, "", ()),
     (["sac_sleep_calibration", "sac_sleep_screening", "sac_mt5_gate_avx2"], SLEEP_PROTOCOL, None, "", ()),
-    (["sac_sleep_step_b", "sac_mt5_gate_xeon"], SLEEP_PROTOCOL, SLEEP_CODE, "", ()),
+    (["sac_sleep_step_b", "sac_mt5_gate_xeon", "sac_gate_cross_cpu"], SLEEP_PROTOCOL, SLEEP_CODE, "", ()),
     (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare"], SLEEP_PROTOCOL, RD_ACT_CODE, RD, ()),
-    (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare"], SLEEP_PROTOCOL, V_ACT_CODE, V_ACT, ()),
+    (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare", "needle_cross_cpu"],
+     SLEEP_PROTOCOL, V_ACT_CODE, V_ACT, ()),
 ])
 def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code, only, but):
     """A run cannot start before the code it ran from exists: every archived run of a protocol (its results.json
@@ -689,6 +690,22 @@ def test_the_sleep_family_is_of_one_cpu_type():
         report = compare_runs(SLEEP_FAMILY / "sr_c_b1_seed1", agreement)
         assert report["compared"] > 2000 and not (report["differences"] or report["only_a"] or report["only_b"])
         assert "the runs differ in 0 values" in (CROSS_CPU / "compare_sr_c_b1_seed1_m207.txt").read_text()
+
+
+def test_v_on_act_is_of_one_cpu_type():
+    """V on ACT's needle m16 rows (descriptive) may hold runs of model 167 and of model 207 only because seed 0 made
+    again on model 207 equals its model 167 archive in every measured value (RESULTS' 2026-12-01 23:56 rule; the
+    repeat and the comparison are archived in ``needle_cross_cpu``)."""
+    from sr_imitation.reporting.compare import compare_runs
+
+    archive, repeat = DOCS / "results" / "needle_cpu_m16_compare", DOCS / "results" / "needle_cross_cpu"
+    models = {run.name: re.search(r"family 6, model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
+              .group(1) for run in sorted(archive.glob(V_ACT + "*")) if (run / "results.json").is_file()}
+    assert models["sr_c_seed0"] == "167" and set(models.values()) <= {"167", "207"}, models
+    assert "model 207;" in read_checked_json(repeat / "sr_c_seed0_m207" / "results.json")["machine"]["cpu"]
+    report = compare_runs(archive / "sr_c_seed0", repeat / "sr_c_seed0_m207")
+    assert report["compared"] > 400 and not (report["differences"] or report["only_a"] or report["only_b"])
+    assert "the runs agree; every number equal" in (repeat / "compare_sr_c_seed0_m207.txt").read_text()
 
 
 def test_the_sac_sleeps_cosines_recompute(text):
