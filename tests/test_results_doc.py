@@ -670,42 +670,46 @@ CROSS_CPU = DOCS / "results" / "sac_gate_cross_cpu"
 """The agreement checks between CPU types (RESULTS' 2026-11-30 07:30 and 2026-12-01 22:49 lines)."""
 
 
+def _cpu_models(runs) -> dict[str, str]:
+    """Each run's Intel CPU model number, as its results.json recorded the machine."""
+    return {run.name: re.search(r"family 6, model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
+            .group(1) for run in sorted(runs) if (run / "results.json").is_file()}
+
+
+def _equal_everywhere(run_a: Path, run_b: Path, at_least: int, compare_output: Path) -> None:
+    """Two whole runs agree in every measured value (none on one side only), recomputed, and the archived output of
+    the comparison says so."""
+    from sr_imitation.reporting.compare import compare_runs
+
+    report = compare_runs(run_a, run_b)
+    assert report["compared"] >= at_least, report["compared"]
+    assert not (report["differences"] or report["only_a"] or report["only_b"]), report["differences"][:3]
+    assert "the runs agree; every number equal" in compare_output.read_text()
+
+
 def test_the_sleep_family_is_of_one_cpu_type():
     """The family is computed over one CPU type only. Its runs were made on the Intel Xeon family 6 model 167; a run
     made on model 207 joins it only because a whole run of the family made there (``sr_c_b1`` seed 1, all five
     stages) equals its model 167 archive in every measured value (RESULTS' 2026-12-01 22:49 rule), and that
     comparison is archived and re-checked here."""
-    models = {}
-    for run in sorted(p for p in SLEEP_FAMILY.iterdir() if (p / "results.json").is_file()):
-        cpu = read_checked_json(run / "results.json")["machine"]["cpu"]
-        models[run.name] = re.search(r"family 6, model (\d+);", cpu).group(1)
+    models = _cpu_models(SLEEP_FAMILY.iterdir())
     assert set(models.values()) <= {"167", "207"}, models
     if "207" in models.values():
-        from sr_imitation.reporting.compare import compare_runs
-
-        agreement = CROSS_CPU / "sr_c_b1_seed1_m207"
-        assert read_checked_json(agreement / "results.json")["machine"]["cpu"].startswith(
-            "Intel(R) Xeon(R) Processor (family 6, model 207;")
-        assert models["sr_c_b1_seed1"] == "167"
-        report = compare_runs(SLEEP_FAMILY / "sr_c_b1_seed1", agreement)
-        assert report["compared"] > 2000 and not (report["differences"] or report["only_a"] or report["only_b"])
-        assert "the runs differ in 0 values" in (CROSS_CPU / "compare_sr_c_b1_seed1_m207.txt").read_text()
+        assert models["sr_c_b1_seed1"] == "167" and _cpu_models([CROSS_CPU / "sr_c_b1_seed1_m207"]) == {
+            "sr_c_b1_seed1_m207": "207"}
+        _equal_everywhere(SLEEP_FAMILY / "sr_c_b1_seed1", CROSS_CPU / "sr_c_b1_seed1_m207", 2000,
+                          CROSS_CPU / "compare_sr_c_b1_seed1_m207.txt")
 
 
 def test_v_on_act_is_of_one_cpu_type():
     """V on ACT's needle m16 rows (descriptive) may hold runs of model 167 and of model 207 only because seed 0 made
     again on model 207 equals its model 167 archive in every measured value (RESULTS' 2026-12-01 23:56 rule; the
     repeat and the comparison are archived in ``needle_cross_cpu``)."""
-    from sr_imitation.reporting.compare import compare_runs
-
     archive, repeat = DOCS / "results" / "needle_cpu_m16_compare", DOCS / "results" / "needle_cross_cpu"
-    models = {run.name: re.search(r"family 6, model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
-              .group(1) for run in sorted(archive.glob(V_ACT + "*")) if (run / "results.json").is_file()}
+    models = _cpu_models(archive.glob(V_ACT + "*"))
     assert models["sr_c_seed0"] == "167" and set(models.values()) <= {"167", "207"}, models
-    assert "model 207;" in read_checked_json(repeat / "sr_c_seed0_m207" / "results.json")["machine"]["cpu"]
-    report = compare_runs(archive / "sr_c_seed0", repeat / "sr_c_seed0_m207")
-    assert report["compared"] > 400 and not (report["differences"] or report["only_a"] or report["only_b"])
-    assert "the runs agree; every number equal" in (repeat / "compare_sr_c_seed0_m207.txt").read_text()
+    assert _cpu_models([repeat / "sr_c_seed0_m207"]) == {"sr_c_seed0_m207": "207"}
+    _equal_everywhere(archive / "sr_c_seed0", repeat / "sr_c_seed0_m207", 400, repeat / "compare_sr_c_seed0_m207.txt")
 
 
 def test_the_sac_sleeps_cosines_recompute(text):
