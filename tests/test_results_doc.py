@@ -1066,3 +1066,17 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     own = [r["success_after_own_wake"][k] for r in runs for k in range(1, 5)]
     assert (f"the newest skill stands at {np.mean(newest):.3f} on average (0.00 in {newest.count(0.0)} of those "
             f"{len(newest)} stages) against {np.mean(own):.3f} after its own wake") in results
+
+
+def test_the_v_on_act_needle_line_recomputes(text):
+    """RESULTS' 2026-12-02 01:16 line (descriptive): V on ACT's needle m16 seeds 0-4, each final AFSR and their mean
+    +- SE, and the regrasp claim (learned in every own wake, 0.00 at the end in three of five), from the archive."""
+    archive = DOCS / "results" / "needle_cpu_m16_compare"
+    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(5)]
+    values = [r["metrics"]["afsr"]["final"] for r in runs]
+    line = text[text.index("*2026-12-02 01:16 UTC"):]
+    assert f"Seeds 0-4 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in line
+    regrasp = [r["skills"].index("regrasp") for r in runs]
+    assert all(r["success_after_own_wake"][i] == 1.0 for r, i in zip(runs, regrasp, strict=True))
+    assert sum(r["success_matrix"][-1][i] == 0.0 for r, i in zip(runs, regrasp, strict=True)) == 3
+    assert "ends at 0.00 in three of five" in line
