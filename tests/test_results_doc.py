@@ -666,6 +666,35 @@ def test_the_sleep_family_recomputes():
     assert (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
+def _family_sentence(row: dict, names: dict[str, str]) -> str:
+    """RESULTS' sentence for one test of issue 59's family, every number from its recomputed row."""
+    pairs = " / ".join(f"{d:+.3f}" for d in np.subtract(row["a_values"], row["b_values"]))
+    sided = "one-sided" if row["alternative"] == "greater" else "two-sided"
+    verdict = "**rejected its null**" if row["significant_holm"] else "**not rejected**"
+    return (f"{row['name']}: {names[row['a']]} {_mean_se(row['a_values'])} vs {names[row['b']]} "
+            f"{_mean_se(row['b_values'])}, paired {row['mean']:+.3f} +- {row['sem']:.3f} (pairs {pairs}), "
+            f"t = {row['t']:.2f}, {sided} p = {row['p']:.4f}, exact sign-flip p = {row['sign_flip_p']:.4f}; "
+            f"Holm-adjusted p = {row['p_holm']:.4f} (sign-flip {row['sign_flip_p_holm']:.4f}); bootstrap 95% CI "
+            f"[{row['ci_low']:+.3f}, {row['ci_high']:+.3f}]: {verdict}")
+
+
+def test_the_sleep_family_sentences_recompute(text, readme):
+    """RESULTS' family entry and README's SAC row state each test of the family exactly as recomputed from the
+    archived runs (skipped until the family is computed): the means, the pairs, t, the decision p and the exact
+    sign-flip p, both Holm-adjusted, the CI, and the verdict in the test's own words."""
+    if not (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.json").is_file():
+        pytest.skip("the family is computed only when V's five test-seed runs are archived")
+    v = read_checked_json(DOCS / "results" / "sac_sleep_step_b" / "step_b.json")["rule_b"]["variant"]
+    family = run_tests(HypothesesConfig(archive=SLEEP_FAMILY, holm=True,
+                                        tests=[f"V1={v}>sr@0-4", f"V2={v}!=reset_distill@0-4"]))
+    names = {v: f"SR {v.removeprefix('sr_')}", "sr": "SR", "reset_distill": "Reset & Distill"}
+    for row in family:
+        assert _family_sentence(row, names) in text, row["name"]
+        short = (f"{row['name']} {'rejected' if row['significant_holm'] else 'not rejected'} "
+                 f"(Holm-adjusted p = {row['p_holm']:.4f})")
+        assert short in _which_method_rows()["configs/sac_mt5_gate.json"], short
+
+
 CROSS_CPU = DOCS / "results" / "sac_gate_cross_cpu"
 """The agreement checks between CPU types (RESULTS' 2026-11-30 07:30 and 2026-12-01 22:49 lines)."""
 
