@@ -741,6 +741,24 @@ def test_v_on_act_is_of_one_cpu_type():
     _equal_everywhere(archive / "sr_c_seed0", repeat / "sr_c_seed0_m207", 400, repeat / "compare_sr_c_seed0_m207.txt")
 
 
+def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
+    """RESULTS' nineteenth-session line on V on ACT's needle m16 seeds 5-7 (descriptive): each final AFSR, the
+    running list of seeds 0-7 with its mean +- SE, and regrasp's own-wake and final success, from the archive."""
+    archive = DOCS / "results" / "needle_cpu_m16_compare"
+    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(8)]
+    values = [r["metrics"]["afsr"]["final"] for r in runs]
+    line = text[text.index("nineteenth session: V on ACT, needle m16, seeds 5-7"):]
+    line = line[:line.index("*2026-")] if "*2026-" in line else line
+    for seed in (5, 6, 7):
+        assert f"seed {seed} **{values[seed]:.3f}**" in line, seed
+    assert f"Seeds 0-7 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in line
+    regrasp = [(r["success_after_own_wake"][r["skills"].index("regrasp")],
+                r["success_matrix"][-1][r["skills"].index("regrasp")]) for r in runs[5:]]
+    assert all(own >= 0.965 for own, _ in regrasp)
+    ends = [f"{end:.2f}" for _, end in regrasp]
+    assert f"ends at {ends[0]}, {ends[1]} and {ends[2]}" in line
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
