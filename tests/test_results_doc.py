@@ -759,6 +759,19 @@ def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
     assert f"ends at {ends[0]}, {ends[1]} and {ends[2]}" in line
 
 
+def test_the_v_on_act_needle_seed_8_line_recomputes(text):
+    """RESULTS' nineteenth-session line on V on ACT's needle m16 seed 8 (descriptive): its final AFSR, BWT against
+    both references, and the mean +- SE of seeds 0-8, from the archive."""
+    archive = DOCS / "results" / "needle_cpu_m16_compare"
+    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(9)]
+    values = [r["metrics"]["afsr"]["final"] for r in runs]
+    line = text[text.index("nineteenth session: V on ACT, needle m16, seed 8"):]
+    metrics = runs[8]["metrics"]
+    assert (f"final AFSR **{values[8]:.3f}** (BWT {metrics['bwt']['final']:.3f} against the previous stage, "
+            f"{metrics['bwt_wake']['final']:.3f} against its own wakes") in line
+    assert f"Seeds 0-8 so far: mean {_mean_se(values)}" in line
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
