@@ -678,7 +678,7 @@ def _family_sentence(row: dict, names: dict[str, str]) -> str:
             f"[{row['ci_low']:+.3f}, {row['ci_high']:+.3f}]: {verdict}")
 
 
-def test_the_sleep_family_sentences_recompute(text, readme):
+def test_the_sleep_family_sentences_recompute(text):
     """RESULTS' family entry and README's SAC row state each test of the family exactly as recomputed from the
     archived runs (skipped until the family is computed): the means, the pairs, t, the decision p and the exact
     sign-flip p, both Holm-adjusted, the CI, and the verdict in the test's own words."""
@@ -687,9 +687,8 @@ def test_the_sleep_family_sentences_recompute(text, readme):
     v = read_checked_json(DOCS / "results" / "sac_sleep_step_b" / "step_b.json")["rule_b"]["variant"]
     family = run_tests(HypothesesConfig(archive=SLEEP_FAMILY, holm=True,
                                         tests=[f"V1={v}>sr@0-4", f"V2={v}!=reset_distill@0-4"]))
-    names = {v: f"SR {v.removeprefix('sr_')}", "sr": "SR", "reset_distill": "Reset & Distill"}
     for row in family:
-        assert _family_sentence(row, names) in text, row["name"]
+        assert _family_sentence(row, NAMES) in text, row["name"]
         short = (f"{row['name']} {'rejected' if row['significant_holm'] else 'not rejected'} "
                  f"(Holm-adjusted p = {row['p_holm']:.4f}; {row['p']:.3f} alone)")
         assert short in _which_method_rows()["configs/sac_mt5_gate.json"], short
@@ -741,12 +740,16 @@ def test_v_on_act_is_of_one_cpu_type():
     _equal_everywhere(archive / "sr_c_seed0", repeat / "sr_c_seed0_m207", 400, repeat / "compare_sr_c_seed0_m207.txt")
 
 
+def _v_act_needle(n: int) -> tuple[list[dict], list[float]]:
+    """V on ACT's archived needle m16 runs of seeds 0..n-1 and their final AFSRs."""
+    archive = DOCS / "results" / "needle_cpu_m16_compare"
+    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(n)]
+    return runs, [r["metrics"]["afsr"]["final"] for r in runs]
+
 def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
     """RESULTS' nineteenth-session line on V on ACT's needle m16 seeds 5-7 (descriptive): each final AFSR, the
     running list of seeds 0-7 with its mean +- SE, and regrasp's own-wake and final success, from the archive."""
-    archive = DOCS / "results" / "needle_cpu_m16_compare"
-    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(8)]
-    values = [r["metrics"]["afsr"]["final"] for r in runs]
+    runs, values = _v_act_needle(8)
     line = text[text.index("nineteenth session: V on ACT, needle m16, seeds 5-7"):]
     line = line[:line.index("*2026-")] if "*2026-" in line else line
     for seed in (5, 6, 7):
@@ -762,9 +765,7 @@ def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
 def test_the_v_on_act_needle_seed_8_line_recomputes(text):
     """RESULTS' nineteenth-session line on V on ACT's needle m16 seed 8 (descriptive): its final AFSR, BWT against
     both references, and the mean +- SE of seeds 0-8, from the archive."""
-    archive = DOCS / "results" / "needle_cpu_m16_compare"
-    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(9)]
-    values = [r["metrics"]["afsr"]["final"] for r in runs]
+    runs, values = _v_act_needle(9)
     line = text[text.index("nineteenth session: V on ACT, needle m16, seed 8"):]
     metrics = runs[8]["metrics"]
     assert (f"final AFSR **{values[8]:.3f}** (BWT {metrics['bwt']['final']:.3f} against the previous stage, "
@@ -1131,9 +1132,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
 def test_the_v_on_act_needle_line_recomputes(text):
     """RESULTS' 2026-12-02 01:16 line (descriptive): V on ACT's needle m16 seeds 0-4, each final AFSR and their mean
     +- SE, and the regrasp claim (learned in every own wake, 0.00 at the end in three of five), from the archive."""
-    archive = DOCS / "results" / "needle_cpu_m16_compare"
-    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(5)]
-    values = [r["metrics"]["afsr"]["final"] for r in runs]
+    runs, values = _v_act_needle(5)
     line = text[text.index("*2026-12-02 01:16 UTC"):]
     assert f"Seeds 0-4 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in line
     regrasp = [r["skills"].index("regrasp") for r in runs]
