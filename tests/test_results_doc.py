@@ -644,18 +644,24 @@ SLEEP_FAMILY = DOCS / "results" / "sac_mt5_gate_xeon"
 family 6 model 167 with the libraries capped at AVX2, the type of all fifteen of its runs)."""
 
 
+def _sleep_family() -> tuple[str, list[dict]]:
+    """Rule B's V and the family recomputed from the archived runs, as the protocol declares it (skips the calling
+    test until the family has been computed and stored)."""
+    if not (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.json").is_file():
+        pytest.skip("the family is computed only when V's five test-seed runs are archived")
+    v = read_checked_json(DOCS / "results" / "sac_sleep_step_b" / "step_b.json")["rule_b"]["variant"]
+    assert v is not None, "a family without a V: rule B chose none, so no confirmatory run may exist"
+    return v, run_tests(HypothesesConfig(archive=SLEEP_FAMILY, holm=True,
+                                         tests=[f"V1={v}>sr@0-4", f"V2={v}!=reset_distill@0-4"]))
+
+
 def test_the_sleep_family_recomputes():
     """Issue 59's confirmatory family as its protocol declares it (RESULTS, "a SAC sleep that keeps what its wakes
     learn"): V1 = V > SR (one-sided), V2 = V != Reset & Distill (two-sided), paired over training seeds 0-4, Holm over
     exactly these two, V being rule B's choice (step_b.json). Once archived, the stored statistics equal a recompute
     from the archived runs, are labelled pre-registered and have their figure (skipped before)."""
     stored_path = SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.json"
-    if not stored_path.is_file():
-        pytest.skip("the family is computed only when V's five test-seed runs are archived")
-    v = read_checked_json(DOCS / "results" / "sac_sleep_step_b" / "step_b.json")["rule_b"]["variant"]
-    assert v is not None, "a family without a V: rule B chose none, so no confirmatory run may exist"
-    family = run_tests(HypothesesConfig(archive=SLEEP_FAMILY, holm=True,
-                                        tests=[f"V1={v}>sr@0-4", f"V2={v}!=reset_distill@0-4"]))
+    v, family = _sleep_family()
     assert [(r["name"], r["a"], r["b"], r["alternative"], r["seeds"]) for r in family] == \
         [("V1", v, "sr", "greater", [0, 1, 2, 3, 4]), ("V2", v, "reset_distill", "two-sided", [0, 1, 2, 3, 4])]
     keys = ("name", "a", "b", "alternative", "seeds", "a_values", "b_values", "mean", "sem", "t", "p", "sign_flip_p",
@@ -682,11 +688,7 @@ def test_the_sleep_family_sentences_recompute(text):
     """RESULTS' family entry and README's SAC row state each test of the family exactly as recomputed from the
     archived runs (skipped until the family is computed): the means, the pairs, t, the decision p and the exact
     sign-flip p, both Holm-adjusted, the CI, and the verdict in the test's own words."""
-    if not (SLEEP_FAMILY / "hypotheses_sleep" / "hypotheses.json").is_file():
-        pytest.skip("the family is computed only when V's five test-seed runs are archived")
-    v = read_checked_json(DOCS / "results" / "sac_sleep_step_b" / "step_b.json")["rule_b"]["variant"]
-    family = run_tests(HypothesesConfig(archive=SLEEP_FAMILY, holm=True,
-                                        tests=[f"V1={v}>sr@0-4", f"V2={v}!=reset_distill@0-4"]))
+    _, family = _sleep_family()
     for row in family:
         assert _family_sentence(row, NAMES) in text, row["name"]
         short = (f"{row['name']} {'rejected' if row['significant_holm'] else 'not rejected'} "
@@ -745,6 +747,7 @@ def _v_act_needle(n: int) -> tuple[list[dict], list[float]]:
     archive = DOCS / "results" / "needle_cpu_m16_compare"
     runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(n)]
     return runs, [r["metrics"]["afsr"]["final"] for r in runs]
+
 
 def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
     """RESULTS' nineteenth-session line on V on ACT's needle m16 seeds 5-7 (descriptive): each final AFSR, the
