@@ -776,6 +776,26 @@ def test_the_v_on_act_needle_seed_8_line_recomputes(text):
     assert f"Seeds 0-8 so far: mean {_mean_se(values)}" in line
 
 
+def test_the_v_on_act_needle_seed_9_line_recomputes(text):
+    """RESULTS' 04:35 line on V on ACT's needle m16 seed 9 (descriptive): its final AFSR, BWT against both
+    references, its final row, and seeds 0-9's mean +- SE beside the archived SR's and Reset & Distill on ACT's."""
+    from sr_imitation.experiments.hypotheses import archived_values
+
+    runs, values = _v_act_needle(10)
+    line = text[text.index("nineteenth session: V on ACT, needle m16, seed 9"):]
+    line = line[:line.index("## Protocol")]
+    metrics = runs[9]["metrics"]
+    final = " / ".join(f"{v:.2f}" for v in runs[9]["success_matrix"][-1])
+    assert (f"final AFSR **{values[9]:.3f}** (BWT {metrics['bwt']['final']:.3f} / "
+            f"{metrics['bwt_wake']['final']:.3f}; at the end {final})") in line
+    archive, sr_archives = RD_ON_ACT["configs/needle_cpu_m16.json"]
+    sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
+    rd = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
+    assert sorted(sr) == sorted(rd) == list(range(10))
+    assert (f"seeds 0-9: mean {_mean_se(values)} (the archived SR {np.mean(list(sr.values())):.3f}, Reset & Distill "
+            f"on ACT {np.mean(list(rd.values())):.3f}; descriptive, no test)") in line
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
@@ -1130,6 +1150,31 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     own = [r["success_after_own_wake"][k] for r in runs for k in range(1, 5)]
     assert (f"the newest skill stands at {np.mean(newest):.3f} on average (0.00 in {newest.count(0.0)} of those "
             f"{len(newest)} stages) against {np.mean(own):.3f} after its own wake") in results
+
+
+def test_the_v_on_act_cells_recompute():
+    """README's SR c on ACT cell in the needle row and its sentence (issue 59 item 5, descriptive): every seed's final
+    AFSR in seed order and their mean +- SE, on how many seeds it ended below SR's archived run and above Reset &
+    Distill on ACT's, the mean success after its own wakes, and BWT against its own wakes beside SR's."""
+    from sr_imitation.experiments.hypotheses import archived_values
+
+    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    preset = "configs/needle_cpu_m16.json"
+    archive, sr_archives = RD_ON_ACT[preset]
+    runs, values = _v_act_needle(10)
+    listed = ", ".join(f"{v:.3f}" for v in values)
+    assert f"{_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in _which_method_rows()[preset]
+    sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
+    sr_wake = [v for name in sr_archives for v in archived_values(DOCS / "results" / name, "sr", "bwt_wake").values()]
+    rd = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
+    assert sorted(sr) == sorted(rd) == list(range(10)) and len(sr_wake) == 10
+    below, above = sum(values[s] < sr[s] for s in range(10)), sum(values[s] > rd[s] for s in range(10))
+    own = np.mean([np.mean(r["success_after_own_wake"]) for r in runs])
+    bwt_wake = _mean_se([r["metrics"]["bwt_wake"]["final"] for r in runs])
+    assert (f"ended below SR on {below} of 10 needle seeds and above Reset & Distill on ACT on {above} of 10 "
+            f"(descriptive, no test): its fresh wakes learn each skill ({own:.3f} after its own wake, on average) and "
+            f"its sleeps keep less of that than SR's do (BWT against its own wakes {bwt_wake}, SR's "
+            f"{_mean_se(sr_wake)})") in readme
 
 
 def test_the_v_on_act_needle_line_recomputes(text):
