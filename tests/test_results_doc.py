@@ -1174,7 +1174,32 @@ def test_the_v_on_act_cells_recompute():
     assert (f"ended below SR on {below} of 10 needle seeds and above Reset & Distill on ACT on {above} of 10 "
             f"(descriptive, no test): its fresh wakes learn each skill ({own:.3f} after its own wake, on average) and "
             f"its sleeps keep less of that than SR's do (BWT against its own wakes {bwt_wake}, SR's "
-            f"{_mean_se(sr_wake)})") in readme
+            f"{_mean_se(sr_wake)}; `docs/results/{archive}/summary_sr_c/`)") in readme
+    summary = json.loads((DOCS / "results" / archive / "summary_sr_c" / "summary.json").read_text())
+    variant = summary["variants"]["sr_c"]
+    assert variant["afsr"]["per_seed"] == pytest.approx(values)
+    assert f"{variant['bwt_wake']['mean']:.3f} +- {variant['bwt_wake']['sem']:.3f}" == bwt_wake
+
+
+def test_the_v_on_act_needle_summary_line_recomputes(text):
+    """RESULTS' twentieth-session line on V on ACT's needle m16 summary (descriptive): AFSR, BWT against both
+    references, the range of the per-skill means right after their own wakes and regrasp's final mean, from the ten
+    runs; the archived summary holds the same."""
+    runs, values = _v_act_needle(10)
+    line = text[text.index("twentieth session: V on ACT's needle m16 summary"):]
+    line = line[:line.index("*2026-")]
+    bwt, bwt_wake = ([r["metrics"][m]["final"] for r in runs] for m in ("bwt", "bwt_wake"))
+    skills = runs[0]["skills"]
+    own = [np.mean([r["success_after_own_wake"][k] for r in runs]) for k in range(len(skills))]
+    regrasp = [r["success_matrix"][-1][skills.index("regrasp")] for r in runs]
+    assert (f"AFSR {_mean_se(values)}, BWT {_mean_se(bwt)} against the previous stage and {_mean_se(bwt_wake)} "
+            f"against its own wakes, each skill {min(own):.3f}-{max(own):.3f} right after its own wake on average; "
+            f"regrasp ends lowest, {_mean_se(regrasp)}") in line
+    assert min(own) == own[skills.index("insert")]
+    ends = [np.mean([r["success_matrix"][-1][k] for r in runs]) for k in range(len(skills))]
+    assert min(ends) == ends[skills.index("regrasp")]
+    summary = json.loads((DOCS / "results" / "needle_cpu_m16_compare" / "summary_sr_c" / "summary.json").read_text())
+    assert summary["variants"]["sr_c"]["bwt"]["per_seed"] == pytest.approx(bwt)
 
 
 def test_the_v_on_act_needle_line_recomputes(text):
