@@ -731,6 +731,36 @@ def test_the_sleep_family_is_of_one_cpu_type():
                           CROSS_CPU / "compare_sr_c_b1_seed1_m207.txt")
 
 
+def test_the_c_b1_wake_observation_recomputes(text):
+    """RESULTS' twentieth-session observation behind protocol W: ``sr_c_b1`` and ``reset_distill`` differ in their
+    settings by ``excitability.enabled`` and the method's own settings only, all 25 wake agents' checksums differ,
+    and the drawer-open and reach numbers it quotes, from the family's archive."""
+    line = text[text.index("twentieth session: SR c_b1's wake is not Reset & Distill's wake"):]
+    line = line[:line.index("**The check.**")]
+    own = {}
+    for variant in ("reset_distill", "sr_c_b1", "sr"):
+        runs = [read_checked_json(SLEEP_FAMILY / f"{variant}_seed{s}" / "results.json") for s in range(5)]
+        own[variant] = [r["success_after_own_wake"] for r in runs]
+    for seed in range(5):
+        a, b = (json.loads((SLEEP_FAMILY / f"{v}_seed{seed}" / "settings_fingerprint.json").read_text())["settings"]
+                for v in ("reset_distill", "sr_c_b1"))
+        differ = {k for k in set(a) | set(b) if a.get(k) != b.get(k)}
+        assert differ - {"method"} - {k for k in differ if k.startswith("method_")} == {"excitability.enabled"}
+        wa, wb = (json.loads((SLEEP_FAMILY / f"{v}_seed{seed}" / "weights.json").read_text())["files"]
+                  for v in ("reset_distill", "sr_c_b1"))
+        wakes = [k for k in wa if k.endswith("/wake/agent.safetensors")]
+        assert len(wakes) == 5 and all(wa[k]["sha256"] != wb[k]["sha256"] for k in wakes)
+    reach, drawer = 0, 2  # MT5's order
+    quoted = f"{own['sr_c_b1'][0][reach]:.2f} against {own['reset_distill'][0][reach]:.2f}"
+    assert f"reach after its own wake on seed 0: {quoted}" in line
+    calibration = [read_checked_json(DOCS / "results" / "sac_sleep_step_b" / f"sr_c_b1_seed{s}" / "results.json")
+                   for s in (100, 101, 102)]
+    assert all(o[drawer] == 0.0 for o in own["sr_c_b1"]) and all(r["success_after_own_wake"][drawer] == 0.0
+                                                                  for r in calibration)
+    for variant, words in (("reset_distill", "Reset & Distill's "), ("sr", "excitable) wake's ")):
+        assert words + " / ".join(f"{o[drawer]:.2f}" for o in own[variant]) in line, variant
+
+
 def test_v_on_act_is_of_one_cpu_type():
     """V on ACT's needle m16 rows (descriptive) may hold runs of model 167 and of model 207 only because seed 0 made
     again on model 207 equals its model 167 archive in every measured value (RESULTS' 2026-12-01 23:56 rule; the

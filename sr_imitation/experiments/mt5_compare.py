@@ -77,6 +77,9 @@ VARIANTS: dict[str, list[str]] = {
     "sr_c_a2": ["--method_options={reset_wake: true}", "--sleep.early_stop_scale=memory_scale"],
     "sr_c_b1": ["--method_options={reset_wake: true, expert_memory: instead}"],
     "sr_c_b2": ["--method_options={reset_wake: true, expert_memory: beside}"],
+    # c_b1 with the plain actor in its wakes: Reset & Distill's wakes and expert memories bit for bit (SR's wake keeps
+    # homeostatic excitability unless told otherwise), so only the consolidation differs (RESULTS' 2026-12-02 protocol)
+    "sr_c_b1_pw": ["--method_options={reset_wake: true, expert_memory: instead}", "--excitability.wake_enabled=false"],
 }
 """variant -> the flags it adds to the preset (``sr-train --substrate=sac``)."""
 
@@ -93,7 +96,8 @@ SECTIONS: dict[str, list[str]] = {
     "Order and length (the paper's order/length table; MT8's metrics are over its eight skills)": [
         "sr_reverse", "sr_mt8"],
     "Issue 59's candidate sleeps as whole runs (docs/RESULTS.md, its protocol), beside Reset & Distill": [
-        "sr_a1", "sr_a2", "sr_b1", "sr_b2", "sr_c", "sr_c_a1", "sr_c_a2", "sr_c_b1", "sr_c_b2", "reset_distill"],
+        "sr_a1", "sr_a2", "sr_b1", "sr_b2", "sr_c", "sr_c_a1", "sr_c_a2", "sr_c_b1", "sr_c_b2", "sr_c_b1_pw",
+        "reset_distill"],
     "Oracle, reported apart (multi-task SAC on all skills at once; BWT 0 by definition)": ["mt_joint"],
 }
 """The tables of ``summary.md`` (each with ``sr``'s row), as the paper groups them."""

@@ -61,6 +61,9 @@ def test_every_variant_parses_to_its_method_and_settings(tmp_path, tiny_preset):
                                                                                  "expert_memory": "instead"}
     assert parse(run_args(cfg, "sr_c_a1", 0)).sleep.early_stop_tol == 0
     assert all(r.method == "sr" and r.excitability.enabled for r in (a1, a2, b1, b2, c, c_b1))
+    pw = parse(run_args(cfg, "sr_c_b1_pw", 0))  # c_b1 with Reset & Distill's plain actor in the wakes only
+    assert pw.method_options == c_b1.method_options and c_b1.excitability.wake_enabled
+    assert pw.excitability.enabled and pw.excitability.sleep_enabled and not pw.excitability.wake_enabled
     with pytest.raises(ValueError, match="list sr before it"):
         MT5CompareConfig(variants=["sr_mt8", "sr"])
     with pytest.raises(ValueError, match="unknown"):

@@ -3,12 +3,16 @@
 
 from __future__ import annotations
 
+import dataclasses
+
 import pytest
 import torch
 
+from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import SleepConfig, _plateaued
 from sr_imitation.io import load_checked_safetensors
 from sr_imitation.stream.config import StreamSleepConfig
+from sr_imitation.stream.methods.registry import METHODS
 from sr_imitation.substrates.sac.config import EvalConfig
 from sr_imitation.substrates.sac.trainer import SACTrainer
 from tests.rl.test_trainer import SimulatedKillError, tiny_config
@@ -75,6 +79,28 @@ def test_reset_wake_learns_each_skill_afresh_and_sleeps_from_the_shared_actor(tm
     SACTrainer(tiny_config(plain, eval=EVAL, sleep=sleep)).run()
     plain_wake1 = _actor(plain / "stages" / "01_reach" / "wake" / "agent.safetensors")
     assert any(not torch.equal(plain_wake1[n], wake1[n]) for n in wake1)  # even the first wake is from fresh networks
+
+
+def test_reset_wake_with_the_plain_actor_in_the_wake_makes_reset_and_distill_s_wakes(tmp_path, monkeypatch):
+    """``sr_c_b1_pw`` (mt5_compare): SR's ``reset_wake`` and ``expert_memory: instead`` with wake excitability off
+    make Reset & Distill's wakes and expert memories bit for bit, stage after stage (neither the sleep nor the
+    distillation disturbs the wake's random streams), so a pair of such runs differs in the consolidation only; the
+    consolidations themselves differ."""
+    cls = METHODS["reset_distill"]
+    monkeypatch.setattr(cls, "config", dataclasses.replace(cls.config, iterations=20, batch_size=16))
+    sleep = StreamSleepConfig.mt5(max_iterations=4, early_stop_window=5, fw_iterations=5, batch_size=16)
+    SACTrainer(tiny_config(tmp_path / "rd", eval=EVAL, sleep=sleep, method="reset_distill",
+                           excitability=ExcitabilityConfig(enabled=False))).run()
+    SACTrainer(tiny_config(tmp_path / "pw", eval=EVAL, sleep=sleep, excitability=ExcitabilityConfig(wake_enabled=False),
+                           method_options={"reset_wake": True, "expert_memory": "instead"})).run()
+    for stage in ("01_reach", "02_door-open"):
+        rd, pw = (tmp_path / v / "stages" / stage for v in ("rd", "pw"))
+        a, b = _actor(rd / "wake" / "agent.safetensors"), _actor(pw / "wake" / "agent.safetensors")
+        assert set(a) == set(b) and all(torch.equal(a[n], b[n]) for n in a), stage
+        ea, eb = (load_checked_safetensors(d / "expert.safetensors")[0] for d in (rd, pw))
+        assert set(ea) == set(eb) and all(torch.equal(ea[n], eb[n]) for n in ea), stage
+    a, b = (_actor(tmp_path.joinpath(v, *STAGE2, "sleep", "agent.safetensors")) for v in ("rd", "pw"))
+    assert any(not torch.equal(a[n], b[n]) for n in a)
 
 
 def test_an_unknown_option_value_is_refused_before_anything_is_written(tmp_path):
