@@ -306,6 +306,8 @@ PROTOCOL_COMMIT, GATE_COMMIT, TEST_CODE = "67f93d6", "1702742", "c8c03d9"
 """The imitation protocol's commit, the SAC gate statement's, and the code every calibration and test run of the
 imitation protocol was recorded to run from (RESULTS)."""
 SLEEP_PROTOCOL, SLEEP_CODE, RD_ACT_CODE = "e89c5b1", "5545b02", "268706b"
+W_PROTOCOL = "94cdc5a"
+"""Protocol W's statement, which also added its variant ``sr_c_b1_pw``: its runs ran from this commit."""
 """Issue 59's protocol commit ("a SAC sleep that keeps what its wakes learn"), the code of its step-B runs and of
 its confirmation's runs (RESULTS' 2026-11-29 20:40 and 2026-11-30 10:20 lines), and the code of Reset & Distill's MT5
 imitation runs (queue lines rd_mt5_*)."""
@@ -339,6 +341,7 @@ def _git(*args: str) -> subprocess.CompletedProcess:
     (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare"], SLEEP_PROTOCOL, RD_ACT_CODE, RD, ()),
     (["metaworld_mt5_imitation_compare", "needle_cpu_m16_compare", "needle_cross_cpu"],
      SLEEP_PROTOCOL, V_ACT_CODE, V_ACT, ()),
+    (["sac_gate_plain_wake"], W_PROTOCOL, W_PROTOCOL, "", ()),
 ])
 def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archives, statement, code, only, but):
     """A run cannot start before the code it ran from exists: every archived run of a protocol (its results.json
