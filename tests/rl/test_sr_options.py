@@ -11,6 +11,7 @@ import torch
 from sr_imitation.core.excitability import ExcitabilityConfig
 from sr_imitation.core.sleep import SleepConfig, _plateaued
 from sr_imitation.io import load_checked_safetensors
+from sr_imitation.reporting.same_weights import same_files, verdict
 from sr_imitation.stream.config import StreamSleepConfig
 from sr_imitation.stream.methods.registry import METHODS
 from sr_imitation.substrates.sac.config import EvalConfig
@@ -101,6 +102,9 @@ def test_reset_wake_with_the_plain_actor_in_the_wake_makes_reset_and_distill_s_w
         assert set(ea) == set(eb) and all(torch.equal(ea[n], eb[n]) for n in ea), stage
     a, b = (_actor(tmp_path.joinpath(v, *STAGE2, "sleep", "agent.safetensors")) for v in ("rd", "pw"))
     assert any(not torch.equal(a[n], b[n]) for n in a)
+    # protocol W's premise as its command checks it: the files themselves, byte for byte
+    rows = same_files(tmp_path / "rd", tmp_path / "pw")
+    assert len(rows) == 4 and verdict(rows, complete=True), rows
 
 
 def test_an_unknown_option_value_is_refused_before_anything_is_written(tmp_path):
