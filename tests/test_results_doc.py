@@ -829,6 +829,36 @@ def test_the_v_on_act_needle_seed_9_line_recomputes(text):
             f"on ACT {np.mean(list(rd.values())):.3f}; descriptive, no test)") in line
 
 
+def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
+    """RESULTS' twentieth-session line on V on ACT's MT5 imitation seeds 0-1 (descriptive): each final AFSR, BWT
+    against both references and final row, the archived rows beside them, the own-wake range and the newest skill
+    right after each sleep, from the archive; and the runs were made on model 207."""
+    from sr_imitation.experiments.hypotheses import archived_values
+
+    archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
+    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in (0, 1)]
+    assert set(_cpu_models(archive / f"{V_ACT}{s}" for s in (0, 1)).values()) == {"207"}
+    line = text[text.index("twentieth session: V on ACT, MT5 imitation, seeds 0-1"):]
+    line = line[:line.index("*2026-")]
+    for seed, r in enumerate(runs):
+        m = r["metrics"]
+        ends = " / ".join(f"{v:.2f}" for v in r["success_matrix"][-1])
+        bwt = f"{m['bwt']['final']:.3f}" if seed == 0 else f"{m['bwt']['final']:+.3f}"
+        stated = (f"final AFSR **{m['afsr']['final']:.3f}** (BWT {bwt.replace('-0.000', '0.000')} against the "
+                  f"previous stage, {m['bwt_wake']['final']:.3f} against its own wakes; at the end {ends}"
+                  if seed == 0 else f"**{m['afsr']['final']:.3f}** ({bwt} / {m['bwt_wake']['final']:.3f}; {ends})")
+        assert stated in line, stated
+    for variant, name in (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"),
+                          ("reset_distill", "Reset & Distill on ACT")):
+        got = archived_values(archive, variant, "afsr")
+        assert f"{name} {got[0]:.3f} and {got[1]:.3f}" in line, variant
+    own = [v for r in runs for v in r["success_after_own_wake"]]
+    assert f"({min(own):.2f}-{max(own):.2f})" in line
+    newest = [[f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)] for r in runs]
+    assert f"stands at {', '.join(newest[0][:3])} and {newest[0][3]}" in line
+    assert f"seed 1: {', '.join(newest[1][:3])} and {newest[1][3]})" in line
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
