@@ -782,6 +782,14 @@ def _v_act_needle(n: int) -> tuple[list[dict], list[float]]:
     return runs, [r["metrics"]["afsr"]["final"] for r in runs]
 
 
+def _over(archives, variant: str, metric: str = "afsr") -> dict[int, float]:
+    """``{seed: final metric}`` of ``variant``'s archived runs, merged over several archives (a preset's seeds 0-4 in
+    one, its replication's 5-9 in another)."""
+    from sr_imitation.experiments.hypotheses import archived_values
+
+    return {s: v for name in archives for s, v in archived_values(DOCS / "results" / name, variant, metric).items()}
+
+
 def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
     """RESULTS' nineteenth-session line on V on ACT's needle m16 seeds 5-7 (descriptive): each final AFSR, the
     running list of seeds 0-7 with its mean +- SE, and regrasp's own-wake and final success, from the archive."""
@@ -822,7 +830,7 @@ def test_the_v_on_act_needle_seed_9_line_recomputes(text):
     assert (f"final AFSR **{values[9]:.3f}** (BWT {metrics['bwt']['final']:.3f} / "
             f"{metrics['bwt_wake']['final']:.3f}; at the end {final})") in line
     archive, sr_archives = RD_ON_ACT["configs/needle_cpu_m16.json"]
-    sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
+    sr = _over(sr_archives, "sr")
     rd = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
     assert sorted(sr) == sorted(rd) == list(range(10))
     assert (f"seeds 0-9: mean {_mean_se(values)} (the archived SR {np.mean(list(sr.values())):.3f}, Reset & Distill "
@@ -1191,7 +1199,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
         stated = f"Reset & Distill on ACT {_mean_se(values[preset])}"
         assert f"{stated} (seeds 0-9: {listed}; descriptive, no test" in rows[preset]
         assert f"{stated} (10 seeds, another CPU type" in readme
-        sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
+        sr = _over(sr_archives, "sr")
         assert sorted(sr) == list(range(10)), (preset, sorted(sr))
         below[preset] = sum(got[s] < sr[s] for s in range(10))
         wake = list(archived_values(DOCS / "results" / archive, "reset_distill", "bwt_wake").values())
@@ -1227,8 +1235,8 @@ def test_the_v_on_act_cells_recompute():
     runs, values = _v_act_needle(10)
     listed = ", ".join(f"{v:.3f}" for v in values)
     assert f"{_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in _which_method_rows()[preset]
-    sr = {s: v for name in sr_archives for s, v in archived_values(DOCS / "results" / name, "sr", "afsr").items()}
-    sr_wake = [v for name in sr_archives for v in archived_values(DOCS / "results" / name, "sr", "bwt_wake").values()]
+    sr = _over(sr_archives, "sr")
+    sr_wake = list(_over(sr_archives, "sr", "bwt_wake").values())
     rd = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
     assert sorted(sr) == sorted(rd) == list(range(10)) and len(sr_wake) == 10
     below, above = sum(values[s] < sr[s] for s in range(10)), sum(values[s] > rd[s] for s in range(10))
