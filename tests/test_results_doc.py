@@ -15,7 +15,9 @@ import pytest
 
 from sr_imitation.experiments.hypotheses import HypothesesConfig, archived_values, run_tests
 from sr_imitation.experiments.mt5_compare import VARIANTS as MT5_VARIANTS
+from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, read_fingerprint
 from sr_imitation.io import read_checked_json
+from sr_imitation.reporting.same_weights import same_files
 from sr_imitation.reporting.summary import phase_seconds
 from sr_imitation.substrates.sac.cli import parse as parse_sac_config
 
@@ -745,14 +747,12 @@ def test_the_c_b1_wake_observation_recomputes(text):
         runs = [read_checked_json(SLEEP_FAMILY / f"{variant}_seed{s}" / "results.json") for s in range(5)]
         own[variant] = [r["success_after_own_wake"] for r in runs]
     for seed in range(5):
-        a, b = (json.loads((SLEEP_FAMILY / f"{v}_seed{seed}" / "settings_fingerprint.json").read_text())["settings"]
-                for v in ("reset_distill", "sr_c_b1"))
+        rd, c_b1 = (SLEEP_FAMILY / f"{v}_seed{seed}" for v in ("reset_distill", "sr_c_b1"))
+        a, b = (read_fingerprint(run / FINGERPRINT_FILE) for run in (rd, c_b1))
         differ = {k for k in set(a) | set(b) if a.get(k) != b.get(k)}
         assert differ - {"method"} - {k for k in differ if k.startswith("method_")} == {"excitability.enabled"}
-        wa, wb = (json.loads((SLEEP_FAMILY / f"{v}_seed{seed}" / "weights.json").read_text())["files"]
-                  for v in ("reset_distill", "sr_c_b1"))
-        wakes = [k for k in wa if k.endswith("/wake/agent.safetensors")]
-        assert len(wakes) == 5 and all(wa[k]["sha256"] != wb[k]["sha256"] for k in wakes)
+        wakes = same_files(rd, c_b1, ["stages/*/wake/agent.safetensors"])
+        assert list(wakes.values()) == ["differs"] * 5, wakes
     reach, drawer = 0, 2  # MT5's order
     quoted = f"{own['sr_c_b1'][0][reach]:.2f} against {own['reset_distill'][0][reach]:.2f}"
     assert f"reach after its own wake on seed 0: {quoted}" in line
@@ -775,25 +775,22 @@ def test_v_on_act_is_of_one_cpu_type():
     _equal_everywhere(archive / "sr_c_seed0", repeat / "sr_c_seed0_m207", 400, repeat / "compare_sr_c_seed0_m207.txt")
 
 
-def _v_act_needle(n: int) -> tuple[list[dict], list[float]]:
-    """V on ACT's archived needle m16 runs of seeds 0..n-1 and their final AFSRs."""
-    archive = DOCS / "results" / "needle_cpu_m16_compare"
-    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in range(n)]
+def _v_act(n: int, archive: str = "needle_cpu_m16_compare") -> tuple[list[dict], list[float]]:
+    """V on ACT's archived runs of seeds 0..n-1 (needle m16 unless another archive is named) and their final AFSRs."""
+    runs = [read_checked_json(DOCS / "results" / archive / f"{V_ACT}{s}" / "results.json") for s in range(n)]
     return runs, [r["metrics"]["afsr"]["final"] for r in runs]
 
 
 def _over(archives, variant: str, metric: str = "afsr") -> dict[int, float]:
     """``{seed: final metric}`` of ``variant``'s archived runs, merged over several archives (a preset's seeds 0-4 in
     one, its replication's 5-9 in another)."""
-    from sr_imitation.experiments.hypotheses import archived_values
-
     return {s: v for name in archives for s, v in archived_values(DOCS / "results" / name, variant, metric).items()}
 
 
 def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
     """RESULTS' nineteenth-session line on V on ACT's needle m16 seeds 5-7 (descriptive): each final AFSR, the
     running list of seeds 0-7 with its mean +- SE, and regrasp's own-wake and final success, from the archive."""
-    runs, values = _v_act_needle(8)
+    runs, values = _v_act(8)
     line = text[text.index("nineteenth session: V on ACT, needle m16, seeds 5-7"):]
     line = line[:line.index("*2026-")] if "*2026-" in line else line
     for seed in (5, 6, 7):
@@ -809,7 +806,7 @@ def test_the_v_on_act_needle_seeds_5_7_line_recomputes(text):
 def test_the_v_on_act_needle_seed_8_line_recomputes(text):
     """RESULTS' nineteenth-session line on V on ACT's needle m16 seed 8 (descriptive): its final AFSR, BWT against
     both references, and the mean +- SE of seeds 0-8, from the archive."""
-    runs, values = _v_act_needle(9)
+    runs, values = _v_act(9)
     line = text[text.index("nineteenth session: V on ACT, needle m16, seed 8"):]
     metrics = runs[8]["metrics"]
     assert (f"final AFSR **{values[8]:.3f}** (BWT {metrics['bwt']['final']:.3f} against the previous stage, "
@@ -820,9 +817,7 @@ def test_the_v_on_act_needle_seed_8_line_recomputes(text):
 def test_the_v_on_act_needle_seed_9_line_recomputes(text):
     """RESULTS' 04:35 line on V on ACT's needle m16 seed 9 (descriptive): its final AFSR, BWT against both
     references, its final row, and seeds 0-9's mean +- SE beside the archived SR's and Reset & Distill on ACT's."""
-    from sr_imitation.experiments.hypotheses import archived_values
-
-    runs, values = _v_act_needle(10)
+    runs, values = _v_act(10)
     line = text[text.index("nineteenth session: V on ACT, needle m16, seed 9"):]
     line = line[:line.index("## Protocol")]
     metrics = runs[9]["metrics"]
@@ -841,10 +836,8 @@ def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
     """RESULTS' twentieth-session line on V on ACT's MT5 imitation seeds 0-1 (descriptive): each final AFSR, BWT
     against both references and final row, the archived rows beside them, the own-wake range and the newest skill
     right after each sleep, from the archive; and the runs were made on model 207."""
-    from sr_imitation.experiments.hypotheses import archived_values
-
     archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
-    runs = [read_checked_json(archive / f"{V_ACT}{s}" / "results.json") for s in (0, 1)]
+    runs, _ = _v_act(2, archive.name)
     assert set(_cpu_models(archive / f"{V_ACT}{s}" for s in (0, 1)).values()) == {"207"}
     line = text[text.index("twentieth session: V on ACT, MT5 imitation, seeds 0-1"):]
     line = line[:line.index("*2026-")]
@@ -1157,8 +1150,6 @@ def _which_method_rows() -> dict[str, str]:
 def test_the_which_method_where_table_recomputes():
     """README's table: each row's means +- SE from its archive, and the method it names highest is the highest of
     those it lists (not of the oracle, which is not a continual method)."""
-    from sr_imitation.experiments.hypotheses import archived_values
-
     rows = _which_method_rows()
     assert set(rows) == set(WHICH_METHOD)
     for preset, (archive, variants) in WHICH_METHOD.items():
@@ -1227,12 +1218,10 @@ def test_the_v_on_act_cells_recompute():
     """README's SR c on ACT cell in the needle row and its sentence (issue 59 item 5, descriptive): every seed's final
     AFSR in seed order and their mean +- SE, on how many seeds it ended below SR's archived run and above Reset &
     Distill on ACT's, the mean success after its own wakes, and BWT against its own wakes beside SR's."""
-    from sr_imitation.experiments.hypotheses import archived_values
-
     readme = " ".join((DOCS.parent / "README.md").read_text().split())
     preset = "configs/needle_cpu_m16.json"
     archive, sr_archives = RD_ON_ACT[preset]
-    runs, values = _v_act_needle(10)
+    runs, values = _v_act(10)
     listed = ", ".join(f"{v:.3f}" for v in values)
     assert f"{_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in _which_method_rows()[preset]
     sr = _over(sr_archives, "sr")
@@ -1256,7 +1245,7 @@ def test_the_v_on_act_needle_summary_line_recomputes(text):
     """RESULTS' twentieth-session line on V on ACT's needle m16 summary (descriptive): AFSR, BWT against both
     references, the range of the per-skill means right after their own wakes and regrasp's final mean, from the ten
     runs; the archived summary holds the same."""
-    runs, values = _v_act_needle(10)
+    runs, values = _v_act(10)
     line = text[text.index("twentieth session: V on ACT's needle m16 summary"):]
     line = line[:line.index("*2026-")]
     bwt, bwt_wake = ([r["metrics"][m]["final"] for r in runs] for m in ("bwt", "bwt_wake"))
@@ -1276,7 +1265,7 @@ def test_the_v_on_act_needle_summary_line_recomputes(text):
 def test_the_v_on_act_needle_line_recomputes(text):
     """RESULTS' 2026-12-02 01:16 line (descriptive): V on ACT's needle m16 seeds 0-4, each final AFSR and their mean
     +- SE, and the regrasp claim (learned in every own wake, 0.00 at the end in three of five), from the archive."""
-    runs, values = _v_act_needle(5)
+    runs, values = _v_act(5)
     line = text[text.index("*2026-12-02 01:16 UTC"):]
     assert f"Seeds 0-4 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in line
     regrasp = [r["skills"].index("regrasp") for r in runs]
