@@ -1,6 +1,8 @@
 """The run queue's shell tools (tools/experiments): what a session leaves for the next one."""
 
+import os
 import subprocess
+import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -60,11 +62,11 @@ def test_archiving_a_run_commits_it_with_the_queue_s_record_of_it(tmp_path):
     assert missing.stderr.strip() == "queue_archive: docs/arch/sr_seed9: no such archived run"
 
 
-def _resume_clone(tmp_path, pending_lines, manifest_lines):
-    """A throwaway clone holding queue_resume.sh, its worktree helper, a pending file and a datasets manifest whose
-    reference run names two skills."""
+def _resume_clone(tmp_path, pending_lines, manifest_lines, env=None):
+    """A throwaway clone holding queue_resume.sh, its helpers, a pending file and a datasets manifest whose reference
+    run names two skills."""
     (tmp_path / "tools" / "experiments").mkdir(parents=True)
-    for name in ("queue_resume.sh", "worktree.sh"):
+    for name in ("queue_resume.sh", "worktree.sh", "cpu_type.sh"):
         (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
     header = ["# The runs still to do ...", "#   nohup setsid bash tools/experiments/queue_worker.sh abc1234 outputs/q"]
     (tmp_path / "tools" / "experiments" / "queue_pending.txt").write_text("\n".join(header + pending_lines) + "\n")
@@ -74,15 +76,13 @@ def _resume_clone(tmp_path, pending_lines, manifest_lines):
     ref.joinpath("settings_fingerprint.json").write_text(
         '{"settings": {"inputs.datasets.reach-v3": "aa", "inputs.datasets.door-open-v3": "bb", "seed": 0}}')
     return subprocess.run(["bash", str(tmp_path / "tools" / "experiments" / "queue_resume.sh"), "--dry-run"],
-                          capture_output=True, text=True)
+                          capture_output=True, text=True, env=None if env is None else {**os.environ, **env})
 
 
 def test_resuming_the_queue_on_a_fresh_machine_records_what_the_lines_read_and_starts_workers(tmp_path):
     """queue_resume.sh --dry-run on a clone without datasets: the folder a pending line reads is recorded by the
     manifest's recipe, every skill of the reference run's digests, from the manifest's commit; the queue file is
     written from the pending lines; workers start under the pending header's commit (one per core, 2 at most)."""
-    import os
-
     line = "mt5_sr_3 -m x --extra=[--stream.dataset_root=datasets/mw,--wake.max_epochs=60] --seeds=[3]"
     out = _resume_clone(tmp_path, [line, "mt5_sr_4 -m x --seeds=[4]"],
                         ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld --num_episodes=100"])
@@ -108,8 +108,6 @@ def test_resuming_refuses_a_dataset_without_a_recipe_and_says_when_nothing_is_le
 def test_resuming_while_a_worker_of_the_clone_runs_queues_nothing_twice(tmp_path):
     """A worker already running in this clone (a second call in one session): the queue file is not rewritten from
     the pending lines (one of them may be running now) and no worker is added beyond one per core."""
-    import os
-
     fake = subprocess.Popen(["bash", "-c", "exec -a 'bash tools/experiments/queue_worker.sh abc1234 outputs/queue.txt "
                              "outputs/qlogs' sleep 60"], cwd=tmp_path)
     try:
@@ -194,7 +192,7 @@ def test_every_queued_run_is_capped_at_avx2_unless_told_otherwise_and_its_start_
     assert native == "||||"
     # A worker in a throwaway folder (no git: the line's worktree cannot be made, so it ends at once with rc=2).
     (tmp_path / "tools" / "experiments").mkdir(parents=True)
-    for name in ("queue_worker.sh", "worktree.sh", "isa_env.sh"):
+    for name in ("queue_worker.sh", "worktree.sh", "cpu_type.sh", "isa_env.sh"):
         (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
     queue = tmp_path / "q.txt"
     for extra, says in (({}, True), ({"SR_NATIVE_ISA": "1"}, False)):
@@ -207,3 +205,69 @@ def test_every_queued_run_is_capped_at_avx2_unless_told_otherwise_and_its_start_
         start, end = done.read_text().splitlines()
         assert (", libraries capped at AVX2 (tools/experiments/isa_env.sh)" in start) is says
         assert start.split()[1:3] == ["start", "one"] and end.endswith("one rc=2")
+
+
+def test_a_line_naming_other_cpu_types_waits_for_a_machine_of_its_type(tmp_path):
+    """A queue line "<name> @<commit> cpu=<family>/<model>,..." (tools/experiments/cpu_type.sh): a worker on another
+    type takes the next line instead and leaves it queued (saying so in workers.log); a worker on a named type runs
+    it, without the cpu= word among the python arguments (`-c pass` exits 0 only then); queue_resume.sh and
+    queue_status.py name the waiting lines."""
+    clone = tmp_path / "clone"
+    (clone / "tools" / "experiments").mkdir(parents=True)
+    for name in ("queue_worker.sh", "worktree.sh", "cpu_type.sh", "isa_env.sh"):
+        (clone / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
+    (clone / "datasets").mkdir()
+    (clone / ".venv" / "bin").mkdir(parents=True)
+    (clone / ".venv" / "bin" / "python").symlink_to(sys.executable)
+    git = {"GIT_AUTHOR_NAME": "t", "GIT_AUTHOR_EMAIL": "t@t", "GIT_COMMITTER_NAME": "t", "GIT_COMMITTER_EMAIL": "t@t"}
+    for cmd in (["init", "-q"], ["add", "tools"], ["commit", "-q", "-m", "tools"]):
+        subprocess.run(["git", *cmd], cwd=clone, check=True, env={**os.environ, **git})
+    head = subprocess.run(["git", "rev-parse", "--short", "HEAD"], cwd=clone, capture_output=True, text=True,
+                          check=True).stdout.strip()
+    queue, logs = clone / "q.txt", clone / "logs"
+
+    def work(cpu):
+        subprocess.run(["bash", str(clone / "tools" / "experiments" / "queue_worker.sh"), head, str(queue), str(logs)],
+                       check=True, env={**os.environ, "SR_CPU_TYPE": cpu, "HOME": str(tmp_path)})
+        return [line.split(" ", 1)[1] for line in (clone / "q.txt.done").read_text().splitlines()]
+
+    queue.write_text(f"w @{head} cpu=6/167,6/207 -c pass\n\none @{head} -c pass\n")
+    done = work("25/1")
+    assert [d.split(" on ")[0] for d in done] == ["start one", "one rc=0"]
+    assert queue.read_text() == f"w @{head} cpu=6/167,6/207 -c pass\n\n"
+    assert "the 1 line(s) left in" in (logs / "workers.log").read_text()
+    assert "(this machine: 25/1, " in (logs / "workers.log").read_text()
+    status = load_tool("experiments/queue_status")
+    os.environ["SR_CPU_TYPE"] = "25/1"
+    try:
+        text = status.report(queue, logs)
+    finally:
+        del os.environ["SR_CPU_TYPE"]
+    assert "  waiting for another CPU type (this machine: 25/1): w (cpu=6/167,6/207)" in text.splitlines()
+    assert "next:" not in text
+    done = work("6/207")
+    assert [d.split(" on ")[0] for d in done[2:]] == ["start w", "w rc=0"]
+    assert queue.read_text().strip() == ""
+    assert status.line_cpu_types(f"w @{head} cpu=6/167,6/207 -c pass") == ["6/167", "6/207"]
+    assert status.line_cpu_types("w -c pass cpu=6/167") == []  # only right after the name and @commit
+    assert status.line_cpu_types("w cpu=6/167 -c pass") == ["6/167"]
+    # queue_resume.sh names the lines that will wait, and starts workers all the same (they take the others)
+    out = _resume_clone(tmp_path / "resume", ["xgate_pw_0 @abc1234 cpu=6/167,6/207 -m x --seeds=[0]",
+                                              "src_mt5_2 @abc1234 -m x --seeds=[2]"],
+                        ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld"], env={"SR_CPU_TYPE": "25/1"})
+    assert out.returncode == 0, out.stderr
+    assert ("queue_resume: waiting for another CPU type (this machine is 25/1), not run here: xgate_pw_0"
+            in out.stderr.splitlines())
+    same = _resume_clone(tmp_path / "resume207", ["xgate_pw_0 @abc1234 cpu=6/167,6/207 -m x --seeds=[0]"],
+                         ["mw c0ffee0 docs/ref/sr_seed0 --env=metaworld"], env={"SR_CPU_TYPE": "6/207"})
+    assert same.returncode == 0 and "waiting for another CPU type" not in same.stderr
+
+
+def test_protocol_w_s_pending_runs_name_the_cpu_types_their_pairs_were_made_on():
+    """Protocol W's runs pair with Reset & Distill's runs made on the Intel Xeon family 6 model 167 (model 207 counts
+    as its type: RESULTS' 2026-12-02 02:52 line); each of its pending lines names those types, so that no worker on
+    another type starts it (RESULTS' 2026-12-02 07:36 line)."""
+    pending = (TOOLS / "queue_pending.txt").read_text().splitlines()
+    status = load_tool("experiments/queue_status")
+    for line in (ln for ln in pending if "--archive=" in ln and ln.rstrip().endswith("/sac_gate_plain_wake")):
+        assert status.line_cpu_types(line) == ["6/167", "6/207"], line.split()[0]

@@ -7,7 +7,8 @@
 #      here, before any run (another CPU type can record other demonstrations: RESULTS must not mix them);
 #   3. outputs/queue.txt from the pending file (unless a queue file is already there, or workers of this clone run:
 #      it is never overwritten, and no pending line is queued twice);
-#   4. workers (tools/experiments/queue_worker.sh, commit of the pending file's header) up to one per core, 2 at most.
+#   4. workers (tools/experiments/queue_worker.sh, commit of the pending file's header) up to one per core, 2 at most;
+#      a line naming other CPU types (cpu=<family>/<model>,...: tools/experiments/cpu_type.sh) is queued but waits.
 #
 #   bash tools/experiments/queue_resume.sh            # all of it
 #   bash tools/experiments/queue_resume.sh --dry-run  # say what it would do; change nothing
@@ -28,6 +29,8 @@ py="$root/.venv/bin/python"; [ "$dry" = 1 ] || py="$(bash .ci/venv.sh | tail -n 
 
 # shellcheck source=tools/experiments/worktree.sh
 source tools/experiments/worktree.sh
+# shellcheck source=tools/experiments/cpu_type.sh
+source tools/experiments/cpu_type.sh
 # shellcheck source=tools/experiments/isa_env.sh
 [ -f tools/experiments/isa_env.sh ] && source tools/experiments/isa_env.sh  # recordings too: the workers' code paths
 for folder in $(grep -o 'dataset_root=datasets/[A-Za-z0-9_.-]*' <<< "$lines" | sort -u | cut -d/ -f2); do
@@ -88,6 +91,13 @@ else
   printf '%s\n' "$lines" > outputs/queue.txt; rm -f outputs/queue.txt.taken
   say "outputs/queue.txt: $(wc -l <<< "$lines") line(s) from $pending"
 fi
+
+# Lines that name other CPU types stay queued for a machine of their type (queue_worker.sh takes only the others).
+waiting=""
+while IFS= read -r line; do
+  line_runs_here "$line" || waiting="$waiting ${line%% *}"
+done <<< "$lines"
+[ -z "$waiting" ] || say "waiting for another CPU type (this machine is $(cpu_type)), not run here:$waiting"
 
 cores="$(env -u OMP_NUM_THREADS -u OMP_THREAD_LIMIT nproc)"  # nproc obeys OMP_NUM_THREADS, which runs set to 1
 want=$(( cores < 2 ? cores : 2 ))

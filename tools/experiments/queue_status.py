@@ -8,13 +8,15 @@ which CPU, the stage and phase its log reached last, and its last progress line 
 whether its worker still runs (a ``python`` process whose command line holds the run's ``--output_root``) or the run
 was cut (a session's end: requeue it). A cut run already put back in the queue (``queue_requeue.sh``: in the queue,
 not in ``<queue>.taken``) is not in flight: it is listed as requeued, with where its outputs stopped. Then the queued
-lines, with an estimate of the core-hours they hold (``HOURS_PER_RUN``), and the last finished runs with their exit
-status.
+lines, with an estimate of the core-hours they hold (``HOURS_PER_RUN``); apart from them the lines that name other CPU
+types than this machine's (``cpu=<family>/<model>,...``: tools/experiments/cpu_type.sh), which no worker here takes;
+and the last finished runs with their exit status.
 Standard library only, so it works before the environment is built.
 """
 
 from __future__ import annotations
 
+import os
 import re
 import subprocess
 import sys
@@ -27,6 +29,7 @@ PROGRESS = re.compile(r"(\d+/\d+ \(\d+%\).*?left)")
 START = re.compile(r"^(\S+) start (\S+)(?: on (.*))?$")
 END = re.compile(r"^(\S+) (\S+) rc=(-?\d+)$")
 PRESET = re.compile(r"--preset=(\S+)")
+CPU_TYPES = re.compile(r"^\S+(?: @\S+)? cpu=(\S+)")
 # One run's wall time on one core, by preset: measured on the Intel Xeon family 6 model 167 with the libraries capped
 # at AVX2 (2026-11-30; docs/RESULTS.md's dated lines give each run's start and end). An estimate for planning only.
 HOURS_PER_RUN = {"configs/sac_mt5_gate.json": 2.3, "configs/metaworld_mt5_imitation.json": 1.0,
@@ -40,6 +43,19 @@ def _lines(path: Path) -> list[str]:
 def _queued(queue: Path) -> list[str]:
     """The queue's run lines (comments dropped), read once so that the names and the estimate agree."""
     return [line for line in _lines(queue) if not line.startswith("#")]
+
+
+def cpu_type(cpuinfo: Path = Path("/proc/cpuinfo")) -> str:
+    """This machine's ``<family>/<model>``, as tools/experiments/cpu_type.sh reads it (``SR_CPU_TYPE`` overrides)."""
+    if override := os.environ.get("SR_CPU_TYPE"):
+        return override
+    fields = dict(re.findall(r"^(cpu family|model)\s*: (\S+)", cpuinfo.read_text(), re.M))
+    return f"{fields.get('cpu family', '?')}/{fields.get('model', '?')}"
+
+
+def line_cpu_types(line: str) -> list[str]:
+    """The CPU types a queue line names (``cpu=6/167,6/207`` after its name and ``@commit``); [] when it names none."""
+    return m[1].split(",") if (m := CPU_TYPES.match(line)) else []
 
 
 def queued_hours(lines: list[str], hours: dict[str, float] = HOURS_PER_RUN) -> str:
@@ -102,8 +118,11 @@ def _entry(run: dict, state: str, logs: Path, now: datetime) -> list[str]:
 def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) -> str:
     now = now or datetime.now(UTC)
     flight, finished = runs(queue.with_name(queue.name + ".done"))
-    lines = _queued(queue)
-    queued = [line.split()[0] for line in lines]
+    here = cpu_type()
+    every = _queued(queue)
+    waiting = [ln for ln in every if (types := line_cpu_types(ln)) and here not in types]
+    lines = [ln for ln in every if ln not in waiting]
+    queued = [line.split()[0] for line in every]
     taken = {ln.split()[0]: ln for ln in _lines(queue.with_name(queue.name + ".taken"))}
     requeued = {n: r for n, r in flight.items() if n in queued and n not in taken}
     flight = {n: r for n, r in flight.items() if n not in requeued}
@@ -118,9 +137,14 @@ def report(queue: Path, logs: Path, now: datetime | None = None, last: int = 5) 
         out += _entry(r, "running" if alive else "NOT running (cut: queue_requeue.sh puts it back)", logs, now)
     for r in requeued.values():
         out += _entry(r, "requeued (resumes from its outputs when a worker takes it)", logs, now)
-    if queued:
-        out.append("  next: " + ", ".join(queued[:8]) + (f" (+{len(queued) - 8} more)" if len(queued) > 8 else ""))
+    runnable = [line.split()[0] for line in lines]
+    if runnable:
+        more = f" (+{len(runnable) - 8} more)" if len(runnable) > 8 else ""
+        out.append("  next: " + ", ".join(runnable[:8]) + more)
         out.append(queued_hours(lines))
+    if waiting:
+        out.append(f"  waiting for another CPU type (this machine: {here}): "
+                   + ", ".join(f"{ln.split()[0]} (cpu={','.join(line_cpu_types(ln))})" for ln in waiting))
     for r in finished[-last:]:
         out.append(f"  ended {r['ended']}: {r['name']} rc={r['rc']}")
     return "\n".join(out)
