@@ -860,6 +860,55 @@ def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
     assert f"seed 1: {', '.join(newest[1][:3])} and {newest[1][3]})" in line
 
 
+def _cpu_type(run: Path) -> str:
+    """``<family>/<model>`` of the CPU a run's results.json recorded (Intel or AMD)."""
+    m = re.search(r"family (\d+), model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
+    return f"{m[1]}/{m[2]}"
+
+
+def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
+    """RESULTS' twenty-first-session line on V on ACT's MT5 imitation seeds 2-3 (descriptive): the runs were made on the
+    AMD EPYC family 25 model 1 (the 07:36 line) and the earlier two on model 207; each final AFSR, BWT against both
+    references and final row; the archived rows beside them; the own-wake values; the newest skill right after each
+    sleep; seeds 0-3's values and mean +- SE beside SR's and Reset & Distill on ACT's on the same seeds."""
+    archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
+    runs, values = _v_act(4, archive.name)
+    assert [_cpu_type(archive / f"{V_ACT}{s}") for s in range(4)] == ["6/207", "6/207", "25/1", "25/1"]
+    line = text[text.index("twenty-first session: V on ACT, MT5 imitation, seeds 2-3"):]
+    line = line[:line.index("*2026-")] if "*2026-" in line else line[:line.index("## Protocol")]
+    for seed in (2, 3):
+        m, r = runs[seed]["metrics"], runs[seed]
+        ends = " / ".join(f"{v:.2f}" for v in r["success_matrix"][-1])
+        bwt = f"{m['bwt']['final']:.3f}" if seed == 2 else f"{m['bwt']['final']:+.3f}"
+        stated = (f"final AFSR **{values[2]:.3f}** (BWT {bwt} against the previous stage, {m['bwt_wake']['final']:.3f} "
+                  f"against its own wakes; at the end {ends}" if seed == 2
+                  else f"**{values[3]:.3f}** ({bwt} / {m['bwt_wake']['final']:.3f}; {ends})")
+        assert stated in line.replace("\n", " "), stated
+    flat = line.replace("\n", " ")
+    others = {}
+    for variant, name in (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"),
+                          ("reset_distill", "Reset & Distill on ACT")):
+        others[variant] = archived_values(archive, variant, "afsr")
+        assert f"{name} {others[variant][2]:.3f} and {others[variant][3]:.3f}" in flat, variant
+    own = [v for r in runs[2:] for v in r["success_after_own_wake"]]
+    assert runs[2]["success_after_own_wake"][0] == 0.5
+    assert f"({min(own[1:]):.2f}-{max(own):.2f} after each own wake but seed 2's first: reach 0.50)" in flat
+    newest = [[f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)] for r in runs[2:]]
+    assert f"seed 2 {', '.join(newest[0][:3])} and {newest[0][3]}" in flat
+    assert f"seed 3 {', '.join(newest[1][:3])} and {newest[1][3]}" in flat
+    assert f"Seeds 0-3 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in flat
+    assert (f"SR {_mean_se([others['sr'][s] for s in range(4)])}, Reset & Distill on ACT "
+            f"{_mean_se([others['reset_distill'][s] for s in range(4)])})") in flat
+    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    assert (f"{_mean_se(values)} over seeds 0-3, against SR's {_mean_se([others['sr'][s] for s in range(4)])} and "
+            f"Reset & Distill on ACT's {_mean_se([others['reset_distill'][s] for s in range(4)])} on the same seeds"
+            ) in readme
+    wake = np.mean([r["success_after_own_wake"][k] for r in runs for k in range(1, 5)])
+    after = np.mean([r["success_matrix"][k][k] for r in runs for k in range(1, 5)])
+    assert (f"({wake:.3f} after its own wake, skills 2-5 on average) and the sleep after each keeps about a third of "
+            f"it ({after:.3f} right after that sleep)") in readme and 0.25 < after / wake < 0.42
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
