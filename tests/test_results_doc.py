@@ -899,12 +899,47 @@ def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
     assert f"Seeds 0-3 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in flat
     assert (f"SR {_mean_se([others['sr'][s] for s in range(4)])}, Reset & Distill on ACT "
             f"{_mean_se([others['reset_distill'][s] for s in range(4)])})") in flat
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())
-    assert (f"{_mean_se(values)} over seeds 0-3, against SR's {_mean_se([others['sr'][s] for s in range(4)])} and "
-            f"Reset & Distill on ACT's {_mean_se([others['reset_distill'][s] for s in range(4)])} on the same seeds"
-            ) in readme
+
+
+def test_the_v_on_act_mt5_seeds_4_5_line_and_readme_recompute(text):
+    """RESULTS' twenty-first-session line on V on ACT's MT5 imitation seeds 4-5 (descriptive; AMD EPYC family 25 model
+    1): each final AFSR, BWT against both references and final row; the archived rows beside them; the newest skill
+    right after each sleep; seeds 0-5's values and mean +- SE beside every archived row's on the same seeds, the seeds
+    below SR and below Reset & Distill on ACT; the newest skill's mean after its sleep and after its wake. README's
+    sentence on V on ACT carries the same seeds 0-5 numbers."""
+    archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
+    runs, values = _v_act(6, archive.name)
+    assert [_cpu_type(archive / f"{V_ACT}{s}") for s in (4, 5)] == ["25/1", "25/1"]
+    line = text[text.index("twenty-first session: V on ACT, MT5 imitation, seeds 4-5"):]
+    flat = " ".join((line[:line.index("*2026-")] if "*2026-" in line else line[:line.index("## Protocol")]).split())
+    for seed in (4, 5):
+        m, r = runs[seed]["metrics"], runs[seed]
+        ends = " / ".join(f"{v:.2f}" for v in r["success_matrix"][-1])
+        stated = f"**{values[seed]:.3f}** ({m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:.3f}; {ends})"
+        assert stated in flat, stated
+        newest = [f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)]
+        assert f"seed {seed} {', '.join(newest[:3])} and {newest[3]}" in flat, seed
+    own = [v for r in runs[4:] for v in r["success_after_own_wake"]]
+    assert f"(after each own wake {min(own):.2f}-{max(own):.2f})" in flat
+    names = (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"),
+             ("reset_distill", "Reset & Distill on ACT"))
+    others = {v: archived_values(archive, v, "afsr") for v, _ in names}
+    for variant, name in names:
+        assert f"{name} {others[variant][4]:.3f} and {others[variant][5]:.3f}" in flat, variant
+    same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(6)])}" for v, name in names)
+    assert (f"Seeds 0-5 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same seeds "
+            f"{same})") in flat
+    below = {v: sum(values[s] < others[v][s] for s in range(6)) for v in ("sr", "reset_distill")}
+    assert below == {"sr": 6, "reset_distill": 5}
+    assert "below SR on all six seeds and below Reset & Distill on ACT on five" in flat
     wake = np.mean([r["success_after_own_wake"][k] for r in runs for k in range(1, 5)])
     after = np.mean([r["success_matrix"][k][k] for r in runs for k in range(1, 5)])
+    assert (f"the newest skill stands at {after:.3f} right after its sleep, against {wake:.3f} after its own wake "
+            f"(skills 2-5)") in flat
+    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    assert (f"{_mean_se(values)} over seeds 0-5, against SR's {_mean_se([others['sr'][s] for s in range(6)])} and "
+            f"Reset & Distill on ACT's {_mean_se([others['reset_distill'][s] for s in range(6)])} on the same seeds, "
+            "below SR on all six") in readme
     assert (f"({wake:.3f} after its own wake, skills 2-5 on average) and the sleep after each keeps about a third of "
             f"it ({after:.3f} right after that sleep)") in readme and 0.25 < after / wake < 0.42
 
