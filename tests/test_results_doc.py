@@ -705,10 +705,17 @@ CROSS_CPU = DOCS / "results" / "sac_gate_cross_cpu"
 """The agreement checks between CPU types (RESULTS' 2026-11-30 07:30 and 2026-12-01 22:49 lines)."""
 
 
+def _cpu_type(run: Path) -> str:
+    """``<family>/<model>`` of the CPU a run's results.json recorded (Intel or AMD)."""
+    m = re.search(r"family (\d+), model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
+    return f"{m[1]}/{m[2]}"
+
+
 def _cpu_models(runs) -> dict[str, str]:
-    """Each run's Intel CPU model number, as its results.json recorded the machine."""
-    return {run.name: re.search(r"family 6, model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
-            .group(1) for run in sorted(runs) if (run / "results.json").is_file()}
+    """Each run's Intel (family 6) CPU model number, as its results.json recorded the machine."""
+    types = {run.name: _cpu_type(run) for run in sorted(runs) if (run / "results.json").is_file()}
+    assert all(t.startswith("6/") for t in types.values()), types
+    return {name: t.split("/")[1] for name, t in types.items()}
 
 
 def _equal_everywhere(run_a: Path, run_b: Path, at_least: int, compare_output: Path) -> None:
@@ -858,12 +865,6 @@ def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
     newest = [[f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)] for r in runs]
     assert f"stands at {', '.join(newest[0][:3])} and {newest[0][3]}" in line
     assert f"seed 1: {', '.join(newest[1][:3])} and {newest[1][3]})" in line
-
-
-def _cpu_type(run: Path) -> str:
-    """``<family>/<model>`` of the CPU a run's results.json recorded (Intel or AMD)."""
-    m = re.search(r"family (\d+), model (\d+);", read_checked_json(run / "results.json")["machine"]["cpu"])
-    return f"{m[1]}/{m[2]}"
 
 
 def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
