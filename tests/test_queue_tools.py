@@ -207,7 +207,7 @@ def test_every_queued_run_is_capped_at_avx2_unless_told_otherwise_and_its_start_
         assert start.split()[1:3] == ["start", "one"] and end.endswith("one rc=2")
 
 
-def test_a_line_naming_other_cpu_types_waits_for_a_machine_of_its_type(tmp_path):
+def test_a_line_naming_other_cpu_types_waits_for_a_machine_of_its_type(tmp_path, monkeypatch):
     """A queue line "<name> @<commit> cpu=<family>/<model>,..." (tools/experiments/cpu_type.sh): a worker on another
     type takes the next line instead and leaves it queued (saying so in workers.log); a worker on a named type runs
     it, without the cpu= word among the python arguments (`-c pass` exits 0 only then); queue_resume.sh and
@@ -238,11 +238,9 @@ def test_a_line_naming_other_cpu_types_waits_for_a_machine_of_its_type(tmp_path)
     assert "the 1 line(s) left in" in (logs / "workers.log").read_text()
     assert "(this machine: 25/1, " in (logs / "workers.log").read_text()
     status = load_tool("experiments/queue_status")
-    os.environ["SR_CPU_TYPE"] = "25/1"
-    try:
-        text = status.report(queue, logs)
-    finally:
-        del os.environ["SR_CPU_TYPE"]
+    monkeypatch.setenv("SR_CPU_TYPE", "25/1")
+    text = status.report(queue, logs)
+    monkeypatch.delenv("SR_CPU_TYPE")
     assert "  waiting for another CPU type (this machine: 25/1): w (cpu=6/167,6/207)" in text.splitlines()
     assert "next:" not in text
     done = work("6/207")

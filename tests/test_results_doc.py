@@ -839,30 +839,49 @@ def test_the_v_on_act_needle_seed_9_line_recomputes(text):
             f"on ACT {np.mean(list(rd.values())):.3f}; descriptive, no test)") in line
 
 
+MT5_IMITATION = DOCS / "results" / "metaworld_mt5_imitation_compare"
+MT5_ROWS = (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"), ("reset_distill", "Reset & Distill on ACT"))
+"""The archived MT5 imitation rows V on ACT's dated lines sit beside: (variant, the name the lines give it)."""
+
+
+def _final_row(run: dict) -> str:
+    """A run's success per skill at the end, as the dated lines write it ("1.00 / 0.40 / ...")."""
+    return " / ".join(f"{v:.2f}" for v in run["success_matrix"][-1])
+
+
+def _newest_after_sleep(run: dict) -> list[str]:
+    """Skills 2-5's success right after their own stage's sleep (the success matrix's diagonal), as written."""
+    return [f"{run['success_matrix'][k][k]:.2f}" for k in range(1, 5)]
+
+
+def _dated_line(text: str, start: str) -> str:
+    """The RESULTS entry that begins with ``start``, up to the next dated entry or section, on one line."""
+    line = text[text.index(start):]
+    return " ".join((line[:line.index("*2026-")] if "*2026-" in line else line[:line.index("## Protocol")]).split())
+
+
 def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
     """RESULTS' twentieth-session line on V on ACT's MT5 imitation seeds 0-1 (descriptive): each final AFSR, BWT
     against both references and final row, the archived rows beside them, the own-wake range and the newest skill
     right after each sleep, from the archive; and the runs were made on model 207."""
-    archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
+    archive = MT5_IMITATION
     runs, _ = _v_act(2, archive.name)
     assert set(_cpu_models(archive / f"{V_ACT}{s}" for s in (0, 1)).values()) == {"207"}
     line = text[text.index("twentieth session: V on ACT, MT5 imitation, seeds 0-1"):]
     line = line[:line.index("*2026-")]
     for seed, r in enumerate(runs):
-        m = r["metrics"]
-        ends = " / ".join(f"{v:.2f}" for v in r["success_matrix"][-1])
+        m, ends = r["metrics"], _final_row(r)
         bwt = f"{m['bwt']['final']:.3f}" if seed == 0 else f"{m['bwt']['final']:+.3f}"
         stated = (f"final AFSR **{m['afsr']['final']:.3f}** (BWT {bwt.replace('-0.000', '0.000')} against the "
                   f"previous stage, {m['bwt_wake']['final']:.3f} against its own wakes; at the end {ends}"
                   if seed == 0 else f"**{m['afsr']['final']:.3f}** ({bwt} / {m['bwt_wake']['final']:.3f}; {ends})")
         assert stated in line, stated
-    for variant, name in (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"),
-                          ("reset_distill", "Reset & Distill on ACT")):
+    for variant, name in MT5_ROWS:
         got = archived_values(archive, variant, "afsr")
         assert f"{name} {got[0]:.3f} and {got[1]:.3f}" in line, variant
     own = [v for r in runs for v in r["success_after_own_wake"]]
     assert f"({min(own):.2f}-{max(own):.2f})" in line
-    newest = [[f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)] for r in runs]
+    newest = [_newest_after_sleep(r) for r in runs]
     assert f"stands at {', '.join(newest[0][:3])} and {newest[0][3]}" in line
     assert f"seed 1: {', '.join(newest[1][:3])} and {newest[1][3]})" in line
 
@@ -872,29 +891,24 @@ def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
     AMD EPYC family 25 model 1 (the 07:36 line) and the earlier two on model 207; each final AFSR, BWT against both
     references and final row; the archived rows beside them; the own-wake values; the newest skill right after each
     sleep; seeds 0-3's values and mean +- SE beside SR's and Reset & Distill on ACT's on the same seeds."""
-    archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
+    archive = MT5_IMITATION
     runs, values = _v_act(4, archive.name)
     assert [_cpu_type(archive / f"{V_ACT}{s}") for s in range(4)] == ["6/207", "6/207", "25/1", "25/1"]
-    line = text[text.index("twenty-first session: V on ACT, MT5 imitation, seeds 2-3"):]
-    line = line[:line.index("*2026-")] if "*2026-" in line else line[:line.index("## Protocol")]
+    flat = _dated_line(text, "twenty-first session: V on ACT, MT5 imitation, seeds 2-3")
     for seed in (2, 3):
-        m, r = runs[seed]["metrics"], runs[seed]
-        ends = " / ".join(f"{v:.2f}" for v in r["success_matrix"][-1])
+        m, ends = runs[seed]["metrics"], _final_row(runs[seed])
         bwt = f"{m['bwt']['final']:.3f}" if seed == 2 else f"{m['bwt']['final']:+.3f}"
         stated = (f"final AFSR **{values[2]:.3f}** (BWT {bwt} against the previous stage, {m['bwt_wake']['final']:.3f} "
                   f"against its own wakes; at the end {ends}" if seed == 2
                   else f"**{values[3]:.3f}** ({bwt} / {m['bwt_wake']['final']:.3f}; {ends})")
-        assert stated in line.replace("\n", " "), stated
-    flat = line.replace("\n", " ")
-    others = {}
-    for variant, name in (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"),
-                          ("reset_distill", "Reset & Distill on ACT")):
-        others[variant] = archived_values(archive, variant, "afsr")
+        assert stated in flat, stated
+    others = {v: archived_values(archive, v, "afsr") for v, _ in MT5_ROWS}
+    for variant, name in MT5_ROWS:
         assert f"{name} {others[variant][2]:.3f} and {others[variant][3]:.3f}" in flat, variant
     own = [v for r in runs[2:] for v in r["success_after_own_wake"]]
     assert runs[2]["success_after_own_wake"][0] == 0.5
     assert f"({min(own[1:]):.2f}-{max(own):.2f} after each own wake but seed 2's first: reach 0.50)" in flat
-    newest = [[f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)] for r in runs[2:]]
+    newest = [_newest_after_sleep(r) for r in runs[2:]]
     assert f"seed 2 {', '.join(newest[0][:3])} and {newest[0][3]}" in flat
     assert f"seed 3 {', '.join(newest[1][:3])} and {newest[1][3]}" in flat
     assert f"Seeds 0-3 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)}" in flat
@@ -908,26 +922,22 @@ def test_the_v_on_act_mt5_seeds_4_5_line_and_readme_recompute(text):
     right after each sleep; seeds 0-5's values and mean +- SE beside every archived row's on the same seeds, the seeds
     below SR and below Reset & Distill on ACT; the newest skill's mean after its sleep and after its wake. README's
     sentence on V on ACT carries the same seeds 0-5 numbers."""
-    archive = DOCS / "results" / "metaworld_mt5_imitation_compare"
+    archive = MT5_IMITATION
     runs, values = _v_act(6, archive.name)
     assert [_cpu_type(archive / f"{V_ACT}{s}") for s in (4, 5)] == ["25/1", "25/1"]
-    line = text[text.index("twenty-first session: V on ACT, MT5 imitation, seeds 4-5"):]
-    flat = " ".join((line[:line.index("*2026-")] if "*2026-" in line else line[:line.index("## Protocol")]).split())
+    flat = _dated_line(text, "twenty-first session: V on ACT, MT5 imitation, seeds 4-5")
     for seed in (4, 5):
-        m, r = runs[seed]["metrics"], runs[seed]
-        ends = " / ".join(f"{v:.2f}" for v in r["success_matrix"][-1])
+        m, ends = runs[seed]["metrics"], _final_row(runs[seed])
         stated = f"**{values[seed]:.3f}** ({m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:.3f}; {ends})"
         assert stated in flat, stated
-        newest = [f"{r['success_matrix'][k][k]:.2f}" for k in range(1, 5)]
+        newest = _newest_after_sleep(runs[seed])
         assert f"seed {seed} {', '.join(newest[:3])} and {newest[3]}" in flat, seed
     own = [v for r in runs[4:] for v in r["success_after_own_wake"]]
     assert f"(after each own wake {min(own):.2f}-{max(own):.2f})" in flat
-    names = (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"),
-             ("reset_distill", "Reset & Distill on ACT"))
-    others = {v: archived_values(archive, v, "afsr") for v, _ in names}
-    for variant, name in names:
+    others = {v: archived_values(archive, v, "afsr") for v, _ in MT5_ROWS}
+    for variant, name in MT5_ROWS:
         assert f"{name} {others[variant][4]:.3f} and {others[variant][5]:.3f}" in flat, variant
-    same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(6)])}" for v, name in names)
+    same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(6)])}" for v, name in MT5_ROWS)
     assert (f"Seeds 0-5 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same seeds "
             f"{same})") in flat
     below = {v: sum(values[s] < others[v][s] for s in range(6)) for v in ("sr", "reset_distill")}
