@@ -916,37 +916,62 @@ def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
             f"{_mean_se([others['reset_distill'][s] for s in range(4)])})") in flat
 
 
-def test_the_v_on_act_mt5_seeds_4_5_line_and_readme_recompute(text):
-    """RESULTS' twenty-first-session line on V on ACT's MT5 imitation seeds 4-5 (descriptive; AMD EPYC family 25 model
-    1): each final AFSR, BWT against both references and final row; the archived rows beside them; the newest skill
-    right after each sleep; seeds 0-5's values and mean +- SE beside every archived row's on the same seeds, the seeds
-    below SR and below Reset & Distill on ACT; the newest skill's mean after its sleep and after its wake. README's
-    sentence on V on ACT carries the same seeds 0-5 numbers."""
-    archive = MT5_IMITATION
-    runs, values = _v_act(6, archive.name)
-    assert [_cpu_type(archive / f"{V_ACT}{s}") for s in (4, 5)] == ["25/1", "25/1"]
-    flat = _dated_line(text, "twenty-first session: V on ACT, MT5 imitation, seeds 4-5")
-    for seed in (4, 5):
+def _v_act_mt5_pair(text: str, start: str, seeds: tuple[int, int], cpu: str, so_far: str) -> tuple:
+    """Check a RESULTS line on two of V on ACT's MT5 imitation seeds (descriptive) against the archive: the runs' CPU
+    type, each final AFSR, BWT against both references and final row, the newest skill right after each sleep, the
+    own-wake range, the archived rows on those seeds, and the running list of seeds 0..last with its mean +- SE beside
+    every archived row's on the same seeds (``so_far``: how the line names that list, e.g. "Seeds 0-5 so far").
+    Returns the line on one line, the runs of seeds 0..last, their final AFSRs and the archived rows by seed."""
+    archive, n = MT5_IMITATION, seeds[-1] + 1
+    runs, values = _v_act(n, archive.name)
+    assert [_cpu_type(archive / f"{V_ACT}{s}") for s in seeds] == [cpu, cpu]
+    flat = _dated_line(text, start)
+    for seed in seeds:
         m, ends = runs[seed]["metrics"], _final_row(runs[seed])
         stated = f"**{values[seed]:.3f}** ({m['bwt']['final']:+.3f} / {m['bwt_wake']['final']:.3f}; {ends})"
         assert stated in flat, stated
         newest = _newest_after_sleep(runs[seed])
         assert f"seed {seed} {', '.join(newest[:3])} and {newest[3]}" in flat, seed
-    own = [v for r in runs[4:] for v in r["success_after_own_wake"]]
+    own = [v for s in seeds for v in runs[s]["success_after_own_wake"]]
     assert f"(after each own wake {min(own):.2f}-{max(own):.2f})" in flat
     others = {v: archived_values(archive, v, "afsr") for v, _ in MT5_ROWS}
     for variant, name in MT5_ROWS:
-        assert f"{name} {others[variant][4]:.3f} and {others[variant][5]:.3f}" in flat, variant
-    same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(6)])}" for v, name in MT5_ROWS)
-    assert (f"Seeds 0-5 so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same seeds "
+        assert f"{name} {others[variant][seeds[0]]:.3f} and {others[variant][seeds[1]]:.3f}" in flat, variant
+    same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(n)])}" for v, name in MT5_ROWS)
+    assert (f"{so_far}: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same seeds "
             f"{same})") in flat
+    return flat, runs, values, others
+
+
+def _newest_means(runs: list[dict]) -> tuple[float, float]:
+    """Skills 2-5's mean success after their own wake and right after their own stage's sleep, over ``runs``."""
+    wake = np.mean([r["success_after_own_wake"][k] for r in runs for k in range(1, 5)])
+    after = np.mean([r["success_matrix"][k][k] for r in runs for k in range(1, 5)])
+    return wake, after
+
+
+def test_the_v_on_act_mt5_seeds_4_5_line_and_readme_recompute(text):
+    """RESULTS' twenty-first-session line on V on ACT's MT5 imitation seeds 4-5 (descriptive; AMD EPYC family 25 model
+    1), checked by ``_v_act_mt5_pair``; the seeds below SR and below Reset & Distill on ACT; the newest skill's mean
+    after its sleep and after its wake."""
+    flat, runs, values, others = _v_act_mt5_pair(text, "twenty-first session: V on ACT, MT5 imitation, seeds 4-5",
+                                                 (4, 5), "25/1", "Seeds 0-5 so far")
     below = {v: sum(values[s] < others[v][s] for s in range(6)) for v in ("sr", "reset_distill")}
     assert below == {"sr": 6, "reset_distill": 5}
     assert "below SR on all six seeds and below Reset & Distill on ACT on five" in flat
-    wake = np.mean([r["success_after_own_wake"][k] for r in runs for k in range(1, 5)])
-    after = np.mean([r["success_matrix"][k][k] for r in runs for k in range(1, 5)])
+    wake, after = _newest_means(runs)
     assert (f"the newest skill stands at {after:.3f} right after its sleep, against {wake:.3f} after its own wake "
             f"(skills 2-5)") in flat
+
+
+def test_the_v_on_act_mt5_readme_sentence_recomputes():
+    """README's sentence on V on ACT's MT5 imitation runs (descriptive): the seeds archived so far, their mean +- SE
+    beside SR's and Reset & Distill on ACT's on the same seeds, on how many it ended below SR, and the newest skill's
+    mean after its own wake and right after the sleep that follows."""
+    runs, values = _v_act(6, MT5_IMITATION.name)
+    others = {v: archived_values(MT5_IMITATION, v, "afsr") for v in ("sr", "reset_distill")}
+    assert sum(values[s] < others["sr"][s] for s in range(6)) == 6
+    wake, after = _newest_means(runs)
     readme = " ".join((DOCS.parent / "README.md").read_text().split())
     assert (f"{_mean_se(values)} over seeds 0-5, against SR's {_mean_se([others['sr'][s] for s in range(6)])} and "
             f"Reset & Distill on ACT's {_mean_se([others['reset_distill'][s] for s in range(6)])} on the same seeds, "
