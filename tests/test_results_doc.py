@@ -964,6 +964,20 @@ def test_the_v_on_act_mt5_seeds_4_5_line_and_readme_recompute(text):
             f"(skills 2-5)") in flat
 
 
+def test_the_v_on_act_mt5_seeds_6_7_line_recomputes(text):
+    """RESULTS' twenty-second-session line on V on ACT's MT5 imitation seeds 6-7 (descriptive; AMD EPYC family 25 model
+    17, the 10:43 line), checked by ``_v_act_mt5_pair``; the seeds below SR and below Reset & Distill on ACT; the
+    newest skill's mean after its sleep and after its wake."""
+    flat, runs, values, others = _v_act_mt5_pair(text, "twenty-second session: V on ACT, MT5 imitation, seeds 6-7",
+                                                 (6, 7), "25/17", "Seeds 0-7 so far")
+    below = {v: sum(values[s] < others[v][s] for s in range(8)) for v in ("sr", "reset_distill")}
+    assert below == {"sr": 8, "reset_distill": 6}
+    assert "below SR on all eight seeds and below Reset & Distill on ACT on six" in flat
+    wake, after = _newest_means(runs)
+    assert (f"Over seeds 0-7 the newest skill stands at {after:.3f} right after its sleep, against {wake:.3f} after "
+            "its own wake (skills 2-5)") in flat
+
+
 def test_the_v_on_act_mt5_readme_sentence_recomputes():
     """README's sentence on V on ACT's MT5 imitation runs (descriptive): the seeds archived so far, their mean +- SE
     beside SR's and Reset & Distill on ACT's on the same seeds, on how many it ended below SR, and the newest skill's
