@@ -916,12 +916,32 @@ def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
             f"{_mean_se([others['reset_distill'][s] for s in range(4)])})") in flat
 
 
-def _v_act_mt5_pair(text: str, start: str, seeds: tuple[int, int], cpu: str, so_far: str) -> tuple:
-    """Check a RESULTS line on two of V on ACT's MT5 imitation seeds (descriptive) against the archive: the runs' CPU
-    type, each final AFSR, BWT against both references and final row, the newest skill right after each sleep, the
-    own-wake range, the archived rows on those seeds, and the running list of seeds 0..last with its mean +- SE beside
-    every archived row's on the same seeds (``so_far``: how the line names that list, e.g. "Seeds 0-5 so far").
-    Returns the line on one line, the runs of seeds 0..last, their final AFSRs and the archived rows by seed."""
+def _newest_means(runs: list[dict]) -> tuple[float, float]:
+    """Skills 2-5's mean success after their own wake and right after their own stage's sleep, over ``runs``."""
+    wake = np.mean([r["success_after_own_wake"][k] for r in runs for k in range(1, 5)])
+    after = np.mean([r["success_matrix"][k][k] for r in runs for k in range(1, 5)])
+    return wake, after
+
+
+V_ACT_MT5_PAIRS = {  # the line's start -> (its seeds, their CPU type, how many seeds of 0..last end below SR's and
+    # below Reset & Distill on ACT's archived runs, as the line words it)
+    "twenty-first session: V on ACT, MT5 imitation, seeds 4-5": (
+        (4, 5), "25/1", {"sr": 6, "reset_distill": 5},
+        "below SR on all six seeds and below Reset & Distill on ACT on five"),
+    "twenty-second session: V on ACT, MT5 imitation, seeds 6-7": (
+        (6, 7), "25/17", {"sr": 8, "reset_distill": 6},
+        "below SR on all eight seeds and below Reset & Distill on ACT on six"),
+}
+
+
+@pytest.mark.parametrize("start", sorted(V_ACT_MT5_PAIRS))
+def test_the_v_on_act_mt5_pair_lines_recompute(text, start):
+    """RESULTS' lines on two of V on ACT's MT5 imitation seeds each (descriptive) against the archive: the runs' CPU
+    type (the 07:36 and 10:43 lines), each final AFSR, BWT against both references and final row, the newest skill
+    right after each sleep, the own-wake range, the archived rows on those seeds; the running list of seeds 0..last
+    with its mean +- SE beside every archived row's on the same seeds, on how many it ended below SR and below Reset &
+    Distill on ACT, and the newest skill's mean right after its sleep and after its own wake."""
+    seeds, cpu, below, words = V_ACT_MT5_PAIRS[start]
     archive, n = MT5_IMITATION, seeds[-1] + 1
     runs, values = _v_act(n, archive.name)
     assert [_cpu_type(archive / f"{V_ACT}{s}") for s in seeds] == [cpu, cpu]
@@ -938,44 +958,13 @@ def _v_act_mt5_pair(text: str, start: str, seeds: tuple[int, int], cpu: str, so_
     for variant, name in MT5_ROWS:
         assert f"{name} {others[variant][seeds[0]]:.3f} and {others[variant][seeds[1]]:.3f}" in flat, variant
     same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(n)])}" for v, name in MT5_ROWS)
-    assert (f"{so_far}: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same seeds "
-            f"{same})") in flat
-    return flat, runs, values, others
-
-
-def _newest_means(runs: list[dict]) -> tuple[float, float]:
-    """Skills 2-5's mean success after their own wake and right after their own stage's sleep, over ``runs``."""
-    wake = np.mean([r["success_after_own_wake"][k] for r in runs for k in range(1, 5)])
-    after = np.mean([r["success_matrix"][k][k] for r in runs for k in range(1, 5)])
-    return wake, after
-
-
-def test_the_v_on_act_mt5_seeds_4_5_line_and_readme_recompute(text):
-    """RESULTS' twenty-first-session line on V on ACT's MT5 imitation seeds 4-5 (descriptive; AMD EPYC family 25 model
-    1), checked by ``_v_act_mt5_pair``; the seeds below SR and below Reset & Distill on ACT; the newest skill's mean
-    after its sleep and after its wake."""
-    flat, runs, values, others = _v_act_mt5_pair(text, "twenty-first session: V on ACT, MT5 imitation, seeds 4-5",
-                                                 (4, 5), "25/1", "Seeds 0-5 so far")
-    below = {v: sum(values[s] < others[v][s] for s in range(6)) for v in ("sr", "reset_distill")}
-    assert below == {"sr": 6, "reset_distill": 5}
-    assert "below SR on all six seeds and below Reset & Distill on ACT on five" in flat
+    assert (f"Seeds 0-{n - 1} so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same "
+            f"seeds {same})") in flat
+    assert {v: sum(values[s] < others[v][s] for s in range(n)) for v in below} == below
+    assert words in flat
     wake, after = _newest_means(runs)
-    assert (f"the newest skill stands at {after:.3f} right after its sleep, against {wake:.3f} after its own wake "
-            f"(skills 2-5)") in flat
-
-
-def test_the_v_on_act_mt5_seeds_6_7_line_recomputes(text):
-    """RESULTS' twenty-second-session line on V on ACT's MT5 imitation seeds 6-7 (descriptive; AMD EPYC family 25 model
-    17, the 10:43 line), checked by ``_v_act_mt5_pair``; the seeds below SR and below Reset & Distill on ACT; the
-    newest skill's mean after its sleep and after its wake."""
-    flat, runs, values, others = _v_act_mt5_pair(text, "twenty-second session: V on ACT, MT5 imitation, seeds 6-7",
-                                                 (6, 7), "25/17", "Seeds 0-7 so far")
-    below = {v: sum(values[s] < others[v][s] for s in range(8)) for v in ("sr", "reset_distill")}
-    assert below == {"sr": 8, "reset_distill": 6}
-    assert "below SR on all eight seeds and below Reset & Distill on ACT on six" in flat
-    wake, after = _newest_means(runs)
-    assert (f"Over seeds 0-7 the newest skill stands at {after:.3f} right after its sleep, against {wake:.3f} after "
-            "its own wake (skills 2-5)") in flat
+    assert (f"Over seeds 0-{n - 1} the newest skill stands at {after:.3f} right after its sleep, against {wake:.3f} "
+            "after its own wake (skills 2-5)") in flat
 
 
 def test_the_v_on_act_mt5_readme_sentence_recomputes():
