@@ -857,7 +857,8 @@ def _newest_after_sleep(run: dict) -> list[str]:
 def _dated_line(text: str, start: str) -> str:
     """The RESULTS entry that begins with ``start``, up to the next dated entry or section, on one line."""
     line = text[text.index(start):]
-    return " ".join((line[:line.index("*2026-")] if "*2026-" in line else line[:line.index("## Protocol")]).split())
+    ends = [i for i in (line.find("*2026-"), line.find("\n#")) if i >= 0]  # the next dated entry or heading
+    return " ".join(line[:min(ends, default=len(line))].split())
 
 
 def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
@@ -931,6 +932,9 @@ V_ACT_MT5_PAIRS = {  # the line's start -> (its seeds, their CPU type, how many 
     "twenty-second session: V on ACT, MT5 imitation, seeds 6-7": (
         (6, 7), "25/17", {"sr": 8, "reset_distill": 6},
         "below SR on all eight seeds and below Reset & Distill on ACT on six"),
+    "twenty-second session: V on ACT, MT5 imitation, seeds 8-9, and all ten seeds": (
+        (8, 9), "25/17", {"sr": 10, "reset_distill": 6},
+        "below SR on all ten seeds and below Reset & Distill on ACT on six"),
 }
 
 
@@ -958,8 +962,8 @@ def test_the_v_on_act_mt5_pair_lines_recompute(text, start):
     for variant, name in MT5_ROWS:
         assert f"{name} {others[variant][seeds[0]]:.3f} and {others[variant][seeds[1]]:.3f}" in flat, variant
     same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(n)])}" for v, name in MT5_ROWS)
-    assert (f"Seeds 0-{n - 1} so far: {', '.join(f'{v:.3f}' for v in values)}, mean {_mean_se(values)} (on the same "
-            f"seeds {same})") in flat
+    listed = f"Seeds 0-{n - 1}{' so far' if n < 10 else ''}: {', '.join(f'{v:.3f}' for v in values)}"
+    assert f"{listed}, mean {_mean_se(values)} (on the same seeds {same})" in flat
     assert {v: sum(values[s] < others[v][s] for s in range(n)) for v in below} == below
     assert words in flat
     wake, after = _newest_means(runs)
@@ -967,20 +971,38 @@ def test_the_v_on_act_mt5_pair_lines_recompute(text, start):
             "after its own wake (skills 2-5)") in flat
 
 
-def test_the_v_on_act_mt5_readme_sentence_recomputes():
-    """README's sentence on V on ACT's MT5 imitation runs (descriptive): the seeds archived so far, their mean +- SE
-    beside SR's and Reset & Distill on ACT's on the same seeds, on how many it ended below SR, and the newest skill's
-    mean after its own wake and right after the sleep that follows."""
-    runs, values = _v_act(6, MT5_IMITATION.name)
+def test_the_v_on_act_mt5_summary_and_readme_recompute(text):
+    """V on ACT's MT5 imitation runs over all ten seeds (descriptive): RESULTS' summary of them (the archived
+    ``summary_sr_c``: AFSR, BWT against both references beside SR's against its own wakes, the three CPU types) and
+    README's sentence (the mean +- SE beside SR's and Reset & Distill on ACT's, the seeds below each, the newest skill's
+    mean after its own wake and right after the sleep that follows, BWT against its own wakes beside SR's)."""
+    runs, values = _v_act(10, MT5_IMITATION.name)
+    assert [_cpu_type(MT5_IMITATION / f"{V_ACT}{s}") for s in range(10)] == ["6/207"] * 2 + ["25/1"] * 4 + ["25/17"] * 4
     others = {v: archived_values(MT5_IMITATION, v, "afsr") for v in ("sr", "reset_distill")}
-    assert sum(values[s] < others["sr"][s] for s in range(6)) == 6
+    below = {v: sum(values[s] < others[v][s] for s in range(10)) for v in others}
+    assert below == {"sr": 10, "reset_distill": 6}
+    bwt, bwt_wake = (_mean_se([r["metrics"][m]["final"] for r in runs]) for m in ("bwt", "bwt_wake"))
+    sr_wake = _mean_se(list(archived_values(MT5_IMITATION, "sr", "bwt_wake").values()))
+    variant = read_checked_json(MT5_IMITATION / "summary_sr_c" / "summary.json")["variants"]["sr_c"]
+    assert variant["bwt_wake"]["per_seed"] == pytest.approx([r["metrics"]["bwt_wake"]["final"] for r in runs])
+    assert f"{variant['bwt']['mean']:+.3f} +- {variant['bwt']['sem']:.3f}" == f"+{bwt}"
+    flat = _dated_line(text, "twenty-second session: V on ACT, MT5 imitation, seeds 8-9, and all ten seeds")
+    assert (f"AFSR {_mean_se(values)}, BWT +{bwt} against the previous stage and {bwt_wake} against its own wakes "
+            f"(SR's archived runs: {sr_wake})") in flat
+    assert "(seeds 0-1 Intel Xeon family 6 model 207, 2-5 AMD EPYC family 25 model 1, 6-9 model 17)" in flat
+    reach = [f"{runs[s]['success_after_own_wake'][0]:.2f}" for s in (8, 9)]
+    assert min(v for s in (8, 9) for v in runs[s]["success_after_own_wake"][1:]) == 1.0
+    assert f"the two lowest own-wake values being reach's ({reach[0]} and {reach[1]})" in flat
     wake, after = _newest_means(runs)
     readme = " ".join((DOCS.parent / "README.md").read_text().split())
-    assert (f"{_mean_se(values)} over seeds 0-5, against SR's {_mean_se([others['sr'][s] for s in range(6)])} and "
-            f"Reset & Distill on ACT's {_mean_se([others['reset_distill'][s] for s in range(6)])} on the same seeds, "
-            "below SR on all six") in readme
+    assert (f"{_mean_se(values)} over seeds 0-9, against SR's {_mean_se(list(others['sr'].values()))} and Reset & "
+            f"Distill on ACT's {_mean_se(list(others['reset_distill'].values()))} on the same seeds, below SR on all "
+            "ten and below Reset & Distill on ACT on six") in readme
     assert (f"({wake:.3f} after its own wake, skills 2-5 on average) and the sleep after each keeps about a third of "
-            f"it ({after:.3f} right after that sleep)") in readme and 0.25 < after / wake < 0.42
+            f"it ({after:.3f} right after that sleep; BWT against its own wakes {bwt_wake}, SR's {sr_wake}; "
+            "`docs/results/metaworld_mt5_imitation_compare/summary_sr_c/`)") in readme and 0.25 < after / wake < 0.42
+    assert "seeds 0-1 Intel Xeon model 207, 2-5 AMD EPYC family 25 model 1, 6-9 model 17" in \
+        _which_method_rows()["configs/metaworld_mt5_imitation.json"]
 
 
 def test_the_sac_sleeps_cosines_recompute(text):
@@ -1337,16 +1359,26 @@ def test_the_reset_and_distill_on_act_cells_recompute():
             f"{len(newest)} stages) against {np.mean(own):.3f} after its own wake") in results
 
 
-def test_the_v_on_act_cells_recompute():
-    """README's SR c on ACT cell in the needle row and its sentence (issue 59 item 5, descriptive): every seed's final
-    AFSR in seed order and their mean +- SE, on how many seeds it ended below SR's archived run and above Reset &
-    Distill on ACT's, the mean success after its own wakes, and BWT against its own wakes beside SR's."""
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())
-    preset = "configs/needle_cpu_m16.json"
-    archive, sr_archives = RD_ON_ACT[preset]
-    runs, values = _v_act(10)
+@pytest.mark.parametrize("preset", sorted(RD_ON_ACT))
+def test_the_v_on_act_cells_recompute(preset):
+    """README's SR c on ACT cell in each imitation row (issue 59 item 5, descriptive): every seed's final AFSR in seed
+    order and their mean +- SE, from the archive; the archived summary beside the runs holds the same values."""
+    archive, _ = RD_ON_ACT[preset]
+    _, values = _v_act(10, archive)
     listed = ", ".join(f"{v:.3f}" for v in values)
-    assert f"{_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in _which_method_rows()[preset]
+    row = _which_method_rows()[preset]
+    assert "SR c on ACT" in row and f"{_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in row
+    summary = json.loads((DOCS / "results" / archive / "summary_sr_c" / "summary.json").read_text())
+    assert summary["variants"]["sr_c"]["afsr"]["per_seed"] == pytest.approx(values)
+
+
+def test_the_v_on_act_needle_sentence_recomputes():
+    """README's sentence on SR c on ACT's needle runs (descriptive): on how many seeds it ended below SR's archived run
+    and above Reset & Distill on ACT's, the mean success after its own wakes, and BWT against its own wakes beside
+    SR's; the archived summary holds the same BWT."""
+    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    archive, sr_archives = RD_ON_ACT["configs/needle_cpu_m16.json"]
+    runs, values = _v_act(10)
     sr = _over(sr_archives, "sr")
     sr_wake = list(_over(sr_archives, "sr", "bwt_wake").values())
     rd = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
@@ -1358,9 +1390,7 @@ def test_the_v_on_act_cells_recompute():
             f"(descriptive, no test): its fresh wakes learn each skill ({own:.3f} after its own wake, on average) and "
             f"its sleeps keep less of that than SR's do (BWT against its own wakes {bwt_wake}, SR's "
             f"{_mean_se(sr_wake)}; `docs/results/{archive}/summary_sr_c/`)") in readme
-    summary = json.loads((DOCS / "results" / archive / "summary_sr_c" / "summary.json").read_text())
-    variant = summary["variants"]["sr_c"]
-    assert variant["afsr"]["per_seed"] == pytest.approx(values)
+    variant = json.loads((DOCS / "results" / archive / "summary_sr_c" / "summary.json").read_text())["variants"]["sr_c"]
     assert f"{variant['bwt_wake']['mean']:.3f} +- {variant['bwt_wake']['sem']:.3f}" == bwt_wake
 
 
