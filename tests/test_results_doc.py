@@ -1005,6 +1005,28 @@ def test_the_v_on_act_mt5_summary_and_readme_recompute(text):
         _which_method_rows()["configs/metaworld_mt5_imitation.json"]
 
 
+def test_the_issue_59_summary_recomputes(text):
+    """RESULTS' opening paragraph on what issue 59 added: the confirmatory family's three means on test seeds 0-4 and
+    both Holm-adjusted p values with their verdicts, SR c_b1 below Reset & Distill on every seed, and each imitation
+    stream's Reset & Distill on ACT, SR c on ACT and SR means over seeds 0-9, from the archives."""
+    flat = text[text.index("**What issue 59 added (2026-12-02).**"):text.index("**Commands in this file")]
+    _, (v1, v2) = _sleep_family()
+    assert (f"SR c_b1 {_mean_se(v1['a_values'])} against SR {_mean_se(v1['b_values'])} (V1, Holm-adjusted p = "
+            f"{v1['p_holm']:.4f}) and against Reset & Distill {_mean_se(v2['b_values'])} (V2, Holm-adjusted p = "
+            f"{v2['p_holm']:.4f}): neither rejected") in flat
+    assert not (v1["significant_holm"] or v2["significant_holm"])
+    assert all(np.less(v2["a_values"], v2["b_values"])) and "below Reset & Distill on every seed" in flat
+    means = {}
+    for preset, (archive, sr_archives) in RD_ON_ACT.items():
+        rd = archived_values(DOCS / "results" / archive, "reset_distill", "afsr")
+        sr = _over(sr_archives, "sr")
+        assert sorted(rd) == sorted(sr) == list(range(10))
+        means[preset] = (_mean_se(list(rd.values())), _mean_se(_v_act(10, archive)[1]), _mean_se(list(sr.values())))
+    (rd_n, v_n, sr_n), (rd_m, v_m, sr_m) = (means[p] for p in RD_ON_ACT)  # needle m16, then MT5 imitation
+    assert (f"Reset & Distill on ACT {rd_n} on the needle m16 and {rd_m} on MT5, SR c on ACT (a fresh ACT each wake, "
+            f"then SR's sleep) {v_n} and {v_m}, against SR's {sr_n} and {sr_m} on the same seeds") in flat
+
+
 def test_the_sac_sleeps_cosines_recompute(text):
     """RESULTS' 06:30 table (issue 59, exploratory): each row's cosine ranges and final weights from the archived
     stage-5 sleep diagnostics of the two repeats, whose compare reports found every number equal to their runs."""
