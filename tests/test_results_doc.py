@@ -844,6 +844,11 @@ MT5_ROWS = (("sr", "SR"), ("replay", "replay"), ("wake_only", "wake-only"), ("re
 """The archived MT5 imitation rows V on ACT's dated lines sit beside: (variant, the name the lines give it)."""
 
 
+def _mt5_rows() -> dict[str, dict[int, float]]:
+    """Each of ``MT5_ROWS``' archived final AFSRs, ``{variant: {seed: AFSR}}``."""
+    return {v: archived_values(MT5_IMITATION, v, "afsr") for v, _ in MT5_ROWS}
+
+
 def _final_row(run: dict) -> str:
     """A run's success per skill at the end, as the dated lines write it ("1.00 / 0.40 / ...")."""
     return " / ".join(f"{v:.2f}" for v in run["success_matrix"][-1])
@@ -868,8 +873,7 @@ def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
     archive = MT5_IMITATION
     runs, _ = _v_act(2, archive.name)
     assert set(_cpu_models(archive / f"{V_ACT}{s}" for s in (0, 1)).values()) == {"207"}
-    line = text[text.index("twentieth session: V on ACT, MT5 imitation, seeds 0-1"):]
-    line = line[:line.index("*2026-")]
+    line = _dated_line(text, "twentieth session: V on ACT, MT5 imitation, seeds 0-1")
     for seed, r in enumerate(runs):
         m, ends = r["metrics"], _final_row(r)
         bwt = f"{m['bwt']['final']:.3f}" if seed == 0 else f"{m['bwt']['final']:+.3f}"
@@ -877,8 +881,7 @@ def test_the_v_on_act_mt5_seeds_0_1_line_recomputes(text):
                   f"previous stage, {m['bwt_wake']['final']:.3f} against its own wakes; at the end {ends}"
                   if seed == 0 else f"**{m['afsr']['final']:.3f}** ({bwt} / {m['bwt_wake']['final']:.3f}; {ends})")
         assert stated in line, stated
-    for variant, name in MT5_ROWS:
-        got = archived_values(archive, variant, "afsr")
+    for (variant, name), got in zip(MT5_ROWS, _mt5_rows().values(), strict=True):
         assert f"{name} {got[0]:.3f} and {got[1]:.3f}" in line, variant
     own = [v for r in runs for v in r["success_after_own_wake"]]
     assert f"({min(own):.2f}-{max(own):.2f})" in line
@@ -903,7 +906,7 @@ def test_the_v_on_act_mt5_seeds_2_3_line_recomputes(text):
                   f"against its own wakes; at the end {ends}" if seed == 2
                   else f"**{values[3]:.3f}** ({bwt} / {m['bwt_wake']['final']:.3f}; {ends})")
         assert stated in flat, stated
-    others = {v: archived_values(archive, v, "afsr") for v, _ in MT5_ROWS}
+    others = _mt5_rows()
     for variant, name in MT5_ROWS:
         assert f"{name} {others[variant][2]:.3f} and {others[variant][3]:.3f}" in flat, variant
     own = [v for r in runs[2:] for v in r["success_after_own_wake"]]
@@ -958,7 +961,7 @@ def test_the_v_on_act_mt5_pair_lines_recompute(text, start):
         assert f"seed {seed} {', '.join(newest[:3])} and {newest[3]}" in flat, seed
     own = [v for s in seeds for v in runs[s]["success_after_own_wake"]]
     assert f"(after each own wake {min(own):.2f}-{max(own):.2f})" in flat
-    others = {v: archived_values(archive, v, "afsr") for v, _ in MT5_ROWS}
+    others = _mt5_rows()
     for variant, name in MT5_ROWS:
         assert f"{name} {others[variant][seeds[0]]:.3f} and {others[variant][seeds[1]]:.3f}" in flat, variant
     same = ", ".join(f"{name} {_mean_se([others[v][s] for s in range(n)])}" for v, name in MT5_ROWS)
@@ -978,7 +981,8 @@ def test_the_v_on_act_mt5_summary_and_readme_recompute(text):
     mean after its own wake and right after the sleep that follows, BWT against its own wakes beside SR's)."""
     runs, values = _v_act(10, MT5_IMITATION.name)
     assert [_cpu_type(MT5_IMITATION / f"{V_ACT}{s}") for s in range(10)] == ["6/207"] * 2 + ["25/1"] * 4 + ["25/17"] * 4
-    others = {v: archived_values(MT5_IMITATION, v, "afsr") for v in ("sr", "reset_distill")}
+    rows = _mt5_rows()
+    others = {v: rows[v] for v in ("sr", "reset_distill")}
     below = {v: sum(values[s] < others[v][s] for s in range(10)) for v in others}
     assert below == {"sr": 10, "reset_distill": 6}
     bwt, bwt_wake = (_mean_se([r["metrics"][m]["final"] for r in runs]) for m in ("bwt", "bwt_wake"))
