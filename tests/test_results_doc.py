@@ -981,9 +981,8 @@ def test_the_v_on_act_mt5_summary_and_readme_recompute(text):
     mean after its own wake and right after the sleep that follows, BWT against its own wakes beside SR's)."""
     runs, values = _v_act(10, MT5_IMITATION.name)
     assert [_cpu_type(MT5_IMITATION / f"{V_ACT}{s}") for s in range(10)] == ["6/207"] * 2 + ["25/1"] * 4 + ["25/17"] * 4
-    rows = _mt5_rows()
-    others = {v: rows[v] for v in ("sr", "reset_distill")}
-    below = {v: sum(values[s] < others[v][s] for s in range(10)) for v in others}
+    others = _mt5_rows()
+    below = {v: sum(values[s] < others[v][s] for s in range(10)) for v in ("sr", "reset_distill")}
     assert below == {"sr": 10, "reset_distill": 6}
     bwt, bwt_wake = (_mean_se([r["metrics"][m]["final"] for r in runs]) for m in ("bwt", "bwt_wake"))
     sr_wake = _mean_se(list(archived_values(MT5_IMITATION, "sr", "bwt_wake").values()))
@@ -1394,7 +1393,7 @@ def test_the_v_on_act_cells_recompute(preset):
     listed = ", ".join(f"{v:.3f}" for v in values)
     row = _which_method_rows()[preset]
     assert "SR c on ACT" in row and f"{_mean_se(values)} (seeds 0-9: {listed}; descriptive, no test" in row
-    summary = json.loads((DOCS / "results" / archive / "summary_sr_c" / "summary.json").read_text())
+    summary = read_checked_json(DOCS / "results" / archive / "summary_sr_c" / "summary.json")
     assert summary["variants"]["sr_c"]["afsr"]["per_seed"] == pytest.approx(values)
 
 
@@ -1416,7 +1415,7 @@ def test_the_v_on_act_needle_sentence_recomputes():
             f"(descriptive, no test): its fresh wakes learn each skill ({own:.3f} after its own wake, on average) and "
             f"its sleeps keep less of that than SR's do (BWT against its own wakes {bwt_wake}, SR's "
             f"{_mean_se(sr_wake)}; `docs/results/{archive}/summary_sr_c/`)") in readme
-    variant = json.loads((DOCS / "results" / archive / "summary_sr_c" / "summary.json").read_text())["variants"]["sr_c"]
+    variant = read_checked_json(DOCS / "results" / archive / "summary_sr_c" / "summary.json")["variants"]["sr_c"]
     assert f"{variant['bwt_wake']['mean']:.3f} +- {variant['bwt_wake']['sem']:.3f}" == bwt_wake
 
 
