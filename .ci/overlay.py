@@ -7,7 +7,7 @@ core and plugins are then installed into the overlay in editable mode, and every
 distributions (``lerobot-train``, ``lerobot-eval``, ``pytest``, ``pip``, ...) gets a wrapper in the overlay's ``bin/``
 that runs the overlay's python, so that e.g. ``<clone>/.venv/bin/lerobot-train`` imports *this* clone's plugin.
 
-    python overlay.py create SHARED_VENV OVERLAY   # venv --without-pip at OVERLAY, plus the .pth (run it with any 3.11)
+    python overlay.py create SHARED_VENV OVERLAY   # venv --without-pip at OVERLAY, plus the .pth (run it with any 3.12)
     python overlay.py scripts OVERLAY              # wrappers of the shared distributions' scripts in OVERLAY/bin
     python overlay.py purge SHARED_VENV ROOT       # uninstall the project's distributions from the shared venv
     python overlay.py shared-site OVERLAY          # print the dependency site-packages an overlay reaches

@@ -19,8 +19,22 @@
 set -euo pipefail
 root="$(cd "$(dirname "${BASH_SOURCE[0]}")/.." && pwd)"
 cd "$root"
-py="${SR_PYTHON:-python3.11}"
-command -v "$py" >/dev/null 2>&1 || py=python3
+# The interpreter: SR_PYTHON if set, else the first Python 3.12 that runs among python3.12 on PATH (a pyenv shim
+# fails unless a version is selected), pyenv's installed 3.12.x builds, and python3. Nothing is downloaded.
+find_python() {
+  local candidates=() c
+  if [ -n "${SR_PYTHON:-}" ]; then candidates=("$SR_PYTHON"); else
+    candidates=(python3.12)
+    for c in "$(pyenv root 2>/dev/null || echo "$HOME/.pyenv")"/versions/3.12.*/bin/python3.12; do candidates+=("$c"); done
+    candidates+=(python3)
+  fi
+  for c in "${candidates[@]}"; do
+    if "$c" -c 'import sys; sys.exit(sys.version_info[:2] != (3, 12))' >/dev/null 2>&1; then echo "$c"; return 0; fi
+  done
+  echo "[venv] no Python 3.12 found (looked for ${candidates[*]}): install one (e.g. pyenv install 3.12) or set SR_PYTHON" >&2
+  return 1
+}
+py="$(find_python)"
 # Key: the lock plus the dependency lists of every pyproject (not the whole file, so that adding a console
 # script or a lint rule does not rebuild 8 GB).
 key=$("$py" - <<'PY'

@@ -11,7 +11,8 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1] / "sr_imitation"
 
-BELOW_SUBSTRATES = {"core", "io", "progress", "infra", "stream", "reporting", "envs", "recorders", "offscreen", "video"}
+BELOW_SUBSTRATES = {"core", "io", "progress", "infra", "stream", "reporting", "envs", "recorders", "offscreen", "video",
+                    "lerobot_compat"}
 """Every layer a substrate may import."""
 
 ALLOWED: dict[str, set[str]] = {
@@ -19,6 +20,8 @@ ALLOWED: dict[str, set[str]] = {
     "io": set(),
     # progress bars / log lines of long loops (the sleep's included)
     "progress": set(),
+    # the one place that names LeRobot internals which moved between releases
+    "lerobot_compat": set(),
     # formulas: memories, aggregation, sleep, excitability, metrics
     "core": {"io", "progress"},
     # run infrastructure: settings fingerprints, run log, provenance, command-line parsing and errors
@@ -31,7 +34,7 @@ ALLOWED: dict[str, set[str]] = {
     "offscreen": set(),
     "video": {"core", "io", "progress", "infra"},
     "envs": {"core", "io", "progress", "infra", "offscreen", "video"},
-    "recorders": {"core", "io", "progress", "infra", "envs", "offscreen", "video"},
+    "recorders": {"core", "io", "progress", "infra", "envs", "offscreen", "video", "lerobot_compat"},
     # the substrate registry (sr_imitation/substrates/__init__.py, registry.py): what sr-train looks substrates up in
     "substrates": {"core", "io", "progress", "infra", "stream"},
     # every substrate folder, sr_imitation/substrates/<name>/, is a layer of its own with these imports (its methods
@@ -49,7 +52,7 @@ KNOWN_UPWARD: set[tuple[str, str]] = set()  # none left: a new exception needs i
 
 PLUGINS = ROOT.parent / "policies"
 
-PLUGIN_ALLOWED = {"io", "progress", "core", "infra", "envs", "offscreen", "video"}
+PLUGIN_ALLOWED = {"io", "progress", "core", "infra", "envs", "offscreen", "video", "lerobot_compat"}
 """What of ``sr_imitation`` a LeRobot plugin under ``policies/`` may import: the layers below the substrates (the
 ACT substrate, ``substrates/act``, imports the plugin, so the plugin imports nothing of it)."""
 

@@ -179,11 +179,11 @@ def test_every_python_m_command_answers_user_errors_in_one_line():
     printed a draccus traceback for a bad ``--extra`` value. Benchmarks (developer tools) and modules another command
     calls (the Meta-World recorder, under ``sr-record``) are left out; ``recompute_bwt`` answers through argparse,
     as does the grid's benchmark (``experiments/grid_benchmark.py``, a benchmark that lives beside the runner it
-    times), ``sr-dataset-viz`` is LeRobot's own script."""
+    times)."""
     import ast
 
     root = Path(__file__).resolve().parents[1] / "sr_imitation"
-    exempt = {"recorders/metaworld.py", "experiments/recompute_bwt.py", "recorders/viz.py",
+    exempt = {"recorders/metaworld.py", "experiments/recompute_bwt.py",
               "experiments/grid_benchmark.py"}
     unwired = []
     for path in sorted(root.rglob("*.py")):

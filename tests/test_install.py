@@ -22,7 +22,7 @@ from packaging.version import Version
 ROOT = Path(__file__).resolve().parents[1]
 OVERLAY_PY = ROOT / ".ci" / "overlay.py"
 PTH_NAME = "sr_shared_deps.pth"  # .ci/overlay.py's PTH_NAME
-PROJECT_DISTS = {"sr_imitation", "lerobot_policy_act_sr"}
+PROJECT_DISTS = {"sr_imitation", "lerobot_policy_act_sr", "lerobot_env_sr"}
 
 
 def _is_relative_to(path: str | Path, parent: Path) -> bool:
@@ -92,11 +92,13 @@ _PROBE = (
     "register_third_party_plugins()\n"
     "import lerobot_policy_act_sr, sr_imitation\n"
     "from lerobot.policies.factory import make_policy_config\n"
+    "from lerobot.envs.configs import EnvConfig\n"
     "config = make_policy_config('act_sr')\n"
     "print(json.dumps({'sr_imitation': sr_imitation.__file__, 'plugin': lerobot_policy_act_sr.__file__,\n"
     "                  'config': type(config).__module__ + '.' + type(config).__name__,\n"
+    "                  'envs': sorted({'needle', 'sr_meta_world'} & set(EnvConfig.get_known_choices())),\n"
     "                  'dists': {n: str(m.distribution(n).locate_file('')) for n in"
-    " ('sr_imitation', 'lerobot_policy_act_sr')}}))\n"
+    " ('sr_imitation', 'lerobot_policy_act_sr', 'lerobot_env_sr')}}))\n"
 )
 """Run in a fresh interpreter from a neutral directory: where LeRobot's plugin discovery finds the project."""
 
@@ -147,6 +149,7 @@ def test_two_clones_each_run_their_own_code_over_one_shared_venv(shared_site, tm
         assert _is_relative_to(found["plugin"], root / "policies" / "lerobot_policy_act_sr"), (root, found)
         assert all(_is_relative_to(loc, root / ".venv") for loc in found["dists"].values()), (root, found)
         assert found["config"] == "lerobot_policy_act_sr.configuration_act_sr.ACTSRConfig", found
+        assert found["envs"] == ["needle", "sr_meta_world"], found  # by LeRobot's lerobot_env_* discovery
         for script in ("lerobot-train", "lerobot-eval", "sr-train", "sr-sleep"):
             first = (root / ".venv" / "bin" / script).read_text().splitlines()[0]
             assert first == f"#!{root / '.venv' / 'bin' / 'python'}", (script, first)
@@ -158,7 +161,7 @@ def test_two_clones_each_run_their_own_code_over_one_shared_venv(shared_site, tm
 @pytest.mark.slow
 def test_pip_install_into_an_existing_lerobot_environment(shared_site, tmp_path):
     """The README's route for LeRobot users: plain (non-editable) pip installs of the repository and its plugin into
-    an environment that already has LeRobot 0.4.4 (here: a fresh overlay of the shared dependencies, which holds no
+    an environment that already has LeRobot 0.6 (here: a fresh overlay of the shared dependencies, which holds no
     project code), without network; then LeRobot's factory makes act_sr and stock lerobot-train runs there."""
     src = _copy_checkout(tmp_path / "src")
     env_dir = tmp_path / "lerobot_env"
@@ -172,14 +175,19 @@ def test_pip_install_into_an_existing_lerobot_environment(shared_site, tmp_path)
                              capture_output=True, text=True)
     assert without.returncode != 0, "the fresh LeRobot environment already imports sr_imitation"
     proc = subprocess.run([str(python), "-m", "pip", "install", "--quiet", "--no-index", "--no-build-isolation",
-                           "--no-cache-dir", str(src), str(src / "policies" / "lerobot_policy_act_sr")],
+                           "--no-cache-dir", str(src), str(src / "policies" / "lerobot_policy_act_sr"),
+                           str(src / "policies" / "lerobot_env_sr")],
                           cwd=tmp_path, env=_clean_env(PYTHONWARNINGS="ignore"), capture_output=True, text=True,
                           timeout=300)
     assert proc.returncode == 0, proc.stdout[-2000:] + proc.stderr[-3000:]
+    check = subprocess.run([str(python), "-m", "pip", "check"], cwd=tmp_path, env=_clean_env(PYTHONWARNINGS="ignore"),
+                           capture_output=True, text=True, timeout=300)
+    assert check.returncode == 0 and "No broken requirements found" in check.stdout, check.stdout + check.stderr
     site = env_dir / "lib" / f"python{sys.version_info.major}.{sys.version_info.minor}" / "site-packages"
     found = _probe(python, tmp_path)
     assert _is_relative_to(found["sr_imitation"], site) and _is_relative_to(found["plugin"], site), found
     assert found["config"] == "lerobot_policy_act_sr.configuration_act_sr.ACTSRConfig", found
+    assert found["envs"] == ["needle", "sr_meta_world"], found
     assert (env_dir / "bin" / "sr-train").is_file()  # the package's own commands came with it
     help_ = subprocess.run([str(env_dir / "bin" / "lerobot-train"), "--help"], cwd=tmp_path, env=_clean_env(),
                            capture_output=True, text=True, timeout=300)
@@ -189,7 +197,7 @@ def test_pip_install_into_an_existing_lerobot_environment(shared_site, tmp_path)
     assert not (PROJECT_DISTS & {d.metadata["Name"] for d in importlib.metadata.distributions(path=[str(shared_site)])})
 
 
-EXACT_PINS = {"lerobot", "metaworld", "mujoco"}
+EXACT_PINS = {"metaworld", "mujoco"}
 """The only exact direct dependencies (pyproject.toml says why); every other one is a range."""
 
 

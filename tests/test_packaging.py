@@ -13,9 +13,10 @@ import pytest
 ROOT = Path(__file__).resolve().parents[1]
 
 
-def test_plugin_distribution_name_equals_its_import_name():
-    dist = importlib.metadata.distribution("lerobot_policy_act_sr")
-    assert dist.metadata["Name"] == "lerobot_policy_act_sr"
+@pytest.mark.parametrize("name", ["lerobot_policy_act_sr", "lerobot_env_sr"])
+def test_plugin_distribution_name_equals_its_import_name(name):
+    dist = importlib.metadata.distribution(name)
+    assert dist.metadata["Name"] == name
 
 
 def _run_json(code: str, timeout: int) -> dict:
@@ -39,6 +40,24 @@ def test_lerobot_discovers_and_imports_the_plugin():
     # Imported by LeRobot's discovery (not before it), and the policy type is registered with draccus.
     assert found["before"] is False and found["after"] is True
     assert "act_sr" in found["choices"] and "act" in found["choices"]
+
+
+def test_lerobot_discovers_the_env_plugin_and_the_policy_plugin_registers_no_env():
+    """The environments are registered by the env plugin (LeRobot 0.6's ``lerobot_env_*`` discovery), not as a side
+    effect of importing the policy plugin."""
+    found = _run_json(
+        "import json, sys\n"
+        "import lerobot_policy_act_sr\n"
+        "from lerobot.envs.configs import EnvConfig\n"
+        "by_policy = sorted({'needle', 'sr_meta_world'} & set(EnvConfig.get_known_choices()))\n"
+        "from lerobot.utils.import_utils import register_third_party_plugins\n"
+        "register_third_party_plugins()\n"
+        "print(json.dumps({'by_policy': by_policy, 'env_plugin': 'lerobot_env_sr' in sys.modules,\n"
+        "                  'choices': sorted({'needle', 'sr_meta_world'} & set(EnvConfig.get_known_choices()))}))\n",
+        timeout=300,
+    )
+    assert found["by_policy"] == [] and found["env_plugin"] is True
+    assert found["choices"] == ["needle", "sr_meta_world"]
 
 
 def test_core_and_stream_engine_import_neither_lerobot_nor_simulators():

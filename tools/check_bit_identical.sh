@@ -34,7 +34,7 @@ export_side() {  # $1 side name, $2 ref ('' = the working tree)
 in_side() {  # $1 side name, then the driver's arguments
   local dir="$SCRATCH/$1"
   shift
-  (cd "$dir/src" && PYTHONPATH="$dir/src:$dir/src/policies/lerobot_policy_act_sr" OMP_NUM_THREADS=1 \
+  (cd "$dir/src" && PYTHONPATH="$dir/src:$dir/src/policies/lerobot_policy_act_sr:$dir/src/policies/lerobot_env_sr" OMP_NUM_THREADS=1 \
      nice -n "${SR_BITCHECK_NICE:-19}" "$PY" "$ROOT/tools/bit_identical_runs.py" "$@")
 }
 

@@ -47,7 +47,7 @@ if ! (cd "$tmp" && PYTHONWARNINGS=ignore "$py" -I -m pip install --quiet --no-de
 fi
 # This checkout, as .ci/venv.sh installs it (-P: the checkout's own egg-info is not on sys.path).
 PYTHONWARNINGS=ignore "$py" -P -m pip install --quiet --no-deps --no-build-isolation --no-index \
-  -e . -e policies/lerobot_policy_act_sr >&2
+  -e . -e policies/lerobot_policy_act_sr -e policies/lerobot_env_sr >&2
 
 echo "[lower-bounds] $(date -u '+%Y-%m-%d %H:%M UTC'), commit $(git rev-parse --short HEAD)$(git diff --quiet HEAD || echo '+changes'),$(lscpu | sed -n 's/^Model name: *\(.*\)/ \1/p' | head -1)"
 # The versions actually imported: every lower bound from the throwaway site-packages, the rest from the lock.

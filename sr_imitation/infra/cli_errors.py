@@ -18,6 +18,7 @@ import sys
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
+from sr_imitation.infra.torchcodec_notice import quiet_torchcodec
 from sr_imitation.io import CorruptFileError, WriteError
 
 USER_ERRORS: tuple[type[BaseException], ...] = (ValueError, FileExistsError, FileNotFoundError, PermissionError,
@@ -148,9 +149,10 @@ def setup_logging(level: int = logging.INFO) -> None:
     logging.basicConfig(level=level, format=LOG_FORMAT)  # does nothing while other handlers remain
     root.setLevel(level)
     logging.getLogger("OpenGL.acceleratesupport").setLevel(logging.WARNING)  # "No OpenGL_accelerate module" each run
+    quiet_torchcodec()  # a missing FFmpeg: one line, not LeRobot's ~100 lines of loader errors
 
 
-def run_cli(prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:
+def run_cli[T](prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:
     """Run ``main(args)`` (``sys.argv[1:]`` by default), turning user errors into one line and exit status 2."""
     debug, rest = split_debug(list(sys.argv[1:] if args is None else args))
     try:

@@ -186,7 +186,7 @@ def check_flags_known(args: Sequence[str], known: Sequence[str]) -> None:
         raise UsageError(f"unknown flag {name}{hint}")
 
 
-def parse_command(cls: type[T], args: Sequence[str] | None, *, prog: str, config_path: str | Path | None = None,
+def parse_command[T](cls: type[T], args: Sequence[str] | None, *, prog: str, config_path: str | Path | None = None,
                   prefix: str = "", names: Mapping[str, str] | None = None,
                   notes: Mapping[str, str] | None = None, help_values: tuple[str, Mapping] | None = None) -> T:
     """``draccus.parse`` of ``cls`` for the command ``prog`` (module docstring): ``--help`` prints every flag's

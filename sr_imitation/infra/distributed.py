@@ -87,12 +87,24 @@ def barrier() -> None:
         torch.distributed.barrier()
 
 
-def shard(batch: Mapping[str, Any], processes: Processes) -> tuple[dict[str, Any], float]:
+def shard(batch: Mapping[str, Any], processes: Processes, pad_key: str | None = None) -> tuple[dict[str, Any], float]:
     """This process's contiguous slice of a global batch (every tensor and list cut along its first dimension, as
-    ``torch.tensor_split`` cuts: sizes differ by at most one) and its share of the batch's rows. A batch with fewer
+    ``torch.tensor_split`` cuts: sizes differ by at most one) and its share of the batch. A batch with fewer
     rows than processes (an epoch's last one) is not cut: every process takes all of it with share 1 / N, so that
     every process runs the same forward passes (and draws from the same generators). One process: the batch
-    itself, share 1."""
+    itself, share 1.
+
+    Args:
+        batch: the global batch (the same on every process).
+        processes: this process among the run's.
+        pad_key: a boolean padding mask in ``batch`` (True = padded) when the loss is a mean over its non-padded
+            elements (LeRobot 0.6's ACT L1 loss divides by their count): the share is then this slice's count of
+            non-padded elements over the batch's, so that the share-weighted sum of the slices' losses is the
+            batch's loss. ``None`` (or no such key): the share of rows.
+
+    Returns:
+        The slice and its share (the shares of all processes sum to 1).
+    """
     if not processes.distributed:
         return dict(batch), 1.0
     sizes = {len(v) for v in batch.values() if isinstance(v, torch.Tensor | list)}
@@ -105,6 +117,11 @@ def shard(batch: Mapping[str, Any], processes: Processes) -> tuple[dict[str, Any
     start = sum(bounds[: processes.rank])
     stop = start + bounds[processes.rank]
     out = {k: v[start:stop] if isinstance(v, torch.Tensor | list) else v for k, v in batch.items()}
+    if pad_key is not None and isinstance(batch.get(pad_key), torch.Tensor):
+        valid = ~batch[pad_key].bool()
+        total = int(valid.sum())
+        if total > 0:
+            return out, int(valid[start:stop].sum()) / total
     return out, (stop - start) / n
 
 

@@ -41,6 +41,9 @@ FINGERPRINT_FILE = "settings_fingerprint.json"
 """Name of the fingerprint file in a run directory (next to the program's own config file)."""
 FINGERPRINT_FORMAT = "sr_imitation.settings_fingerprint"
 FINGERPRINT_VERSION = 1
+STACK_KEY = "stack"
+"""A derived top-level key (:attr:`SettingsFingerprint.derived`): the versions of the libraries that compute a run's
+numbers (``stack.lerobot``). A resume under other versions is refused first, by :func:`check_stack`."""
 RUN_DIRECTORY = "."
 """``output_dir`` as a run's own config file stores it: the directory holding the file (see :func:`output_dir_for`)."""
 
@@ -164,6 +167,9 @@ class SettingsFingerprint:
     """Top-level keys computed from the configuration by the code rather than set in it (``method_config``: the
     method's settings with their defaults). A stored fingerprint without such a key predates it and counts as equal
     there (:func:`check_settings`); one that has it must match."""
+    stack_hint: str = ""
+    """What to do when a run was made with other versions of the libraries under :data:`STACK_KEY` (the command
+    that continues it, or where), said by :class:`StackMismatchError`. Not written to the file."""
     added: Mapping[str, Any] = dataclasses.field(default_factory=dict)
     """Settings added to the code after runs were first fingerprinted, with the value (JSON) every run that predates
     them had: a stored fingerprint without such a key counts as holding that value (:func:`check_settings`), so an
@@ -175,10 +181,10 @@ class SettingsFingerprint:
 
 
 def settings_fingerprint(cfg: Any, allow: Iterable[str] = (), derived: Mapping[str, Any] | None = None,
-                         added: Mapping[str, Any] | None = None) -> SettingsFingerprint:
+                         added: Mapping[str, Any] | None = None, stack_hint: str = "") -> SettingsFingerprint:
     """Flatten ``cfg`` (:func:`flatten_settings`) and ``derived`` (see :attr:`SettingsFingerprint.derived`; a key
-    of both is refused), drop the keys ``allow`` covers, hash the rest. ``added``: see
-    :attr:`SettingsFingerprint.added`."""
+    of both is refused), drop the keys ``allow`` covers, hash the rest. ``added``, ``stack_hint``: see
+    :class:`SettingsFingerprint`."""
     allow, derived = tuple(allow), dict(derived or {})
     flat = flatten_settings(cfg)
     clash = sorted(set(derived) & {k.split(".")[0] for k in flat})
@@ -186,7 +192,7 @@ def settings_fingerprint(cfg: Any, allow: Iterable[str] = (), derived: Mapping[s
         raise ValueError(f"derived settings {clash} are also settings of the configuration")
     flat.update(flatten_settings(derived))
     flat = {k: v for k, v in sorted(flat.items()) if not is_allowed(k, allow)}
-    return SettingsFingerprint(flat, settings_digest(flat), allow, tuple(derived), dict(added or {}))
+    return SettingsFingerprint(flat, settings_digest(flat), allow, tuple(derived), stack_hint, dict(added or {}))
 
 
 def diff_settings(stored: Mapping[str, Any], current: Mapping[str, Any]) -> dict[str, tuple[Any, Any]]:
@@ -224,6 +230,31 @@ class SettingsMismatchError(ValueError):
             f"{self.path}: cannot resume with different settings (stored -> requested): {changes} "
             "(resume with the stored values, or start a new run in another output_dir)"
         )
+
+
+class StackMismatchError(SettingsMismatchError):
+    """A resume under other library versions than the run was made with (keys under :data:`STACK_KEY`). One line:
+    the file, each library with its stored and installed version, and the fingerprint's ``stack_hint``."""
+
+    def __init__(self, path: str | os.PathLike[str], diffs: Mapping[str, tuple[Any, Any]], hint: str = "") -> None:
+        self.path = Path(path)
+        self.diffs = dict(diffs)
+        made = ", ".join(f"{k.removeprefix(STACK_KEY + '.')} {_version(a)}" for k, (a, _) in sorted(self.diffs.items()))
+        here = ", ".join(f"{k.removeprefix(STACK_KEY + '.')} {_version(b)}" for k, (_, b) in sorted(self.diffs.items()))
+        ValueError.__init__(self, f"{self.path}: this run was made with {made} and cannot resume under {here} "
+                                  f"(another release computes other numbers){': ' + hint if hint else ''}")
+
+
+def _version(value: Any) -> str:
+    return "<unrecorded>" if value is ABSENT or value is None else str(value)
+
+
+def check_stack(path: str | os.PathLike[str], stored: Mapping[str, Any], current: SettingsFingerprint) -> None:
+    """Raise :class:`StackMismatchError` if the run's library versions (:data:`STACK_KEY`) differ from ``current``'s;
+    checked before the inputs and the other settings, so it is the one line a user sees."""
+    diffs = {k: v for k, v in resume_differences(stored, current).items() if is_allowed(k, [STACK_KEY])}
+    if diffs:
+        raise StackMismatchError(path, diffs, current.stack_hint)
 
 
 def check_settings(path: str | os.PathLike[str], stored: Mapping[str, Any], current: SettingsFingerprint) -> None:

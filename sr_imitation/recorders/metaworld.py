@@ -169,7 +169,7 @@ def run_demo(env: MetaWorldEnv, act, seed: int, configuration: int, image_key: s
 
 def record_task(cfg: MetaWorldRecordConfig, task: str, task_index: int) -> Path:
     """Record ``cfg.num_episodes`` successful scripted episodes of ``task``; returns the dataset path."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+    from sr_imitation.lerobot_compat import create_dataset
 
     target = cfg.target(task)
     target.parent.mkdir(parents=True, exist_ok=True)
@@ -181,7 +181,7 @@ def record_task(cfg: MetaWorldRecordConfig, task: str, task_index: int) -> Path:
     act = scripted_policy(task)
     dataset = None
     try:
-        dataset = LeRobotDataset.create(repo_id=f"{cfg.repo_id_prefix}_{task}", fps=cfg.fps,
+        dataset = create_dataset(repo_id=f"{cfg.repo_id_prefix}_{task}", fps=cfg.fps,
                                         features=dataset_features(cfg), root=tmp / "dataset",
                                         robot_type="metaworld_sawyer", use_videos=cfg.video, vcodec=cfg.vcodec)
         failed: list[int] = []

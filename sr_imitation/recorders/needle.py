@@ -295,8 +295,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
 
     The dataset's bytes are a function of the recording settings (same settings, same files, whatever the
     process's hash seed), so its content digest identifies the demos."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
+    from sr_imitation.lerobot_compat import create_dataset
     from sr_imitation.video import write_mp4
 
     target = cfg.target(skill)
@@ -314,7 +313,7 @@ def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
     expert = ExpertSettings(jaw_close_cm=cfg.expert_jaw_close_mm / 10.0)
     dataset = None
     try:
-        dataset = LeRobotDataset.create(
+        dataset = create_dataset(
             repo_id=f"{cfg.repo_id_prefix}_{skill}",
             fps=cfg.fps,
             features=dataset_features(cfg.image_size, cfg.image_width, cfg.video),
@@ -440,7 +439,7 @@ def report_recorded(record_datasets: Callable[[], list[Path]]) -> None:
     for path in paths:
         print(f"wrote {path.resolve()}")  # noqa: T201  (the CLI reports where the data went)
     videos = [path for path in paths if (path / "videos").is_dir()]
-    if videos:  # lerobot-dataset-viz needs torchcodec's FFmpeg libraries, which this set-up lacks
+    if videos:
         from sr_imitation.recorders.viz import view_hint  # noqa: PLC0415
 
         print(view_hint(videos[0].name, str(videos[0])))  # noqa: T201

@@ -163,7 +163,7 @@ class ReplaceableActor(Protocol):
 C = TypeVar("C")
 
 
-def capability(substrate: object, required: type[C]) -> C:
+def capability[C](substrate: object, required: type[C]) -> C:
     """``substrate`` as the capability ``required`` (a protocol of this module); ``TypeError`` naming both if it
     lacks it (the engine has refused such a method already: this guards direct use)."""
     if not isinstance(substrate, required):

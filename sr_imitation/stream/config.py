@@ -130,6 +130,7 @@ LEROBOT_TRAIN_FLAGS: dict[str, str] = {
                   "(one task per skill in --eval.env_tasks=[...])",
     "--env.task": "one task per skill - --eval.env=lerobot --eval.env_type=<type> --eval.env_tasks=[{value},...]",
     "--eval_freq": "sr-train evaluates after every wake and every sleep (--eval.episodes, --eval.seeds)",
+    "--env_eval_freq": "sr-train evaluates after every wake and every sleep (--eval.episodes, --eval.seeds)",
     "--eval.batch_size": _ONE_AT_A_TIME,
     "--eval.use_async_envs": _ONE_AT_A_TIME,
     "--save_freq": _CHECKPOINTS,

@@ -29,6 +29,7 @@ from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     check_settings,
+    check_stack,
     is_allowed,
     read_fingerprint,
     settings_digest,
@@ -171,11 +172,12 @@ class StreamEngine:
         stored = read_fingerprint(fingerprint_path)
         allowed = tuple(self.substrate.extension_keys)
         mine = {k: v for k, v in self.run_dir.fingerprint.settings.items() if not is_allowed(k, allowed)}
+        check_stack(fingerprint_path, stored, self.run_dir.fingerprint)
         check_settings(fingerprint_path, {k: v for k, v in stored.items() if not is_allowed(k, allowed)},
                        SettingsFingerprint(mine, settings_digest(mine), self.run_dir.fingerprint.allow,
                                            self.run_dir.fingerprint.derived,
-                                           {k: v for k, v in self.run_dir.fingerprint.added.items()
-                                            if not is_allowed(k, allowed)}))
+                                           added={k: v for k, v in self.run_dir.fingerprint.added.items()
+                                                  if not is_allowed(k, allowed)}))
         skills = list(self.substrate.source_skills(stored))
         n = len(skills)
         if not 1 <= n < len(self.skills) or self.skills[:n] != skills:

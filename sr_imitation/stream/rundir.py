@@ -39,6 +39,7 @@ from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
     check_settings,
+    check_stack,
     diff_settings,
     flatten_settings,
     is_allowed,
@@ -377,6 +378,7 @@ class RunDirectory:
             raise CorruptFileError(path, "missing: cannot resume a run without its settings fingerprint (deleted, or "
                                          "not written by this code); start a new run in another output_dir")
         stored = read_fingerprint(path)
+        check_stack(path, stored, self.fingerprint)
         if self.check_inputs is not None:
             self.check_inputs(path, stored)
         check_settings(path, stored, self.fingerprint)

@@ -43,7 +43,7 @@ SUBSTRATES: dict[str, type[SubstrateCommand]] = {}
 """Every registered substrate by name (filled by :func:`register_substrate` as the substrate folders are imported)."""
 
 
-def register_substrate(cls: C) -> C:
+def register_substrate[C: type[SubstrateCommand]](cls: C) -> C:
     """Class decorator: register ``cls`` under ``cls.name`` (names are unique)."""
     if not cls.name or not cls.module:
         raise TypeError(f"{cls.__name__} must set name and module")

@@ -1,8 +1,10 @@
-"""sr-dataset-viz: LeRobot's lerobot-dataset-viz on a dataset recorded with --video=true, where torchcodec does not
-load (this set-up has no FFmpeg shared libraries for it); sr-record says how to view a video dataset."""
+"""Stock lerobot-dataset-viz (LeRobot 0.6) on a dataset recorded with --video=true, where torchcodec does not load;
+sr-record prints a hint that works when pasted (a path with spaces) and writes beside the dataset, not into it."""
 
 from __future__ import annotations
 
+import os
+import shlex
 import subprocess
 import sys
 from pathlib import Path
@@ -10,42 +12,38 @@ from pathlib import Path
 import pytest
 
 from sr_imitation.recorders import needle as rec
-from sr_imitation.recorders.viz import torchcodec_loads
+from sr_imitation.recorders.viz import view_hint, viz_folder
 
 pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
 
 
 @pytest.fixture(scope="module")
 def video_dataset(tmp_path_factory) -> Path:
-    root = tmp_path_factory.mktemp("viz") / "needle"
+    root = tmp_path_factory.mktemp("viz") / "needle data"  # a space: the printed hint must survive pasting
     rec.record(rec.RecordConfig(skills=["approach"], num_episodes=1, root=root, image_size=32, video=True))
     return root / "approach"
 
 
-def _viz(module: str, dataset: Path, out: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", module, "--repo-id", "approach", "--root", str(dataset),
-                           "--episode-index", "0", "--save", "1", "--output-dir", str(out)],
-                          capture_output=True, text=True, timeout=300, check=False)
-
-
-def test_sr_dataset_viz_writes_a_rerun_recording_of_a_video_dataset(video_dataset, tmp_path):
-    done = _viz("sr_imitation.recorders.viz", video_dataset, tmp_path / "viz")
+def test_the_printed_hint_pasted_into_a_shell_writes_a_rerun_recording_beside_the_dataset(video_dataset):
+    hint = view_hint("approach", video_dataset)
+    command = hint.removeprefix("view an episode: ").split("   (then:")[0]
+    argv = shlex.split(command)
+    assert argv[0] == "lerobot-dataset-viz"
+    script = Path(sys.executable).with_name("lerobot-dataset-viz")
+    before = sorted(p.relative_to(video_dataset) for p in video_dataset.rglob("*"))
+    done = subprocess.run(["bash", "-c", command], capture_output=True, text=True, timeout=300, check=False,
+                          env={**os.environ, "PATH": f"{script.parent}{os.pathsep}{os.environ['PATH']}"})
     assert done.returncode == 0, done.stderr[-3000:]
-    recordings = list((tmp_path / "viz").glob("*.rrd"))
+    recordings = list(viz_folder(video_dataset).glob("*.rrd"))
     assert len(recordings) == 1 and recordings[0].stat().st_size > 10_000  # the frames are in it
-
-
-@pytest.mark.skipif(torchcodec_loads(), reason="torchcodec loads on this machine: stock lerobot-dataset-viz works")
-def test_stock_lerobot_dataset_viz_is_what_fails_here(video_dataset, tmp_path):
-    """The reason the command exists: stock lerobot-dataset-viz picks torchcodec because it is installed, and
-    torchcodec cannot load its libraries here."""
-    done = _viz("lerobot.scripts.lerobot_dataset_viz", video_dataset, tmp_path / "viz")
-    assert done.returncode != 0 and "torchcodec" in done.stderr
+    assert viz_folder(video_dataset).parent == video_dataset.parent  # beside, not inside
+    assert sorted(p.relative_to(video_dataset) for p in video_dataset.rglob("*")) == before
 
 
 def test_sr_record_says_how_to_view_a_video_dataset(tmp_path, capsys):
     rec.main([f"--root={tmp_path}", "--skills=[approach]", "--num_episodes=1", "--image_size=32", "--video=true"])
     out = capsys.readouterr().out
-    assert f"sr-dataset-viz --repo-id approach --root {tmp_path / 'approach'}" in out
+    assert f"lerobot-dataset-viz --repo-id approach --root {tmp_path / 'approach'}" in out
+    assert f"--output-dir {tmp_path / 'approach_viz'}" in out
     rec.main([f"--root={tmp_path / 'png'}", "--skills=[approach]", "--num_episodes=1", "--image_size=32"])
-    assert "sr-dataset-viz" not in capsys.readouterr().out  # images in parquet: nothing to decode
+    assert "lerobot-dataset-viz" not in capsys.readouterr().out  # images in parquet: nothing to decode

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
-from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
 from lerobot_policy_act_sr import ACTSRConfig
+from sr_imitation.lerobot_compat import create_dataset
 from sr_imitation.substrates.act.config import SurgicAISleepConfig
 from sr_imitation.substrates.act.evaluate import EvalConfig
 from sr_imitation.substrates.act.trainer import MemoryConfig, StreamConfig, TrainStreamConfig
@@ -41,9 +41,8 @@ def make_skill_dataset(root: Path, skill: str, index: int, episodes: int = 3, fr
     ``sr-record --video=true`` stores it (the episodes of a skill in one mp4 file)."""
     rng = np.random.default_rng(index)
     weights = rng.normal(size=(state_dim, action_dim)).astype(np.float32) * 0.3
-    ds = LeRobotDataset.create(repo_id=f"local/sr_needle_{skill}", fps=10, root=root / skill, robot_type="sim",
-                               use_videos=video, features=features(image, state_dim, action_dim, video),
-                               **({"vcodec": "h264"} if video else {}))
+    ds = create_dataset(repo_id=f"local/sr_needle_{skill}", fps=10, root=root / skill, robot_type="sim",
+                        use_videos=video, features=features(image, state_dim, action_dim, video), vcodec="h264")
     for _ in range(episodes):
         for _ in range(frames):
             state = rng.normal(size=state_dim).astype(np.float32) + (index if offset is None else offset)

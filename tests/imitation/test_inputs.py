@@ -360,21 +360,6 @@ def test_a_damaged_file_is_named_on_the_command_line(state_datasets, tmp_path, m
     assert not out.exists()
 
 
-def test_torchvisions_video_notice_is_kept_out_of_the_output():
-    """LeRobot's pyav backend decodes through torchvision, whose deprecation notice printed once in every process
-    that decodes (four times for a tiny stream with two workers); the data module keeps it out (workers fork with
-    the filter), and other warnings still print. A fresh interpreter: pytest's own configuration hides the notice."""
-    import subprocess
-    import sys
-
-    code = ("import warnings, sr_imitation.substrates.act.data\n"
-            "from torchvision.io._video_deprecation_warning import _raise_video_deprecation_warning\n"
-            "_raise_video_deprecation_warning()\n"
-            "warnings.warn('another notice', UserWarning, stacklevel=1)\n")
-    err = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True).stderr
-    assert "another notice" in err and "torchvision" not in err, err
-
-
 def test_a_state_only_dataset_under_the_image_default_is_one_line_naming_the_file_and_the_flag(state_datasets,
                                                                                               tmp_path, capsys):
     """LeRobot's own ACT refuses inputs without a camera or an environment state ("You must provide at least one

@@ -207,7 +207,7 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
            "--policy.n_encoder_layers=1", "--policy.n_vae_encoder_layers=1", "--policy.chunk_size=8",
            "--policy.n_action_steps=8", "--dataset.repo_id=local/sr_needle_approach",
            f"--dataset.root={tmp / 'datasets' / 'approach'}", "--dataset.video_backend=pyav", "--steps=2",
-           "--batch_size=2", "--num_workers=0", "--eval_freq=0", "--save_freq=2", "--wandb.enable=false",
+           "--batch_size=2", "--num_workers=0", "--env_eval_freq=0", "--save_freq=2", "--wandb.enable=false",
            f"--output_dir={out}"]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 0, proc.stderr[-3000:]

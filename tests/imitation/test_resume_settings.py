@@ -36,6 +36,7 @@ from sr_imitation.infra.fingerprint import (
     write_fingerprint,
 )
 from sr_imitation.io import CorruptFileError, read_config_json
+from sr_imitation.lerobot_compat import lerobot_version
 from sr_imitation.stream import methods_for
 from sr_imitation.substrates.act.substrate import ACTSubstrate
 from sr_imitation.substrates.act.trainer import (
@@ -78,6 +79,7 @@ CHOICES: dict[str, list[Any]] = {
     "sleep.anchor_tau": [0.5],
     "policy.temporal_ensemble_coeff": [0.01],
     "policy.pretrained_path": ["outputs/other/pretrained_model"],
+    "policy.pretrained_revision": ["v1.0"],
     "policy.pretrained_backbone_weights": ["ResNet18_Weights.IMAGENET1K_V1"],
     "policy.repo_id": ["user/act_sr"],
     "policy.private": [True],
@@ -207,7 +209,9 @@ def test_the_stored_files_hold_every_setting_but_not_the_run_location(stored):
     assert not any(is_allowed(k, RESUME_ALLOW_LIST) for k in settings)
     expected = {".".join(p) for p, _ in leaves(saved) if not is_allowed(".".join(p), RESUME_ALLOW_LIST)}
     inputs = {f"inputs.datasets.{skill}" for skill in STREAM}  # each dataset's content digest
-    assert set(settings) == expected | SR_OPTIONS | inputs  # + the method's own settings (sr: its options)
+    # + the method's own settings (sr: its options) and the LeRobot version the numbers are computed with
+    assert set(settings) == expected | SR_OPTIONS | inputs | {"stack.lerobot"}
+    assert settings["stack.lerobot"] == lerobot_version()
     assert all(len(settings[k]) == 64 for k in inputs)
     assert settings["method_config.expert_memory"] == "off" and settings["method_config.reset_wake"] is False
     assert {"sleep.batch_size", "policy.n_action_steps", "sleep.anchor_tau", "policy.dim_feedforward",
@@ -256,7 +260,8 @@ def test_every_fingerprinted_setting_changed_on_resume_is_refused_naming_it(stor
     # every fingerprinted setting was visited; method_config is derived from --method and the method's defaults
     # (tests/rl/test_baselines.py::test_a_methods_own_defaults_are_fingerprinted)
     inputs = {k for k in stored_settings if k.startswith("inputs.datasets.")}  # test_inputs.py changes them
-    assert covered | SR_OPTIONS | inputs == set(stored_settings) and len(inputs) == len(STREAM)
+    # stack.lerobot is the installed LeRobot's version, not a setting: tests/test_lerobot_044_runs.py changes it
+    assert covered | SR_OPTIONS | inputs | {"stack.lerobot"} == set(stored_settings) and len(inputs) == len(STREAM)
     assert set(SKIP) <= covered and len(refused) == len(covered) - len(SKIP) >= 60
 
 
@@ -267,7 +272,7 @@ def test_every_allow_listed_setting_changed_on_resume_is_accepted(stored, state_
     shutil.copytree(state_datasets, moved)
     cache = tmp_path / "hf_lerobot"  # ... or in a local LeRobot cache, named by repo_id
     shutil.copytree(state_datasets, cache / "user")
-    monkeypatch.setattr("lerobot.datasets.lerobot_dataset.HF_LEROBOT_HOME", cache)
+    monkeypatch.setattr("lerobot.datasets.dataset_metadata.HF_LEROBOT_HOME", cache)
     resolved = {"<moved>": str(moved), "<moved paths>": [str(moved / s) for s in STREAM],
                 "<cached repo_ids>": [f"user/{s}" for s in STREAM]}
     everything = saved

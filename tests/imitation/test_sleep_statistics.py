@@ -240,7 +240,7 @@ def test_the_stock_route_lerobot_train_twice_then_sr_sleep(jaw_datasets, tmp_pat
     bin_dir = Path(sys.executable).parent
     common = ["--policy.sleep=true", "--policy.sleep_memory_size=8", "--policy.push_to_hub=false",
               "--policy.device=cpu", "--dataset.video_backend=pyav", "--steps=4", "--batch_size=4",
-              "--num_workers=0", "--eval_freq=0", "--save_freq=4", "--wandb.enable=false"]
+              "--num_workers=0", "--env_eval_freq=0", "--save_freq=4", "--wandb.enable=false"]
     tiny = ["--policy.type=act_sr", "--policy.dim_model=32", "--policy.n_heads=2", "--policy.dim_feedforward=64",
             "--policy.n_encoder_layers=1", "--policy.n_vae_encoder_layers=1", "--policy.chunk_size=4",
             "--policy.n_action_steps=4"]

@@ -286,3 +286,19 @@ def test_derived_settings_are_fingerprinted_and_a_run_that_predates_them_still_m
         check_settings(tmp_path / "x.json", {k: v for k, v in older.items() if k != "inner.lr"}, current)
     with pytest.raises(ValueError, match=r"derived settings \['seed'\] are also settings"):
         settings_fingerprint(Outer(), (), {"seed": 3})
+
+
+def test_a_resume_under_another_library_version_is_refused_first_in_one_line(tmp_path):
+    """``stack.*`` keys (library versions) are checked before every other setting: one line naming each library with
+    both versions and the fingerprint's hint; equal versions pass; a run that recorded none counts as ``added``'s."""
+    from sr_imitation.infra.fingerprint import StackMismatchError, check_stack, settings_fingerprint
+
+    current = settings_fingerprint({"lr": 1.0}, derived={"stack": {"lerobot": "0.6.1"}},
+                                   added={"stack.lerobot": "0.4.4"}, stack_hint="use tag v0")
+    check_stack(tmp_path / "f.json", {"lr": 2.0, "stack.lerobot": "0.6.1"}, current)  # settings are not its business
+    for stored, made in (({"lr": 2.0, "stack.lerobot": "0.6.0"}, "0.6.0"), ({"lr": 2.0}, "0.4.4")):
+        with pytest.raises(StackMismatchError) as refused:
+            check_stack(tmp_path / "f.json", stored, current)
+        message = str(refused.value)
+        assert message == (f"{tmp_path / 'f.json'}: this run was made with lerobot {made} and cannot resume under "
+                           "lerobot 0.6.1 (another release computes other numbers): use tag v0")

@@ -18,6 +18,6 @@ wt="$(pinned_worktree "$root" "$1")"
 shift 2
 cd "$wt"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
-export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr${PYTHONPATH:+:$PYTHONPATH}"
+export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr:$wt/policies/lerobot_env_sr${PYTHONPATH:+:$PYTHONPATH}"
 nohup setsid "$root/.venv/bin/python" "$@" > "$log" 2>&1 &
 echo "started in $wt (pid $!), log $log"

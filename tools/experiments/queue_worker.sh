@@ -53,7 +53,7 @@ while true; do
   echo "$(date -u +%FT%TZ) start $name on $cpu$isa" >> "$queue.done"
   if wt="$(pinned_worktree "$root" "$commit")"; then
     # shellcheck disable=SC2086  (the line's arguments are split as a shell splits them, without globbing)
-    (cd "$wt" && set -f && export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr" \
+    (cd "$wt" && set -f && export PYTHONPATH="$wt:$wt/policies/lerobot_policy_act_sr:$wt/policies/lerobot_env_sr" \
       && exec "$root/.venv/bin/python" $args) > "$logs/$name.log" 2>&1
     rc=$?
   else

@@ -310,9 +310,10 @@ class ACTSRPolicy(ACTPolicy):
                                              snapshot=MEMORY_SNAPSHOT, batch_size=batch_size,
                                              reduction=self.config.distill_reduction)
 
-    def _save_pretrained(self, save_directory: Path) -> None:
-        """LeRobot's checkpoint, plus :data:`MEMORY_FILE` when ``config.sleep`` (see :meth:`frozen_memory`)."""
-        super()._save_pretrained(save_directory)
+    def _save_pretrained(self, save_directory: Path, state_dict: dict[str, Tensor] | None = None) -> None:
+        """LeRobot's checkpoint (``state_dict``: a pre-gathered one, as LeRobot passes it), plus :data:`MEMORY_FILE`
+        when ``config.sleep`` (see :meth:`frozen_memory`)."""
+        super()._save_pretrained(save_directory, state_dict=state_dict)
         if self._reservoir is None:
             return
         memory = self.frozen_memory()

@@ -6,8 +6,8 @@ Meta-World's 39 numbers) and a 480 x 480 image; the datasets ``sr-record --env=m
 policies trained on them, read Meta-World's whole 39-number observation (goal visible, as its MT benchmarks give it):
 this type evaluates them with stock ``lerobot-eval`` in exactly the environment ``sr-train --eval.env=metaworld``
 uses (:class:`~sr_imitation.envs.metaworld.env.MetaWorldEnv`: configurations the scripted policy solves, success =
-Meta-World's ``info["success"]``, the episode ending at the first success). Its name must not contain "metaworld":
-LeRobot 0.4.4's ``make_env`` sends every such type to its own Meta-World builder.
+Meta-World's ``info["success"]``, the episode ending at the first success). LeRobot 0.6 imports it through the env
+plugin ``lerobot_env_sr``.
 
 Observation keys map as ``agent_pos -> observation.state`` and ``pixels/<camera> -> observation.images.<camera>``,
 matching ``sr-record --env=metaworld`` (``--camera=<camera>`` for images). The gym id ``sr_meta_world/<task>`` is

@@ -1,7 +1,6 @@
 """LeRobot ``EnvConfig`` for the needle environment: ``lerobot-eval --env.type=needle --env.task=<skill>``.
 
-LeRobot 0.4.4 has no ``lerobot_env_*`` auto-discovery (integration notes §1, §5), so load it with
-``--env.discover_packages_path=sr_imitation.envs.needle`` (or import this module, as the ACT-SR plugin does).
+LeRobot 0.6 imports it through the env plugin ``lerobot_env_sr`` (auto-discovered by its ``lerobot_env_`` prefix).
 Observation keys map as ``pixels/wrist -> observation.images.wrist`` and ``agent_pos -> observation.state``,
 matching the datasets written by ``sr-record``.
 """

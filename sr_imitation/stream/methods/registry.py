@@ -23,7 +23,7 @@ METHODS: dict[str, type[ContinualMethod]] = {}
 M = TypeVar("M", bound=type[ContinualMethod])
 
 
-def register_method(cls: M) -> M:
+def register_method[M: type[ContinualMethod]](cls: M) -> M:
     """Class decorator: register ``cls`` under ``cls.name`` (names are unique)."""
     if not cls.name:
         raise TypeError(f"{cls.__name__} must set name")

@@ -58,7 +58,7 @@ def act_sr_choices_only() -> Iterator[None]:
 T = TypeVar("T")
 
 
-def parse_config(cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str], *,
+def parse_config[T](cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str], *,
                  prog: str = "sr-train", prefix: str = "", names: dict[str, str] | None = None,
                  notes: dict[str, str] | None = None, help_values: tuple[str, dict] | None = None) -> T:
     """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`), with the teaching

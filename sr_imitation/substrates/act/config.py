@@ -23,11 +23,13 @@ from lerobot_policy_act_sr import ACTSRConfig
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.infra.fingerprint import (
     RUN_DIRECTORY,
+    STACK_KEY,
     SettingsFingerprint,
     check_finite,
     settings_fingerprint,
     to_jsonable,
 )
+from sr_imitation.lerobot_compat import LEGACY_TAG, lerobot_version
 from sr_imitation.recorders.needle import RecordConfig
 from sr_imitation.stream import method_class, method_config
 from sr_imitation.stream.config import (
@@ -310,6 +312,7 @@ SETTINGS_ADDED: dict[str, Any] = {
     "stream.stats": "first",
     "stream.reexpress_inputs": True,
     "sleep.early_stop_scale": "window",  # 2026-11-29 (issue 59)
+    "stack.lerobot": "0.4.4",  # 2026-12-07 (issue 86): every run before the port was made with LeRobot 0.4.4
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
 (the needle environment): a stored fingerprint without one of them resumes with that value and is refused
@@ -333,6 +336,18 @@ def inputs_check(cfg: TrainStreamConfig, inputs: dict[str, str]) -> Callable[[Pa
     return lambda path, stored: check_inputs(path, stored, inputs, paths, cfg.allow_unhashed_inputs)
 
 
+def stack() -> dict[str, str]:
+    """The library versions a run's numbers depend on (``stack`` in its fingerprint): LeRobot's (0.6 changed ACT's
+    loss and the recorded image statistics)."""
+    return {"lerobot": lerobot_version()}
+
+
+STACK_HINT = (f"a run made with LeRobot 0.4.4 continues at git tag {LEGACY_TAG} (Python 3.11, its "
+              ".ci/constraints.txt; its checkpoints and datasets load here), any other in an environment with the "
+              "LeRobot it names; or start a new run in another output_dir")
+"""What :class:`~sr_imitation.infra.fingerprint.StackMismatchError` tells a user to do."""
+
+
 def resume_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = None) -> SettingsFingerprint:
     """The settings of ``cfg`` that a resume must keep (everything but :data:`RESUME_ALLOW_LIST`), plus the method's
     own settings with their defaults (``method_config``, :func:`~sr_imitation.stream.methods.method_config`) and the
@@ -340,7 +355,8 @@ def resume_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = N
     inputs = stream_inputs(cfg) if inputs is None else inputs
     return settings_fingerprint(_config_dict(cfg), RESUME_ALLOW_LIST,
                                 {"method_config": method_config(cfg.method, cfg.method_options),
-                                 "inputs": {"datasets": inputs}}, added=SETTINGS_ADDED)
+                                 "inputs": {"datasets": inputs}, STACK_KEY: stack()}, added=SETTINGS_ADDED,
+                                stack_hint=STACK_HINT)
 
 
 def stored_config_dict(cfg: TrainStreamConfig) -> dict[str, Any]:

@@ -26,7 +26,6 @@ from __future__ import annotations
 import copy
 import json
 import logging
-import warnings
 from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,22 +34,17 @@ from typing import Any
 import numpy as np
 import torch
 from lerobot.configs.types import FeatureType, PolicyFeature
+from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
 from lerobot.datasets.factory import resolve_delta_timestamps
-from lerobot.datasets.lerobot_dataset import LeRobotDataset, LeRobotDatasetMetadata
-from lerobot.datasets.utils import dataset_to_policy_features
+from lerobot.datasets.lerobot_dataset import LeRobotDataset
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
 from torch import Tensor
 
 from lerobot_policy_act_sr.actor_memory import images_to_uint8
 from sr_imitation.io import CorruptFileError, load_checked_safetensors, save_checked_safetensors
+from sr_imitation.lerobot_compat import dataset_to_policy_features, lerobot_home
 
 logger = logging.getLogger(__name__)
-
-TORCHVISION_VIDEO_NOTICE = "The video decoding and encoding capabilities of torchvision are deprecated"
-"""The start of torchvision 0.25's notice on its video decoding, which LeRobot's ``pyav`` backend goes through: it
-printed once in every process that decodes (each DataLoader worker), and there is nothing a user can do about it
-here (torchcodec does not load on these machines), so it is kept out of the output (our choice)."""
-warnings.filterwarnings("ignore", message=TORCHVISION_VIDEO_NOTICE, category=UserWarning)  # workers fork with it
 
 STATS_KEYS = ("mean", "std", "min", "max")
 
@@ -76,9 +70,7 @@ def dataset_info_path(root: Path) -> Path:
 def lerobot_cache_path(repo_id: str) -> Path:
     """Where ``LeRobotDataset(repo_id)`` without a ``root`` keeps the dataset: ``$HF_LEROBOT_HOME/<repo_id>``
     (default ``~/.cache/huggingface/lerobot/<repo_id>``), read from LeRobot's own constant at call time."""
-    from lerobot.datasets import lerobot_dataset
-
-    return Path(lerobot_dataset.HF_LEROBOT_HOME) / repo_id
+    return lerobot_home() / repo_id
 
 
 def cached_dataset_path(repo_id: str, key: str) -> Path:

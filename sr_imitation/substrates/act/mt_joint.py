@@ -32,11 +32,12 @@ from typing import Any
 import numpy as np
 import torch
 
-from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
+from sr_imitation.infra.fingerprint import STACK_KEY, SettingsFingerprint, settings_fingerprint
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.reporting.results import build_results, write_results
 from sr_imitation.stream.rundir import RunDirectory
 from sr_imitation.substrates.act.cli import _setup_logging, parse_train_args
+from sr_imitation.substrates.act.config import STACK_HINT, stack
 from sr_imitation.substrates.act.data import SkillData, check_stream_datasets, load_metadata, load_skill_data
 from sr_imitation.substrates.act.report import pair_list
 from sr_imitation.substrates.act.substrate import WAKE_SNAPSHOT, ACTSubstrate
@@ -102,8 +103,9 @@ def joint_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = No
     """The settings an oracle run is fingerprinted with (checked on resume and by the drivers' archive), with the
     datasets' content digests (``inputs.datasets.<skill>``, computed unless given)."""
     inputs = stream_inputs(cfg) if inputs is None else inputs
-    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST, {"inputs": {"datasets": inputs}},
-                                added=SETTINGS_ADDED)
+    return settings_fingerprint(joint_stored_config(cfg), RESUME_ALLOW_LIST,
+                                {"inputs": {"datasets": inputs}, STACK_KEY: stack()}, added=SETTINGS_ADDED,
+                                stack_hint=STACK_HINT)
 
 
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:

@@ -70,7 +70,6 @@ from lerobot.configs.policies import PreTrainedConfig
 from lerobot.policies.factory import make_pre_post_processors
 from lerobot.processor.normalize_processor import NormalizerProcessorStep, UnnormalizerProcessorStep
 from lerobot.utils.constants import ACTION, OBS_ENV_STATE, OBS_STATE
-from lerobot.utils.utils import is_torch_device_available
 from safetensors.torch import load_file
 
 from lerobot_policy_act_sr import ACTSRConfig, ACTSRPolicy
@@ -89,6 +88,7 @@ from sr_imitation.io import (
     verify_manifest,
     write_checked_json,
 )
+from sr_imitation.lerobot_compat import is_torch_device_available
 from sr_imitation.progress import format_duration
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, OverwriteRefusedError, check_run_config, few_names
 from sr_imitation.substrates.act.config import SurgicAISleepConfig

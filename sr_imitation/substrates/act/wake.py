@@ -183,7 +183,8 @@ def hooked_update(tracker: MetricsTracker, policy: Any, batch: dict[str, torch.T
     start = time.perf_counter()
     processes = processes or Processes()
     policy.train()
-    batch, share = shard(hooks.batch(batch), processes)
+    # LeRobot 0.6's ACT L1 loss is a mean over non-padded elements: slices are weighted by their count of them.
+    batch, share = shard(hooks.batch(batch), processes, pad_key="action_is_pad")
     with mixed_precision(policy):
         loss, output = policy.forward(batch)
         loss = hooks.loss(loss)
