@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import fcntl
 import json
 import os
@@ -22,9 +23,18 @@ the run's own entries (:func:`sr_imitation.stream.rundir.run_entries_problem`) n
 ``--overwrite``, which renames the folder aside, cannot move the lock with it). Code that removes hidden leftovers
 beside a folder (``.<name>.*``) must leave it alone: :func:`is_lock_file`."""
 
-_HELD: dict[Path, list[int]] = {}
-"""Lock path -> [file descriptor, depth] of the locks this process holds (a command that locks its folder and then
-runs a stream that locks it again holds it once)."""
+@dataclasses.dataclass
+class _Hold:
+    """One lock this process holds: its open file, how many holds are open (a command that locks its folder and then
+    runs a stream that locks it again holds it once), and the folders above it that taking it made."""
+
+    fd: int
+    depth: int
+    made: list[Path]
+
+
+_HELD: dict[Path, _Hold] = {}
+"""Lock path -> the hold of each lock this process holds."""
 _HELD_GUARD = threading.Lock()
 
 
@@ -95,7 +105,8 @@ def describe_holder(text: str) -> str:
 
 def _open_locked(path: Path, folder: Path) -> int:
     """Open and lock ``path`` without waiting; retried while the file it locked is no longer the one at ``path`` (a
-    holder that released it removed it in between).
+    holder that released it removed it in between), or while the folder holding ``path`` vanishes (a holder that
+    made it removed it, empty, as it gave the lock back).
 
     Args:
         path: the lock file.
@@ -108,9 +119,16 @@ def _open_locked(path: Path, folder: Path) -> int:
         FolderBusyError: another process holds the lock.
         WriteError: the lock file cannot be created.
     """
+    vanished = 0
     while True:
         try:
             fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+        except FileNotFoundError as exc:
+            vanished += 1
+            if vanished > 10:
+                raise WriteError(path, exc, f"cannot lock {folder}; nothing was written") from exc
+            _make_parents(path, folder)
+            continue
         except OSError as exc:
             raise WriteError(path, exc, f"cannot lock {folder}; nothing was written") from exc
         try:
@@ -123,6 +141,37 @@ def _open_locked(path: Path, folder: Path) -> int:
         if _same_file(fd, path):
             return fd
         os.close(fd)  # removed (and perhaps made again) by a holder that just released it: lock the current file
+
+
+def _make_parents(path: Path, folder: Path) -> list[Path]:
+    """Make the folders above the lock file ``path`` that are missing; returns them, deepest first.
+
+    Args:
+        path: the lock file.
+        folder: the folder it locks (for the message).
+
+    Returns:
+        The folders made.
+
+    Raises:
+        WriteError: one cannot be made (a file in the way, no permission).
+    """
+    missing = [p for p in (path.parent, *path.parent.parents) if not p.exists()]
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise WriteError(path.parent, exc, f"cannot lock {folder}; nothing was written") from exc
+    return missing
+
+
+def _remove_made(made: list[Path]) -> None:
+    """Remove the folders :func:`_make_parents` made that are still empty (deepest first): a command refused or
+    failed before writing its folder leaves no empty folders behind."""
+    for folder in made:
+        try:
+            folder.rmdir()
+        except OSError:
+            return  # not empty (the run was written there) or gone: the folders above hold it too
 
 
 def _read_record(fd: int) -> str:
@@ -150,7 +199,8 @@ def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
     """Take the lock of ``folder`` for this process (again, if it holds it already: counted, see :func:`release`).
 
     Args:
-        folder: the run or output folder about to be written; its parent is made if missing.
+        folder: the run or output folder about to be written; its parent is made if missing (and removed again by
+            :func:`release` if nothing was written there).
         command: the command's name, recorded for the refusal of a second writer (default: the program's).
 
     Returns:
@@ -163,23 +213,25 @@ def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
     path = lock_path(folder)
     with _HELD_GUARD:
         if path in _HELD:
-            _HELD[path][1] += 1
+            _HELD[path].depth += 1
             return path
+        made = _make_parents(path, Path(folder))
         try:
-            path.parent.mkdir(parents=True, exist_ok=True)
-        except OSError as exc:
-            raise WriteError(path.parent, exc, f"cannot lock {folder}; nothing was written") from exc
-        fd = _open_locked(path, Path(folder))
+            fd = _open_locked(path, Path(folder))
+        except BaseException:
+            _remove_made(made)
+            raise
         record = json.dumps(holder_record(command)).encode()
         os.ftruncate(fd, 0)
         os.pwrite(fd, record, 0)
-        _HELD[path] = [fd, 1]
+        _HELD[path] = _Hold(fd, 1, made)
         return path
 
 
 def release(path: Path) -> None:
     """Give back one hold of the lock :func:`acquire` returned ``path`` for; the last one removes the lock file (while
-    still holding it, so that a process waiting on the old file retries on a new one) and unlocks it.
+    still holding it, so that a process waiting on the old file retries on a new one), unlocks it, and removes the
+    folders above it that :func:`acquire` made if they are still empty.
 
     Args:
         path: the lock file's path, as :func:`acquire` returned it.
@@ -188,13 +240,14 @@ def release(path: Path) -> None:
         held = _HELD.get(path)
         if held is None:
             return
-        held[1] -= 1
-        if held[1] > 0:
+        held.depth -= 1
+        if held.depth > 0:
             return
         del _HELD[path]
         with contextlib.suppress(FileNotFoundError):
             path.unlink()
-        os.close(held[0])  # closing the last descriptor of the open file unlocks it
+        os.close(held.fd)  # closing the last descriptor of the open file unlocks it
+        _remove_made(held.made)
 
 
 @contextlib.contextmanager

@@ -194,3 +194,18 @@ def test_the_refusal_waits_briefly_for_a_holder_still_writing_its_record(tmp_pat
     finally:
         os.close(fd)
     assert time.monotonic() - started < 2
+
+
+def test_folders_made_for_the_lock_are_removed_again_unless_something_was_written_there(tmp_path):
+    refused = tmp_path / "a" / "b" / "run"
+    with hold_folder(refused) as path:
+        assert path.parent == tmp_path / "a" / "b"  # made, to hold the lock file
+    assert list(tmp_path.iterdir()) == []  # a command that wrote nothing leaves no empty folders
+    written = tmp_path / "c" / "d" / "run"
+    with hold_folder(written):
+        written.mkdir()
+    assert written.is_dir() and sorted(p.name for p in written.parent.iterdir()) == ["run"]
+    (tmp_path / "e").mkdir()
+    with hold_folder(tmp_path / "e" / "run"):
+        pass
+    assert (tmp_path / "e").is_dir()  # a folder that was there before is never removed
