@@ -17,6 +17,7 @@ import sys
 from pathlib import Path
 
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.recorders.needle import ensure_recorded
 from sr_imitation.substrates.act.cli import parse_config, parse_preset
@@ -39,6 +40,14 @@ def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:
 
 
 def run_main_job(cfg: MainJobConfig) -> dict:
+    """Record what is missing, run the stream and write the expert video, as the only writer of
+    ``train.output_dir`` (its lock held throughout; the datasets' root is locked while it is recorded into)."""
+    with hold_folder(cfg.train.output_dir, "sr-main"):
+        return _run_main_job(cfg)
+
+
+def _run_main_job(cfg: MainJobConfig) -> dict:
+    """:func:`run_main_job` once ``train.output_dir``'s lock is held."""
     ensure_recorded(cfg.record)  # datasets of other record settings: refused, not reused
     results = train_stream(cfg.train)
     if cfg.expert_video:

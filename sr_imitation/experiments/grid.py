@@ -55,6 +55,7 @@ from typing import Any, Protocol
 from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import format_duration
 from sr_imitation.reporting.results import final_headline
@@ -222,14 +223,16 @@ def completed_phases(out: Path) -> list[str]:
 
 
 def run_one(substrate: GridSubstrate, variant: str, run: Any) -> dict[str, Any]:
-    """Run or resume one run: ``resume`` is decided now (a retried task finds its killed attempt's directory and
+    """Run or resume one run as the only writer of its directory (its lock, taken before the directory is looked at
+    and held to the end): ``resume`` is decided now (a retried task finds its killed attempt's directory and
     continues it); returns the wall time and the phases that were already done."""
     run = copy.copy(run)
-    run.resume = RunDirectory.occupied(run.output_dir)
-    done = completed_phases(run.output_dir)
-    start = time.perf_counter()
-    substrate.run(variant, run)
-    return {"wall_s": time.perf_counter() - start, "resumed_phases": done}
+    with hold_folder(run.output_dir, "sr-grid"):
+        run.resume = RunDirectory.occupied(run.output_dir)
+        done = completed_phases(run.output_dir)
+        start = time.perf_counter()
+        substrate.run(variant, run)
+        return {"wall_s": time.perf_counter() - start, "resumed_phases": done}
 
 
 def _arm_kill_hook(out: Path) -> None:

@@ -13,6 +13,10 @@
   :data:`sr_imitation.stream.config.LEROBOT_TRAIN_FLAGS`). Every other usage error argparse finds (a choice
   outside the list, a missing value) is one line too: :class:`~sr_imitation.infra.cli_errors.UsageError`, which
   :func:`~sr_imitation.infra.cli_errors.run_cli` prints with a pointer to ``--help``.
+* Every value is the type its field claims, on the command line and in the ``--config_path`` file: a number refuses
+  a boolean, null and text that is not a number, a boolean refuses a number (:mod:`sr_imitation.infra.value_types`;
+  draccus would take ``--sleep.lr=true`` as 1.0 and ``"max_epochs": true`` as 1), one line naming the key and the
+  value, before anything is built.
 * Abbreviated flags are refused (argparse would take ``--wake.batch=4`` as ``--wake.batch_size=4``): a prefix of
   a flag is answered like any other unknown flag, with the full name.
 """
@@ -42,6 +46,7 @@ from draccus.argparsing import ArgumentParser
 from draccus.wrappers import docstring as draccus_docstring
 
 from sr_imitation.infra.cli_errors import UsageError
+from sr_imitation.infra.value_types import check_settings, flag_problem
 from sr_imitation.io import read_config_json
 
 logger = logging.getLogger(__name__)
@@ -210,6 +215,9 @@ def parse_command[T](cls: type[T], args: Sequence[str] | None, *, prog: str, con
         known = option_names(parser, prefix)
         args = apply_flag_names(args, known, names or {}, prog)
         check_flags_known(args, known)
+        check_flag_types(cls, args, prefix)
+        if settings is not None:
+            check_settings(cls, settings, str(config_path))
         full = [f"--{prefix}{a[2:]}" if prefix and a.startswith("--") and a != "--" else a for a in args]
         full = keep_text_verbatim(cls, full)
         try:
@@ -220,6 +228,25 @@ def parse_command[T](cls: type[T], args: Sequence[str] | None, *, prog: str, con
                 if message.startswith(f"argument {flag}:"):
                     message = f"{message}; {note}"
             raise UsageError(message) from None
+
+
+def check_flag_types(cls: type, args: Sequence[str], prefix: str = "") -> None:
+    """A :class:`UsageError` naming the first flag of ``args`` whose value is not the type of its field: a number
+    given a boolean, null or text, a boolean given a number (:func:`~sr_imitation.infra.value_types.flag_problem`;
+    draccus would take ``--sleep.lr=true`` as 1.0). Flags are named as given (``prefix``: as in
+    :func:`parse_command`).
+
+    Args:
+        cls: the command's config dataclass.
+        args: the command line.
+        prefix: the section the flags address (``train.``), or "".
+    """
+    for _, name, value in _flag_tokens(args):
+        if value is None or name == "--config_path":
+            continue
+        problem = flag_problem(cls, f"{prefix}{name[2:]}", value)
+        if problem is not None:
+            raise UsageError(f"{name[2:]}: {problem} ({name}={value})")
 
 
 _YAML_SHAPED = re.compile(r"^\s*[\[{#&*!|>%@`-]|: |:$| #")

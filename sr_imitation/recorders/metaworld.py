@@ -43,6 +43,7 @@ from sr_imitation.envs.metaworld.tasks import (
 )
 from sr_imitation.envs.metaworld.video import CAMERAS
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.io import write_checked_json
 from sr_imitation.progress import Progress
 from sr_imitation.recorders.needle import (
@@ -227,7 +228,14 @@ def record_task(cfg: MetaWorldRecordConfig, task: str, task_index: int) -> Path:
 def record(cfg: MetaWorldRecordConfig) -> list[Path]:
     """Record every task in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``, or, with
     ``overwrite``, if a target is not a dataset sr-record wrote
-    (:func:`sr_imitation.recorders.needle.foreign_dataset_problem`: nothing is removed)."""
+    (:func:`sr_imitation.recorders.needle.foreign_dataset_problem`: nothing is removed). ``cfg.root``'s lock is held
+    throughout, taken before the targets are looked at."""
+    with hold_folder(cfg.root, "sr-record"):
+        return _record(cfg)
+
+
+def _record(cfg: MetaWorldRecordConfig) -> list[Path]:
+    """:func:`record` once ``cfg.root``'s lock is held."""
     for task in cfg.skills:
         target = cfg.target(task)
         if not (target.exists() or target.is_symlink()):

@@ -30,6 +30,7 @@ from sr_imitation.envs.needle.expert import ExpertSettings, NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, skill_from_name
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import Progress
@@ -412,18 +413,20 @@ def check_overwrite(cfg: RecordConfig) -> None:
 
 
 def record(cfg: RecordConfig) -> list[Path]:
-    """Record every skill in ``cfg.skills``; refuses up front if a target exists and not ``overwrite``, or, with
-    ``overwrite``, if a target is not a dataset of ours (:func:`check_overwrite`)."""
-    if not cfg.overwrite:
-        existing = [str(cfg.target(s)) for s in cfg.skills if cfg.target(s).exists()]
-        if existing:
-            raise FileExistsError(
-                f"Dataset(s) already exist: {existing}; pass --overwrite=true to replace them"
-            )
-    else:
-        check_overwrite(cfg)
-    with quiet_dataset_progress():
-        return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
+    """Record every skill in ``cfg.skills`` as the only writer of ``cfg.root`` (its lock held throughout, taken before
+    the targets are looked at); refuses up front if a target exists and not ``overwrite``, or, with ``overwrite``, if
+    a target is not a dataset of ours (:func:`check_overwrite`)."""
+    with hold_folder(cfg.root, "sr-record"):
+        if not cfg.overwrite:
+            existing = [str(cfg.target(s)) for s in cfg.skills if cfg.target(s).exists()]
+            if existing:
+                raise FileExistsError(
+                    f"Dataset(s) already exist: {existing}; pass --overwrite=true to replace them"
+                )
+        else:
+            check_overwrite(cfg)
+        with quiet_dataset_progress():
+            return [record_skill(cfg, skill, SKILL_NAMES.index(skill)) for skill in cfg.skills]
 
 
 def report_recorded(record_datasets: Callable[[], list[Path]]) -> None:

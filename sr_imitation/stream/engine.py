@@ -34,6 +34,7 @@ from sr_imitation.infra.fingerprint import (
     read_fingerprint,
     settings_digest,
 )
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.infra.runlog import RunLog, WandbConfig
 from sr_imitation.io import read_checked_json
@@ -107,10 +108,17 @@ class StreamEngine:
     def run(self, stop_after: int | None = None, report: bool = True) -> dict[str, Any]:
         """Run every pending phase; with ``stop_after=k`` stop after stage k (1-based) and return the progress
         record instead of the results (partial runs); ``report=False``: the progress record, never the results (a
-        process that does not evaluate, :mod:`sr_imitation.infra.distributed`)."""
+        process that does not evaluate, :mod:`sr_imitation.infra.distributed`). The run directory's lock
+        (:func:`~sr_imitation.infra.folder_lock.hold_folder`) is held throughout, taken before the directory is
+        looked at: a second writer of the same run is refused in one line, before it writes anything."""
         last = len(self.skills) if stop_after is None else stop_after
         if not 1 <= last <= len(self.skills):
             raise ValueError(f"stop_after must be in 1..{len(self.skills)}, got {stop_after}")
+        with hold_folder(self.run_dir.path):
+            return self._run_owned(last, report)
+
+    def _run_owned(self, last: int, report: bool) -> dict[str, Any]:
+        """:meth:`run` once the run directory's lock is held."""
         log_code_version(logger)
         fresh = self.run_dir.starts_fresh()
         source = self._check_extension() if self.extend_from is not None and fresh else None  # before writing

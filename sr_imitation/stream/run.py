@@ -23,6 +23,7 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.infra.fingerprint import SettingsFingerprint
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.stream.config import RunConfig, check_shared_settings
 from sr_imitation.stream.engine import StreamEngine
 from sr_imitation.stream.methods import ContinualMethod, make_method
@@ -86,6 +87,8 @@ class StreamRun:
 
     def run(self, stop_after: int | None = None, report: bool = True) -> dict[str, Any]:
         """Every pending phase; with ``stop_after=k`` stop after stage k (1-based), or with ``report=False``, return
-        the progress instead of the final results."""
-        self.preflight()
-        return self.engine.run(stop_after, report)
+        the progress instead of the final results. The run directory's lock is held throughout (the engine's,
+        taken here already so that the checks before the first phase run as its only writer)."""
+        with hold_folder(self.out):
+            self.preflight()
+            return self.engine.run(stop_after, report)

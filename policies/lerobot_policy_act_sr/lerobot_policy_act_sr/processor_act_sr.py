@@ -2,8 +2,9 @@
 
 LeRobot 0.6 finds this function by its name (``make_<type>_pre_post_processors`` in the policy's ``processor_*``
 module, ``lerobot.policies.factory``), so it is what ``lerobot-train`` and ``lerobot-eval`` build ``act_sr``'s
-processors with (0.4.4 routed every ``ACTConfig`` subclass to ACT's factory instead; the result is the same). What ACT-SR adds is a *policy* for the statistics: the stream trainer fixes one
-set of statistics for the whole stream (see ``sr_imitation.substrates.act.data.stream_stats``).
+processors with (0.4.4 routed every ``ACTConfig`` subclass to ACT's factory instead; the result is the same).
+What ACT-SR adds is a *policy* for the statistics: the stream trainer fixes one set of statistics for the whole
+stream (see ``sr_imitation.substrates.act.data.stream_stats``).
 """
 
 from __future__ import annotations

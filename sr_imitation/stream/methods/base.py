@@ -32,6 +32,7 @@ from torch import Tensor
 
 from sr_imitation.core.memory import Memory
 from sr_imitation.infra.snapshot import prefixed
+from sr_imitation.infra.value_types import check_settings
 from sr_imitation.stream.substrate import WAKE_HOOKS, MethodSettings, SleepProblem, Substrate
 
 
@@ -129,11 +130,14 @@ class WakeHooks:
 
 def with_options(method: str, config: Any, options: Mapping[str, Any]) -> Any:
     """``config`` (a method's frozen settings dataclass) with ``options`` replacing fields of the same name;
-    ``ValueError`` naming ``method_options`` and the valid names for anything else."""
+    ``ValueError`` naming ``method_options`` and the valid names for anything else, or naming the option and its
+    value for a value that is not the option's type (a number given a boolean, null or text, a boolean a number:
+    :func:`~sr_imitation.infra.value_types.check_settings`)."""
     names = [f.name for f in dataclasses.fields(config)] if dataclasses.is_dataclass(config) else []
     unknown = sorted(set(options) - set(names))
     if unknown:
         raise ValueError(f"method_options: {method!r} has no option(s) {unknown}; its options: {names or 'none'}")
+    check_settings(type(config), options, "method_options", text_numbers=False)  # nothing converts an option's text
     return dataclasses.replace(config, **options)
 
 

@@ -29,6 +29,7 @@ from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command, take_flag, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.io import MANIFEST, read_checked_json, read_config_json, verify_manifest, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
@@ -273,12 +274,19 @@ def eval_main(args: list[str] | None = None) -> None:
     """``sr-eval``: evaluate any ACT-SR (or ACT) checkpoint on a set of skills (needle skills by default, or the
     environments ``--eval.env`` names), with videos."""
     _setup_logging()
-    from lerobot.configs.policies import PreTrainedConfig
-    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
-
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     with checkpoint_defaults(rest) if config_path is None else contextlib.nullcontext(config_path) as defaults:
         cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=defaults, names=LEROBOT_EVAL_FLAGS)
+    with hold_folder(cfg.output_dir, "sr-eval"):  # the only writer of output_dir, before it is looked at
+        evaluate_checkpoint(cfg)
+
+
+def evaluate_checkpoint(cfg: EvalCommandConfig) -> None:
+    """``sr-eval``'s work once its command line is parsed and ``output_dir``'s lock is held: evaluate, write
+    ``eval.json`` and the videos, print the success rates."""
+    from lerobot.configs.policies import PreTrainedConfig
+    from lerobot.policies.factory import get_policy_class, make_pre_post_processors
+
     path = Path(cfg.policy.path)
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
@@ -319,7 +327,8 @@ def sleep_main(args: list[str] | None = None) -> dict:
     _setup_logging()
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_command(OfflineSleepConfig, rest, prog="sr-sleep", config_path=config_path)
-    record = run_offline_sleep(cfg)
+    with hold_folder(cfg.output_dir, "sr-sleep"):  # the only writer of output_dir, before it is looked at
+        record = run_offline_sleep(cfg)
     print(report_markdown(record), end="")
     print(f"written: {cfg.output_dir / 'pretrained_model'} (lerobot-eval --policy.path=...), "
           f"{cfg.output_dir / REPORT_FILE}, {cfg.output_dir / 'sleep.json'}")

@@ -33,6 +33,7 @@ import numpy as np
 import torch
 
 from sr_imitation.infra.fingerprint import STACK_KEY, SettingsFingerprint, settings_fingerprint
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.reporting.results import build_results, write_results
 from sr_imitation.stream.rundir import RunDirectory
@@ -109,7 +110,14 @@ def joint_fingerprint(cfg: TrainStreamConfig, inputs: dict[str, str] | None = No
 
 
 def run_mt_joint(cfg: TrainStreamConfig, make_env: Any = None) -> dict[str, Any]:
-    """Train (or resume) the oracle in ``cfg.output_dir``; returns the results dictionary."""
+    """Train (or resume) the oracle in ``cfg.output_dir``, as its only writer (its lock held throughout); returns the
+    results dictionary."""
+    with hold_folder(cfg.output_dir):
+        return _run_mt_joint(cfg, make_env)
+
+
+def _run_mt_joint(cfg: TrainStreamConfig, make_env: Any) -> dict[str, Any]:
+    """:func:`run_mt_joint` once ``cfg.output_dir``'s lock is held."""
     with naming_misspelled_skills(cfg, make_env is not None):
         _, input_features, output_features = check_stream_datasets(cfg.stream, cfg.policy.use_images)  # before writing
     check_evaluation_envs(cfg, input_features, output_features, custom_env=make_env is not None)

@@ -26,6 +26,7 @@ from typing import Any
 
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.infra import distributed
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.stream.methods import check_method
 from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.rundir import point_last
@@ -238,6 +239,13 @@ def train_stream(cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> 
     writes ``cfg.output_dir``; the others run in a private scratch copy, removed at the end, and return their
     progress (the main process returns the results)."""
     processes = distributed.start(cpu=cfg.policy.device == "cpu")
+    # the one writer of cfg.output_dir holds its lock from before the run is built to the end (its `last` link, a push)
+    with hold_folder(cfg.output_dir) if processes.is_main else contextlib.nullcontext():
+        return _train(cfg, make_env, processes)
+
+
+def _train(cfg: TrainStreamConfig, make_env: EnvFactory | None, processes: distributed.Processes) -> dict[str, Any]:
+    """:func:`train_stream` once ``processes`` (:func:`sr_imitation.infra.distributed.start`) have joined."""
     if not processes.distributed:
         return ACTTrainer(cfg, make_env).run()
     if cfg.wake.batch_size < processes.world_size:

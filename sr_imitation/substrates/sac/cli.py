@@ -22,6 +22,7 @@ import sys
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import output_dir_for
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.stream.config import fold_alias_flags
 from sr_imitation.substrates.sac.config import RLTrainConfig
 
@@ -29,9 +30,12 @@ logger = logging.getLogger(__name__)
 
 
 def train(cfg: RLTrainConfig) -> dict:
+    """Run or resume the SAC stream ``cfg`` describes, as the only writer of its output_dir (its lock held
+    throughout); returns the results."""
     from sr_imitation.substrates.sac.trainer import SACTrainer
 
-    results = SACTrainer(cfg).run()
+    with hold_folder(cfg.output_dir):
+        results = SACTrainer(cfg).run()
     logger.info("final metrics: %s", json.dumps({k: v["final"] for k, v in results["metrics"].items()}))
     logger.info("results written to %s", cfg.output_dir / "results.json")
     return results

@@ -30,6 +30,7 @@ import torch
 
 from sr_imitation.envs.metaworld.tasks import SkillEnv, StepResult, canonical_skill
 from sr_imitation.infra.fingerprint import SettingsFingerprint, settings_fingerprint
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.infra.provenance import log_code_version
 from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
@@ -109,7 +110,14 @@ def _stored_config(joint: RLTrainConfig, episodes: int) -> dict[str, Any]:
 
 
 def run_mt_joint(cfg: RLTrainConfig, episodes: int = PAPER_EPISODES) -> dict[str, Any]:
-    cfg = joint_config(cfg, episodes)
+    """Train (or resume) the multi-task oracle in ``cfg.output_dir``, as its only writer (its lock held throughout);
+    returns the results dictionary."""
+    with hold_folder(cfg.output_dir):
+        return _run_mt_joint(joint_config(cfg, episodes), episodes)
+
+
+def _run_mt_joint(cfg: RLTrainConfig, episodes: int) -> dict[str, Any]:
+    """:func:`run_mt_joint` of the joint config ``cfg`` once its output_dir's lock is held."""
     out = Path(cfg.output_dir)
     stored = _stored_config(cfg, episodes)
     run = RunDirectory(out, settings_fingerprint(stored, RESUME_ALLOW_LIST), RUN_CONFIG_FILE, stored, cfg.resume,

@@ -43,6 +43,7 @@ from sr_imitation.infra.fingerprint import (
     resume_differences,
     settings_digest,
 )
+from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.stream.rundir import PROGRESS_FILE, RUN_CONFIG_FILE, RunDirectory
 
@@ -149,10 +150,9 @@ def _check_same_resleep(cfg: ResleepConfig, changed: list[str], record: dict[str
 
 
 def resleep(cfg: ResleepConfig) -> dict[str, Any]:
-    """Redo the sleep (see the module docstring); returns the new run's results."""
+    """Redo the sleep (see the module docstring) as the only writer of ``output_dir`` (its lock held from before it
+    is looked at to the end); returns the new run's results."""
     from sr_imitation.infra.weight_store import verify_weights
-    from sr_imitation.substrates.sac.cli import parse
-    from sr_imitation.substrates.sac.trainer import SACTrainer
 
     source = Path(cfg.source)
     config_file = source / RUN_CONFIG_FILE
@@ -161,6 +161,15 @@ def resleep(cfg: ResleepConfig) -> dict[str, Any]:
                                 "store)")
     if cfg.archived is not None:
         verify_weights(Path(cfg.archived), source)
+    with hold_folder(cfg.output_dir):
+        return _resleep(cfg, source, config_file)
+
+
+def _resleep(cfg: ResleepConfig, source: Path, config_file: Path) -> dict[str, Any]:
+    """:func:`resleep` once ``output_dir``'s lock is held."""
+    from sr_imitation.substrates.sac.cli import parse
+    from sr_imitation.substrates.sac.trainer import SACTrainer
+
     run_cfg = parse([f"--config_path={config_file}", f"--output_dir={cfg.output_dir}",
                      f"--overwrite={str(cfg.overwrite).lower()}", "--resume=false", *cfg.changes])
     changed = check_changes(source, run_cfg.resume_fingerprint())  # before anything is written
