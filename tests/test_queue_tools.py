@@ -262,10 +262,16 @@ def test_a_line_naming_other_cpu_types_waits_for_a_machine_of_its_type(tmp_path,
 
 
 def test_protocol_w_s_pending_runs_name_the_cpu_types_their_pairs_were_made_on():
-    """Protocol W's runs pair with Reset & Distill's runs made on the Intel Xeon family 6 model 167 (model 207 counts
-    as its type: RESULTS' 2026-12-02 02:52 line); each of its pending lines names those types, so that no worker on
-    another type starts it (RESULTS' 2026-12-02 07:36 line)."""
-    pending = (TOOLS / "queue_pending.txt").read_text().splitlines()
+    """Protocol W's runs pair with Reset & Distill's runs made on LeRobot 0.4.4 on the Intel Xeon family 6 model 167
+    (model 207 counts as its type: RESULTS' 2026-12-02 02:52 line): its five lines wait in queue_pending_v010.txt,
+    which main's queue tools never read (they run from tag v0.1.0's checkout), each naming those types, so that no
+    worker on another type starts it (RESULTS' 2026-12-02 07:36 line); main's own queue holds none of them."""
+    w_lines = [ln for ln in (TOOLS / "queue_pending_v010.txt").read_text().splitlines()
+               if "--archive=" in ln and ln.rstrip().endswith("/sac_gate_plain_wake")]
     status = load_tool("experiments/queue_status")
-    for line in (ln for ln in pending if "--archive=" in ln and ln.rstrip().endswith("/sac_gate_plain_wake")):
+    assert [ln.split()[0] for ln in w_lines] == [f"xgate_pw_{s}" for s in range(5)]
+    for line in w_lines:
         assert status.line_cpu_types(line) == ["6/167", "6/207"], line.split()[0]
+        assert line.split()[1] == "@94cdc5a", line.split()[0]  # W's pre-registered code
+    assert not [ln for ln in (TOOLS / "queue_pending.txt").read_text().splitlines() if "sac_gate_plain_wake" in ln
+                and not ln.startswith("#")]
