@@ -44,7 +44,9 @@ def text() -> str:
 
 @pytest.fixture(scope="module")
 def readme() -> str:
-    return re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    """README and the user documents it links for the evidence and the reference (moved out of it on 2026-12-07)."""
+    pages = [DOCS.parent / "README.md", DOCS / "EVIDENCE.md", DOCS / "COMMANDS.md"]
+    return re.sub(r"\s+", " ", "\n".join(p.read_text() for p in pages))
 
 
 def _mean_se(values: list[float]) -> str:
@@ -1012,7 +1014,7 @@ def test_the_v_on_act_mt5_summary_and_readme_recompute(text):
     assert min(v for s in (8, 9) for v in runs[s]["success_after_own_wake"][1:]) == 1.0
     assert f"the two lowest own-wake values being reach's ({reach[0]} and {reach[1]})" in flat
     wake, after = _newest_means(runs)
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    readme = " ".join((DOCS / "EVIDENCE.md").read_text().split())
     assert (f"{_mean_se(values)} over seeds 0-9, against SR's {_mean_se(list(others['sr'].values()))} and Reset & "
             f"Distill on ACT's {_mean_se(list(others['reset_distill'].values()))} on the same seeds, below SR on all "
             "ten and below Reset & Distill on ACT on six") in readme
@@ -1328,7 +1330,7 @@ NAMES = {"sr": "SR", "wake_only": "wake-only", "replay": "replay", "reset_distil
 
 def _which_method_rows() -> dict[str, str]:
     """README's "Which method where" table: each row's line, by the preset it names first."""
-    lines = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
+    lines = (DOCS / "EVIDENCE.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
     return {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
 
 
@@ -1364,7 +1366,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     """README's Reset & Distill on ACT cells and sentences: every seed's final AFSR in seed order and their mean +- SE,
     on how many seeds SR's archived run ended higher, and the BWT against its own wakes, from the archives; the
     archived summary beside the runs holds the same numbers."""
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())  # the sentences, whatever their wrapping
+    readme = " ".join((DOCS / "EVIDENCE.md").read_text().split())  # the sentences, whatever their wrapping
     rows = _which_method_rows()
     values, below, bwt_wake = {}, {}, {}
     for preset, (archive, sr_archives) in RD_ON_ACT.items():
@@ -1416,7 +1418,7 @@ def test_the_v_on_act_needle_sentence_recomputes():
     """README's sentence on SR c on ACT's needle runs (descriptive): on how many seeds it ended below SR's archived run
     and above Reset & Distill on ACT's, the mean success after its own wakes, and BWT against its own wakes beside
     SR's; the archived summary holds the same BWT."""
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    readme = " ".join((DOCS / "EVIDENCE.md").read_text().split())
     archive, sr_archives = RD_ON_ACT["configs/needle_cpu_m16.json"]
     runs, values = _v_act(10)
     sr = _over(sr_archives, "sr")
