@@ -1,4 +1,4 @@
-"""What a stream's last sleep did: the newest skill and the older ones across the final sleep (issue 89).
+"""What a stream's last sleep did: the newest skill and the older ones across the final sleep.
 
     python -m sr_imitation.reporting.last_sleep RUN_DIR [RUN_DIR ...] --output=DIR
 
