@@ -195,6 +195,26 @@ def _same_file(fd: int, path: Path) -> bool:
     return (on_disk.st_dev, on_disk.st_ino) == (opened.st_dev, opened.st_ino)
 
 
+def check_folder_path(folder: str | os.PathLike[str]) -> None:
+    """``folder`` can be a folder: neither it nor a folder above it is a file (or anything else but a folder).
+
+    Args:
+        folder: a run or output folder about to be written (it need not exist).
+
+    Raises:
+        NotADirectoryError: one line naming ``folder`` and the file in the way, before anything is written (instead
+            of an ``[Errno 20]`` once the command's work is done, or a resume hint for a run that cannot exist).
+    """
+    folder = Path(os.path.abspath(folder))
+    for path in (folder, *folder.parents):
+        if path.exists() and not path.is_dir():
+            what = "is a file" if path == folder else f"lies in {path}, which is a file"
+            raise NotADirectoryError(f"{folder}: {what}, not a folder; choose another output folder (nothing was "
+                                     "written)")
+        if path.is_dir():
+            return
+
+
 def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
     """Take the lock of ``folder`` for this process (again, if it holds it already: counted, see :func:`release`).
 
@@ -208,6 +228,7 @@ def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
 
     Raises:
         FolderBusyError: another process holds the lock (one line naming the folder and the holder).
+        NotADirectoryError: ``folder`` or a folder above it is a file (:func:`check_folder_path`).
         WriteError: the parent folder or the lock file cannot be made.
     """
     path = lock_path(folder)
@@ -215,6 +236,7 @@ def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
         if path in _HELD:
             _HELD[path].depth += 1
             return path
+        check_folder_path(folder)
         made = _make_parents(path, Path(folder))
         try:
             fd = _open_locked(path, Path(folder))
