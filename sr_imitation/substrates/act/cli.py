@@ -30,7 +30,7 @@ from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_p
 from sr_imitation.infra.cli_parsing import parse_command, take_flag, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
 from sr_imitation.infra.folder_lock import hold_folder, remove_leftovers, remove_staging_beside
-from sr_imitation.io import MANIFEST, read_checked_json, read_config_json, verify_manifest, write_checked_json
+from sr_imitation.io import read_checked_json, read_config_json, verify_checkpoint, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 from sr_imitation.substrates.act.config import LEGACY_DEFAULTS, MainJobConfig
@@ -293,8 +293,7 @@ def evaluate_checkpoint(cfg: EvalCommandConfig) -> None:
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
     earlier_videos = check_eval_output(cfg)
-    if (path.parent / MANIFEST).is_file():  # an sr-train stage or sr-sleep checkpoint: sealed, checked before use
-        verify_manifest(path.parent)
+    verify_checkpoint(path, "policy.path")  # an sr-train stage or sr-sleep checkpoint is sealed; else one warning
     policy_cfg = PreTrainedConfig.from_pretrained(path)
     policy_cfg.device = cfg.device
     policy = get_policy_class(policy_cfg.type).from_pretrained(path, config=policy_cfg)
