@@ -85,7 +85,7 @@ from sr_imitation.io import (
     atomic_write_bytes,
     atomic_write_json,
     staged_directory,
-    verify_manifest,
+    verify_checkpoint,
     write_checked_json,
 )
 from sr_imitation.lerobot_compat import is_torch_device_available
@@ -304,8 +304,7 @@ def _check_pretrained_dir(path: Path, what: str) -> None:
     if missing:
         raise FileNotFoundError(f"{path}: {what} is not a LeRobot pretrained_model directory with processors "
                                 f"(no {', '.join(missing)})")
-    if (path.parent / MANIFEST).is_file():  # an sr-train stage or sr-sleep checkpoint: sealed, so checked
-        verify_manifest(path.parent)
+    verify_checkpoint(path, what)  # an sr-train stage or sr-sleep checkpoint is sealed; else one warning line
 
 
 def _load_state(path: Path) -> dict[str, torch.Tensor]:
@@ -354,8 +353,7 @@ def checkpoint_parameters(policy: ACTSRPolicy, path: Path, what: str) -> list[to
         raise FileNotFoundError(f"{path}: {what}: no such directory (a LeRobot pretrained_model directory)")
     if not (path / "model.safetensors").is_file():
         raise FileNotFoundError(f"{path}: {what}: no model.safetensors (not a LeRobot pretrained_model directory)")
-    if (path.parent / MANIFEST).is_file():
-        verify_manifest(path.parent)
+    verify_checkpoint(path, what)
     state = _load_state(path)
     own = dict(policy.deployed_named_parameters())
     missing = [n for n in own if n not in state]
