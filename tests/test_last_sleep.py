@@ -4,6 +4,7 @@ writes, and a run without a final sleep refused in one line naming it."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -36,6 +37,7 @@ def test_the_report_writes_a_sealed_table_and_a_figure(tmp_path):
     assert read_checked_json(tmp_path / "last_sleep.json")["rows"] == json.loads(json.dumps(rows))
     text = (tmp_path / "last_sleep.md").read_text()
     assert text.count("| sr_seed") == 5 and "Over 5 runs: the newest skill changed +0.000 +- 0.000" in text
+    assert "re-sleeps" not in text
     assert (tmp_path / "last_sleep.png").read_bytes()[:4] == b"\x89PNG"
 
 
@@ -46,3 +48,24 @@ def test_a_run_without_a_final_sleep_is_one_line_naming_it(tmp_path, capsys):
     err = capsys.readouterr().err
     assert done.value.code == 2 and err.count("\n") == 1 and "wake_only_seed0: no final sleep" in err
     assert not (tmp_path / "out").exists()
+
+
+def test_an_anchor_off_re_sleep_beside_a_run_gets_its_own_row(tmp_path):
+    """A re-sleep folder (sr-sleep's sealed sleep.json) beside the run: its row from the before/after evaluation and the
+    sleep's losses, and its own line under the table."""
+    from sr_imitation.io import write_checked_json
+
+    run = tmp_path / "sr_seed0"
+    shutil.copytree(ARCHIVE / "sr_seed0", run)
+    skills = ["approach", "place", "insert", "regrasp", "pullout"]
+    before, after = [0.3, 0.9, 1.0, 1.0, 1.0], [0.4, 0.8, 1.0, 1.0, 0.9]
+    write_checked_json(tmp_path / "sr_seed0_final_sleep_anchor_off" / "sleep.json", {
+        "sleep_settings": {"anchor_strength": 0.0},
+        "sleep": {"skills": skills, "initial_memory_losses": [1e-3] * 4 + [0.0], "final_memory_losses": [1e-5] * 5,
+                  "anchor_lambda": 0.0, "stop_iteration": 700},
+        "success": {s: {"before": b, "after": a} for s, b, a in zip(skills, before, after, strict=True)}})
+    rows = write_report([run], tmp_path / "out")
+    assert len(rows) == 2 and rows[1]["newest_change"] == pytest.approx(-0.1)
+    assert rows[1]["older_mean_change"] == pytest.approx((0.1 - 0.1) / 4) and rows[1]["loss_before"] == 4e-3
+    text = (tmp_path / "out" / "last_sleep.md").read_text()
+    assert "Over 1 anchor-off re-sleeps: the newest skill changed -0.100" in text
