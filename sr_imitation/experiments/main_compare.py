@@ -64,6 +64,8 @@ class MainCompareConfig(MainJobConfig):
     results.md here (train.output_dir is not used)."""
     processes: int | None = None
     """Runs at once, each a process with one torch thread (None: one per core, at most one per run)."""
+    expert_video: bool = True
+    """Also write a full-suture video of the scripted expert (expert_suture.mp4) to output_dir."""
 
     def __post_init__(self) -> None:
         super().__post_init__()
