@@ -64,11 +64,28 @@ def heaviest_files_first(items: list, seconds: dict[str, float]) -> list:
 ARCHITECTURE = Path(__file__).resolve().parents[1] / "docs" / "ARCHITECTURE.md"
 
 
+def recipe_code(heading: str) -> str:
+    """The first python block of docs/ARCHITECTURE.md's section ``### <heading>``.
+
+    Args:
+        heading: the recipe's heading (``Adding a method``, ``Adding a substrate``).
+
+    Returns:
+        The block's text, as a file holds it.
+    """
+    recipe = ARCHITECTURE.read_text().split(f"### {heading}", 1)[1].split("\n## ", 1)[0]
+    return recipe.split("```python\n", 1)[1].split("\n```", 1)[0] + "\n"
+
+
 def recipe_init() -> str:
     """The substrate folder's ``__init__.py``: the first python block of docs/ARCHITECTURE.md's recipe "Adding a
     substrate" (the toy's, ``module = "tests.stream.toy"``)."""
-    recipe = ARCHITECTURE.read_text().split("### Adding a substrate", 1)[1].split("\n## ", 1)[0]
-    return recipe.split("```python\n", 1)[1].split("```", 1)[0]
+    return recipe_code("Adding a substrate")
+
+
+def recipe_method() -> str:
+    """The method file of docs/ARCHITECTURE.md's recipe "Adding a method" (``tests/stream/l2_anchor.py``, whole)."""
+    return recipe_code("Adding a method")
 
 
 @pytest.fixture

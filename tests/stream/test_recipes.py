@@ -24,7 +24,7 @@ from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.substrate import MethodSettings, Substrate, SubstrateProtocolError, check_substrate
 from sr_imitation.substrates import discover
 from sr_imitation.substrates.registry import SUBSTRATES
-from tests.conftest import recipe_init
+from tests.conftest import recipe_init, recipe_method
 from tests.stream import toy
 from tests.stream.conftest import KilledError
 from tests.stream.toy import ToySubstrate
@@ -165,6 +165,7 @@ def test_the_recipes_name_every_protocol_member_and_the_files_they_cite():
         assert cited in substrate, cited
     assert 'module = "tests.stream.toy"' in recipe_init() and "sr_imitation/substrates/toy/" in (toy.__doc__ or "")
     example = Path(tests.stream.l2_anchor.__file__).read_text()
+    assert recipe_method() == example  # the whole file, as the recipe shows it
     for line in ('name = "l2_anchor"', 'substrate.parameters_at(k - 1, "wake")', "0.5 * self.config.lam"):
         assert line in method and line in example, line
     for path in ("tests/stream/toy.py", "tests/stream/l2_anchor.py", "tests/stream/test_recipes.py",
