@@ -10,7 +10,7 @@ from sr_imitation.experiments.sleep_screening import ScreeningConfig, rule_a, ru
 from sr_imitation.io import read_checked_json
 from sr_imitation.substrates.sac.config import EvalConfig
 from sr_imitation.substrates.sac.trainer import SACTrainer
-from tests.rl.test_trainer import tiny_config
+from tests.substrates.sac.test_trainer import tiny_config
 
 
 def test_rule_a_picks_the_best_by_the_margin_and_breaks_ties_in_the_protocol_order():
