@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+from pathlib import Path
 
 import pytest
 
@@ -143,3 +144,20 @@ def test_a_whole_number_is_an_integer_option_s_integer_and_nothing_else_is():
         method_config("reset_distill", {"iterations": 3.5})
     with pytest.raises(ValueError, match=r"^method_options: iterations: expects an integer, got true$"):
         method_config("reset_distill", {"iterations": True})
+
+
+def test_sr_main_refuses_the_same_flags_under_its_train_section(tmp_path, capsys):
+    """``sr-main`` (a preset's train section, flags ``--train.*``) follows the same rule, before recording or
+    training anything."""
+    from sr_imitation.main_job import main
+
+    out = tmp_path / "run"
+    preset = Path(__file__).resolve().parents[2] / "configs" / "needle_cpu.json"
+    args = [f"--config_path={preset}", "--train.method=reset_distill", "--train.sleep.lr=0.001",
+            f"--train.output_dir={out}", f"--record.root={tmp_path / 'datasets'}"]
+    with pytest.raises(SystemExit):
+        run_cli("sr-main", main, args)
+    line = [x for x in capsys.readouterr().err.splitlines() if x.startswith("sr-main: error:")]
+    assert line == ["sr-main: error: --train.sleep.lr: reset_distill sets it with its own option 'lr' (default "
+                    "0.0003); use --train.method_options={lr: 0.001} (--debug shows the traceback)"], line
+    assert not any(tmp_path.iterdir())

@@ -125,7 +125,7 @@ def method_config(name: str, options: Mapping[str, Any] | None = None) -> dict[s
     return to_jsonable(config) if config is not None else {}
 
 
-def replaced_setting_refusal(name: str, args: Sequence[str]) -> str | None:
+def replaced_setting_refusal(name: str, args: Sequence[str], prefix: str = "") -> str | None:
     """Why a command line may not give a shared setting that method ``name`` replaces (its
     :attr:`~ContinualMethod.own_settings` and :attr:`~ContinualMethod.fixed_settings`), in one line naming the flag
     and the method option to give instead; ``None`` when it gives none (or ``name`` is not a registered method).
@@ -134,6 +134,7 @@ def replaced_setting_refusal(name: str, args: Sequence[str]) -> str | None:
         name: the run's method (``--method``, else its config file's).
         args: the command line's flags (a config file's values are not the user's flag for this method: presets
             are shared by every method).
+        prefix: where the run's settings sit on this command line (``train.`` for ``sr-main``).
 
     Returns:
         The refusal, or ``None``.
@@ -142,11 +143,11 @@ def replaced_setting_refusal(name: str, args: Sequence[str]) -> str | None:
     if cls is None:
         return None
     for setting, option in cls.own_settings.items():
-        given = take_flag(list(args), f"--{setting}")[1]
+        given = take_flag(list(args), f"--{prefix}{setting}")[1]
         if given is not None:
-            return (f"--{setting}: {name} sets it with its own option {option!r} (default "
-                    f"{getattr(cls.config, option)}); use --method_options={{{option}: {given}}}")
+            return (f"--{prefix}{setting}: {name} sets it with its own option {option!r} (default "
+                    f"{getattr(cls.config, option)}); use --{prefix}method_options={{{option}: {given}}}")
     for setting, value in cls.fixed_settings.items():
-        if take_flag(list(args), f"--{setting}")[1] is not None:
-            return f"--{setting}: {name} fixes it at {value!r} whatever the flag says; leave the flag out"
+        if take_flag(list(args), f"--{prefix}{setting}")[1] is not None:
+            return f"--{prefix}{setting}: {name} fixes it at {value!r} whatever the flag says; leave the flag out"
     return None
