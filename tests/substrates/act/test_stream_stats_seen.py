@@ -128,7 +128,7 @@ def test_archived_runs_and_presets_keep_their_recorded_setting(tmp_path):
     from sr_imitation.substrates.act.config import stored_config_dict
     from sr_imitation.substrates.act.trainer import SETTINGS_ADDED
 
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     # a run written before the setting existed normalized with the first skill's statistics: its config is read so
     stored = stored_config_dict(_config(tmp_path, tmp_path / "old", stats="first"))
     del stored["stream"]["stats"]

@@ -29,7 +29,7 @@ from sr_imitation.substrates.sac.config import (
 from sr_imitation.substrates.sac.sac import SACAgent
 from sr_imitation.substrates.sac.trainer import SACTrainer
 
-CONFIGS = Path(__file__).resolve().parents[2] / "configs"
+CONFIGS = Path(__file__).resolve().parents[3] / "configs"
 
 
 def tiny_config(out: Path, skills: list[str] | None = None, extend_from: Path | None = None,
