@@ -1,7 +1,7 @@
 """Why the SAC sleeps' Nash weights stay at 1/k (issue 59; exploratory): the cosine matrix C of the memory gradients
 that Eq. 1 bargains over, read from re-sleeps of archived stages.
 
-    python -m sr_imitation.experiments.sleep_cosines --archive=docs/results/sac_sleep_cosines \\
+    python -m experiments.sleep_cosines --archive=docs/results/sac_sleep_cosines \\
         --runs=[outputs/resleep_cosines/sr_c_b1_seed102_s5]
 
 A re-sleep (``sr-sac-sleep`` with the source's settings: it repeats the source's sleep) records C at the sleep's first
@@ -47,7 +47,7 @@ from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked
 from sr_imitation.reporting.compare import report_text
 
 logger = logging.getLogger(__name__)
-PROG = "python -m sr_imitation.experiments.sleep_cosines"
+PROG = "python -m experiments.sleep_cosines"
 
 DIAGNOSTICS = "sleep_diagnostics.json"
 KEPT = ("resleep.json", "results.json", FINGERPRINT_FILE)

@@ -1,7 +1,7 @@
 """Step B of issue 59's protocol (docs/RESULTS.md, "a SAC sleep that keeps what its wakes learn"): rule B on the
 full runs of the step-A winner and of Reset & Distill's wake with SR's consolidation, against the calibration runs.
 
-    python -m sr_imitation.experiments.sleep_step_b --archive=docs/results/sac_sleep_step_b \\
+    python -m experiments.sleep_step_b --archive=docs/results/sac_sleep_step_b \\
         --calibration=docs/results/sac_sleep_calibration --variants=[sr_b1,sr_c_b1]
 
 Reads ``<archive>/<variant>_seed<seed>/results.json`` and ``<calibration>/sr_seed<seed>/results.json`` (checksums
@@ -39,7 +39,7 @@ from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked
 from sr_imitation.stream.config import check_choices
 
 logger = logging.getLogger(__name__)
-PROG = "python -m sr_imitation.experiments.sleep_step_b"
+PROG = "python -m experiments.sleep_step_b"
 
 MARGIN = 0.05
 """Rule B: V's mean final AFSR must exceed the calibration SR runs' mean by at least this (the protocol's 0.05)."""
