@@ -30,8 +30,8 @@ from typing import Any
 
 import yaml
 
+from experiments.sleep_screening import PROTOCOL_SEEDS, losses_text, mean_se, se_text, weights_text
 from sr_imitation.experiments.mt5_compare import VARIANTS
-from sr_imitation.experiments.sleep_screening import PROTOCOL_SEEDS, losses_text, mean_se, se_text, weights_text
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.fingerprint import flatten_settings

@@ -49,7 +49,7 @@ def test_every_variant_parses_to_its_method_and_settings(tmp_path, tiny_preset):
     assert parse(run_args(cfg, "sr_mean_grad", 0)).sleep.aggregator == "mean_grad"
     assert parse(run_args(cfg, "sr_mt8", 0)).stream.extend_from == tmp_path / "c" / "sr_seed0"
     # issue 59's candidates as whole runs: the screening's flags (a1..b2), c = Reset & Distill's wake + a candidate's
-    from sr_imitation.experiments.sleep_screening import CANDIDATES
+    from experiments.sleep_screening import CANDIDATES
 
     for name in ("a1", "a2", "b1", "b2"):
         assert VARIANTS[f"sr_{name}"] == CANDIDATES[name]

@@ -1,7 +1,7 @@
 """Step A of issue 59's protocol (docs/RESULTS.md, "a SAC sleep that keeps what its wakes learn"): screen sleep
 candidates by re-sleeping the last stage of stored calibration runs.
 
-    python -m sr_imitation.experiments.sleep_screening --archive=docs/results/sac_sleep_calibration \\
+    python -m experiments.sleep_screening --archive=docs/results/sac_sleep_calibration \\
         --seeds=[100,101,102] --output_root=outputs/sac_sleep_screening \\
         --screening=docs/results/sac_sleep_screening
 
@@ -29,6 +29,7 @@ from typing import Any
 
 from sr_imitation.core.metrics import mean_sem
 from sr_imitation.experiments.archive import archive_run
+from sr_imitation.experiments.mt5_compare import SLEEP_CANDIDATES
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.weight_store import verify_weights, weight_store
@@ -36,16 +37,12 @@ from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked
 from sr_imitation.stream.config import check_choices
 
 logger = logging.getLogger(__name__)
-PROG = "python -m sr_imitation.experiments.sleep_screening"
+PROG = "python -m experiments.sleep_screening"
 
-CANDIDATES: dict[str, list[str]] = {
-    "control": [],
-    "a1": ["--sleep.early_stop_tol=0"],
-    "a2": ["--sleep.early_stop_scale=memory_scale"],
-    "b1": ["--method_options={expert_memory: instead}"],
-    "b2": ["--method_options={expert_memory: beside}"],
-}
-"""candidate -> the ``sr-train`` flags its re-sleep changes (the protocol's a1, a2, b1, b2; ``control``: none)."""
+CANDIDATES = SLEEP_CANDIDATES
+"""candidate -> the ``sr-train`` flags its re-sleep changes (the protocol's a1, a2, b1, b2; ``control``: none): the
+comparison's own list (:data:`sr_imitation.experiments.mt5_compare.SLEEP_CANDIDATES`), whose ``sr_<name>`` variants
+run them as full streams."""
 ORDER = ("a1", "a2", "b1", "b2")
 """Rule A's order of preference among candidates within ``TIE`` of the best."""
 MARGIN = 0.05
