@@ -2,7 +2,7 @@
 whatever the policy family, and runs it.
 
     check_substrate(substrate)                                                  # the protocol, in one line
-    check_shared_settings(cfg, substrate.name)                                 # what could be left out silently
+    check_shared_settings(cfg, substrate.name)                                  # what could be left out silently
     method    = make_method(cfg.method, substrate, substrate.method_settings(), cfg.method_options)
     run_dir   = RunDirectory(cfg.output_dir, fingerprint, train_config.json, ...)  # checked before anything is written
     engine    = StreamEngine(substrate, method, run_dir, ...)                    # Algorithm 1, once
