@@ -20,6 +20,7 @@ from __future__ import annotations
 import contextlib
 import hashlib
 import json
+import logging
 import os
 import shutil
 import tempfile
@@ -246,6 +247,31 @@ def staged_directory(final: str | os.PathLike[str]) -> Iterator[Path]:
         if isinstance(exc, OSError) and not isinstance(exc, WriteError):
             raise WriteError(final, exc) from exc
         raise
+
+
+def verify_checkpoint(pretrained: str | os.PathLike[str], what: str = "the checkpoint") -> bool:
+    """Check a ``pretrained_model`` directory against the ``checksums.json`` one level up (how ``sr-train`` stages
+    and ``sr-sleep`` outputs are sealed: :func:`verify_manifest`); without one (a ``pretrained_model/`` copied on
+    its own, or written by stock ``lerobot-train``) one warning line says that it is used unverified.
+
+    Args:
+        pretrained: the ``pretrained_model`` directory.
+        what: what it is, for the warning (``policy.path``).
+
+    Returns:
+        Whether it was verified.
+
+    Raises:
+        CorruptFileError: a file differs from its checksum, or is missing.
+    """
+    folder = Path(pretrained).parent
+    if (folder / MANIFEST).is_file():
+        verify_manifest(folder)
+        return True
+    logging.getLogger(__name__).warning(
+        "%s: %s is not verified: no %s one level up (it is written beside pretrained_model/ by sr-train and sr-sleep; "
+        "copy the folder holding both to keep the check)", pretrained, what, folder / MANIFEST)
+    return False
 
 
 def verify_manifest(directory: str | os.PathLike[str]) -> None:

@@ -27,7 +27,7 @@ from sr_imitation.substrates.act.trainer import train_stream
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["MainJobConfig", "main", "preset_with_datasets", "run_main_job"]
+__all__ = ["MainJobConfig", "main", "preset_with_datasets", "run_main_job", "write_expert_video"]
 
 
 def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:
@@ -52,15 +52,29 @@ def _run_main_job(cfg: MainJobConfig) -> dict:
     ensure_recorded(cfg.record)  # datasets of other record settings: refused, not reused
     results = train_stream(cfg.train)
     if cfg.expert_video:
-        from sr_imitation.envs.needle.chained import run_chained_episode
-        from sr_imitation.video import write_mp4
-
-        out = cfg.train.output_dir / "expert_suture.mp4"
-        if not out.exists():
-            _, frames = run_chained_episode(cfg.train.seed, cfg.record.thresholds, render=True)
-            tmp = write_mp4(out.with_name(".expert_suture.tmp.mp4"), frames, fps=cfg.record.fps)
-            os.replace(tmp, out)
+        write_expert_video(cfg, Path(cfg.train.output_dir))
     return results
+
+
+def write_expert_video(cfg: MainJobConfig, folder: Path) -> Path:
+    """The scripted expert's full suture (``expert_suture.mp4``, seeded by ``train.seed``), unless already there.
+
+    Args:
+        cfg: the job's settings (the record section's thresholds and frame rate).
+        folder: where the video goes.
+
+    Returns:
+        The video's path.
+    """
+    from sr_imitation.envs.needle.chained import run_chained_episode
+    from sr_imitation.video import write_mp4
+
+    out = folder / "expert_suture.mp4"
+    if not out.exists():
+        _, frames = run_chained_episode(cfg.train.seed, cfg.record.thresholds, render=True)
+        tmp = write_mp4(out.with_name(".expert_suture.tmp.mp4"), frames, fps=cfg.record.fps)
+        os.replace(tmp, out)
+    return out
 
 
 def main(args: list[str] | None = None) -> None:

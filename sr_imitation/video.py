@@ -15,6 +15,10 @@ from typing import Any
 import av
 import numpy as np
 
+PARTIAL_VIDEO = r"\..+\.partial\.mp4"
+"""The name of a video still being written (``.<name>.partial.mp4``, a regular expression): one found when no
+writer holds its folder's lock was left by a killed process."""
+
 
 class Mp4Writer:
     """Stream frames into ``path`` (see the module docstring); use as a context manager or call :meth:`close`."""

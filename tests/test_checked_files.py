@@ -168,11 +168,12 @@ def test_a_full_disk_anywhere_is_one_line_naming_the_file_and_saying_the_run_can
     """Before: a 68-line traceback ending "No space left on device" for a write outside the atomic helpers."""
     import errno
 
-    from sr_imitation.infra.cli_errors import run_cli
+    from sr_imitation.infra.cli_errors import note_run_started, run_cli
 
     log = tmp_path / "run" / "log.jsonl"
 
     def full(args):
+        note_run_started(log.parent)  # the run exists (its log is written): the hint is the command that resumes it
         try:
             raise OSError(errno.ENOSPC, "No space left on device", str(log))
         except OSError as exc:

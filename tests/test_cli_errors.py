@@ -223,6 +223,7 @@ def test_every_command_parses_through_parse_command():
 @pytest.mark.parametrize("module", [
     "experiments.needle_compare", "experiments.mt5_compare", "experiments.grid", "experiments.calibration",
     "experiments.memory_budget", "experiments.skill_probe", "experiments.sleep_replay", "experiments.hypotheses",
+    "experiments.main_compare",
     "benchmarks.needle_expert", "benchmarks.demo_endings", "benchmarks.needle_env", "envs.needle.chained",
 ])
 def test_a_mistyped_flag_of_an_experiment_command_is_one_line_naming_the_command(module, capsys):

@@ -90,13 +90,18 @@ def test_a_dataset_records_with_the_codec_asked_for(tmp_path):
         assert container.streams.video[0].codec_context.name == "h264"
 
 
-def test_a_missing_ffmpeg_is_one_line(caplog):
+def test_a_missing_ffmpeg_is_one_line_once_a_process(caplog, monkeypatch):
     torchcodec_notice.quiet_torchcodec()
+    monkeypatch.setattr(torchcodec_notice._DropTorchcodecTracebacks, "said", False)
     long = "Could not load libtorchcodec. Likely causes:\n" + "\n".join(f"  trace line {i}" for i in range(100))
     with caplog.at_level(logging.WARNING):
-        logging.getLogger("lerobot.utils.import_utils").warning(
-            f"{long}\n'torchcodec' is installed but cannot be loaded (see the error above). Falling back to 'pyav'.")
-    (record,) = caplog.records
+        for _ in range(3):  # LeRobot says it for every dataset it opens
+            logging.getLogger("lerobot.utils.import_utils").warning(
+                f"{long}\n'torchcodec' is installed but cannot be loaded (see the error above). Falling back to "
+                "'pyav'.")
+        logging.getLogger("lerobot.utils.import_utils").warning("another warning")
+    record, other = caplog.records
+    assert other.getMessage() == "another warning"
     assert record.getMessage() == torchcodec_notice.NOTICE and "\n" not in record.getMessage()
 
 

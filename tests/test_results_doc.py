@@ -28,14 +28,25 @@ VARIANTS = {"sr": "sr", "wake_only": "wake_only", "sr_sleep_only": "sr_sleep_onl
             "mt_joint": "mt_joint"}
 
 
+RECORDS = DOCS / "results" / "records"
+"""Each protocol's dated record, one file each (moved out of RESULTS.md unchanged on 2026-12-07)."""
+
+
+def _record_text() -> str:
+    """RESULTS.md and every protocol's record, as one text (the numbers quoted in either are checked alike)."""
+    return "\n".join(p.read_text() for p in [DOCS / "RESULTS.md", *sorted(RECORDS.glob("*.md"))])
+
+
 @pytest.fixture(scope="module")
 def text() -> str:
-    return re.sub(r"\s+", " ", (DOCS / "RESULTS.md").read_text())  # lines wrap anywhere
+    return re.sub(r"\s+", " ", _record_text())  # lines wrap anywhere
 
 
 @pytest.fixture(scope="module")
 def readme() -> str:
-    return re.sub(r"\s+", " ", (DOCS.parent / "README.md").read_text())
+    """README and the user documents it links for the evidence and the reference (moved out of it on 2026-12-07)."""
+    pages = [DOCS.parent / "README.md", DOCS / "EVIDENCE.md", DOCS / "COMMANDS.md"]
+    return re.sub(r"\s+", " ", "\n".join(p.read_text() for p in pages))
 
 
 def _mean_se(values: list[float]) -> str:
@@ -44,7 +55,7 @@ def _mean_se(values: list[float]) -> str:
 
 def _table_rows(header: str) -> list[list[str]]:
     """The cells of a RESULTS table's rows: the lines after ``header`` and its rule, up to the first non-table line."""
-    lines = (DOCS / "RESULTS.md").read_text().splitlines()
+    lines = _record_text().splitlines()
     rows = []
     for line in lines[lines.index(header) + 2:]:
         if not line.startswith("| "):
@@ -400,7 +411,7 @@ def test_every_mt5_test_run_ran_the_recorded_test_preset():
     the ``--extra`` flags of RESULTS' dated test-preset line (08:49 UTC), on a training seed 0-9 (calibration seeds
     never enter a test); ``configs/metaworld_mt5_imitation_test.json`` is that preset as a file of its own."""
     line = re.search(r"the test preset \(recorded before any test-seed run\).*?\n\n\s+(--extra=\[.*?\])\n",
-                     (DOCS / "RESULTS.md").read_text(), re.S)
+                     _record_text(), re.S)
     assert line is not None
     flags = dict(f.removeprefix("--").split("=", 1) for f in line.group(1)[len("--extra=["):-1].split(","))
     assert flags["memory.buffer_size"] == "8" and flags["policy.dim_model"] == "256"
@@ -825,8 +836,7 @@ def test_the_v_on_act_needle_seed_9_line_recomputes(text):
     """RESULTS' 04:35 line on V on ACT's needle m16 seed 9 (descriptive): its final AFSR, BWT against both
     references, its final row, and seeds 0-9's mean +- SE beside the archived SR's and Reset & Distill on ACT's."""
     runs, values = _v_act(10)
-    line = text[text.index("nineteenth session: V on ACT, needle m16, seed 9"):]
-    line = line[:line.index("## Protocol")]
+    line = _to_record_end(text, "nineteenth session: V on ACT, needle m16, seed 9")
     metrics = runs[9]["metrics"]
     final = " / ".join(f"{v:.2f}" for v in runs[9]["success_matrix"][-1])
     assert (f"final AFSR **{values[9]:.3f}** (BWT {metrics['bwt']['final']:.3f} / "
@@ -857,6 +867,13 @@ def _final_row(run: dict) -> str:
 def _newest_after_sleep(run: dict) -> list[str]:
     """Skills 2-5's success right after their own stage's sleep (the success matrix's diagonal), as written."""
     return [f"{run['success_matrix'][k][k]:.2f}" for k in range(1, 5)]
+
+
+def _to_record_end(text: str, start: str) -> str:
+    """From ``start`` to the end of its record (the next record file's title or the next section heading)."""
+    line = text[text.index(start):]
+    ends = [i for i in (line.find(" # Record: "), line.find(" ## ")) if i >= 0]
+    return line[:min(ends, default=len(line))]
 
 
 def _dated_line(text: str, start: str) -> str:
@@ -997,7 +1014,7 @@ def test_the_v_on_act_mt5_summary_and_readme_recompute(text):
     assert min(v for s in (8, 9) for v in runs[s]["success_after_own_wake"][1:]) == 1.0
     assert f"the two lowest own-wake values being reach's ({reach[0]} and {reach[1]})" in flat
     wake, after = _newest_means(runs)
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    readme = " ".join((DOCS / "EVIDENCE.md").read_text().split())
     assert (f"{_mean_se(values)} over seeds 0-9, against SR's {_mean_se(list(others['sr'].values()))} and Reset & "
             f"Distill on ACT's {_mean_se(list(others['reset_distill'].values()))} on the same seeds, below SR on all "
             "ten and below Reset & Distill on ACT on six") in readme
@@ -1054,7 +1071,7 @@ def test_the_1735_cosines_line_recomputes(text, readme):
     tests/experiments/test_sleep_cosines.py recomputes from the archived re-sleeps: each repeat equal to its run, the
     largest off-diagonal cosines, the weights' and Eq. 1's optimum's distance from 1/5."""
     runs = {r["run"]: r for r in read_checked_json(DOCS / "results" / "sac_sleep_cosines" / "cosines.json")["runs"]}
-    line = text[text.index("*2026-11-30 17:35 UTC"):text.index("## Protocol: the MT5 skills as an imitation stream")]
+    line = _to_record_end(text, "*2026-11-30 17:35 UTC")
     for name in ("sr_c_b1_seed102", "sr_b1_seed102", "sr_seed0"):
         r = runs[name]
         assert r["differing_values"] == 0 and not r["settings_changed"], name
@@ -1075,7 +1092,7 @@ def test_the_1752_drawer_open_line_recomputes(text):
         results = json.loads((DOCS / "results" / archive / run / "results.json").read_text())
         return results["success_after_own_wake"][results["skills"].index("drawer-open")]
 
-    line = text[text.index("*2026-11-30 17:52 UTC"):text.index("## Protocol: the MT5 skills as an imitation stream")]
+    line = _to_record_end(text, "*2026-11-30 17:52 UTC")
     for variant in ("sr", "wake_only", "reset_distill"):
         values = " / ".join(f"{own_wake('sac_mt5_gate', f'{variant}_seed{s}'):.2f}" for s in range(5))
         assert f"`{variant}` {values}" in line, variant
@@ -1313,7 +1330,7 @@ NAMES = {"sr": "SR", "wake_only": "wake-only", "replay": "replay", "reset_distil
 
 def _which_method_rows() -> dict[str, str]:
     """README's "Which method where" table: each row's line, by the preset it names first."""
-    lines = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
+    lines = (DOCS / "EVIDENCE.md").read_text().split("## Which method where", 1)[1].split("\n## ", 1)[0]
     return {line.split("`")[1]: line for line in lines.splitlines() if line.startswith("| ") and "`configs/" in line}
 
 
@@ -1349,7 +1366,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     """README's Reset & Distill on ACT cells and sentences: every seed's final AFSR in seed order and their mean +- SE,
     on how many seeds SR's archived run ended higher, and the BWT against its own wakes, from the archives; the
     archived summary beside the runs holds the same numbers."""
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())  # the sentences, whatever their wrapping
+    readme = " ".join((DOCS / "EVIDENCE.md").read_text().split())  # the sentences, whatever their wrapping
     rows = _which_method_rows()
     values, below, bwt_wake = {}, {}, {}
     for preset, (archive, sr_archives) in RD_ON_ACT.items():
@@ -1373,7 +1390,7 @@ def test_the_reset_and_distill_on_act_cells_recompute():
     assert f"below SR on {below[needle]} of 10 needle seeds and {below[mt5]} of 10 MT5 seeds" in readme
     assert f"{bwt_wake[needle]} on the needle, {bwt_wake[mt5]} on MT5" in readme
     bwt = list(archived_values(DOCS / "results" / RD_ON_ACT[mt5][0], "reset_distill", "bwt").values())
-    results = " ".join((DOCS / "RESULTS.md").read_text().split())  # RESULTS' line on all ten MT5 seeds
+    results = " ".join(_record_text().split())  # RESULTS' line on all ten MT5 seeds
     assert (f"mean **{_mean_se(values[mt5])}**; BWT {_signed(bwt)} against the previous stage and {bwt_wake[mt5]} "
             "against its own wakes") in results
     runs = [json.loads((DOCS / "results" / RD_ON_ACT[mt5][0] / f"{RD}seed{s}" / "results.json").read_text())
@@ -1401,7 +1418,7 @@ def test_the_v_on_act_needle_sentence_recomputes():
     """README's sentence on SR c on ACT's needle runs (descriptive): on how many seeds it ended below SR's archived run
     and above Reset & Distill on ACT's, the mean success after its own wakes, and BWT against its own wakes beside
     SR's; the archived summary holds the same BWT."""
-    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    readme = " ".join((DOCS / "EVIDENCE.md").read_text().split())
     archive, sr_archives = RD_ON_ACT["configs/needle_cpu_m16.json"]
     runs, values = _v_act(10)
     sr = _over(sr_archives, "sr")
@@ -1450,3 +1467,34 @@ def test_the_v_on_act_needle_line_recomputes(text):
     assert all(r["success_after_own_wake"][i] == 1.0 for r, i in zip(runs, regrasp, strict=True))
     assert sum(r["success_matrix"][-1][i] == 0.0 for r, i in zip(runs, regrasp, strict=True)) == 3
     assert "ends at 0.00 in three of five" in line
+
+
+def _summary_and_rest() -> tuple[str, str]:
+    results = (DOCS / "RESULTS.md").read_text()
+    start = results.index("## Summary")
+    end = results.index("## Contents")
+    return results[start:end], results[:start] + results[end:] + _record_text()
+
+
+def test_results_opens_with_a_summary_of_at_most_600_words_whose_every_number_the_record_states():
+    """The summary quotes, it does not compute: each of its numbers is stated in the sections and records below (whose
+    numbers the tests above recompute from the raw files)."""
+    summary, rest = _summary_and_rest()
+    assert len(summary.split()) <= 600
+    rest = " ".join(rest.split())
+    numbers = set(re.findall(r"(?<![\w.])[+-]?\d+\.\d+(?:e-?\d+)?", summary))
+    assert len(numbers) >= 40
+    assert sorted(n for n in numbers if n not in rest) == []
+
+
+def test_the_contents_link_every_section_and_every_protocol_links_its_record():
+    results = (DOCS / "RESULTS.md").read_text()
+    headings = [line[3:] for line in results.splitlines() if line.startswith("## ")]
+    toc = re.findall(r"^- \[(.+)\]\(#([^)]+)\)$", results, re.M)
+    assert [t for t, _ in toc] == [h for h in headings if h not in ("Summary (2026-12-07)", "Contents")]
+    for title, anchor in toc:  # GitHub's anchors: lower case, punctuation dropped, spaces to hyphens
+        assert anchor == re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-"), title
+    linked = re.findall(r"\(results/records/([\w]+\.md)\)", results)
+    assert sorted(linked) == sorted(p.name for p in RECORDS.glob("*.md")) and len(linked) >= 4
+    for name in linked:
+        assert (RECORDS / name).read_text().startswith("# Record: Protocol: "), name

@@ -75,7 +75,7 @@ class SleepConfig:
     ``early_stop_relative=false``), as the paper's rule reads; ``memory_scale`` - the mean over the sleep's memories
     of each memory's own scale at the sleep's start (:meth:`Memory.scale`: a frozen critic's action gap), for
     objectives whose level says nothing of how much they can still change (a critic's value of -892 moving by 0.5
-    is 0.06 % of its level; issue 59, our choice)."""
+    is 0.06 % of its level; our choice)."""
     anchor_strength: float = 1e-2
     """lambda of the proximal anchor (Eq. 2); 0 is the no-anchor ablation."""
     anchor_tau: float | None = 150.0

@@ -20,10 +20,13 @@ the Meta-World one (:mod:`sr_imitation.experiments.mt5_compare`). The driver (th
    ``memory_gb`` each; torch threads and ``OMP_NUM_THREADS``: the run's ``torch_threads``, else its cores; a fresh
    worker process per run) that runs or resumes the run in its own ``<output_root>/<variant>_seed<seed>``; a task
    whose worker dies is retried (``--ray.max_retries``) and the retry resumes the run from its last recorded phase
-   (``progress.json``), which reaches the numbers of an uninterrupted run (tested). ``loop`` runs them here, one
-   after another. A run that depends on another (``sr_mt8`` continues the seed's ``sr`` run) starts when that one
-   has finished. A run that raises an error stops the loop; on Ray the other runs go on, and the failed ones (with
-   the runs waiting for them) are named in one error at the end, the summary then left unwritten;
+   (``progress.json``), which reaches the numbers of an uninterrupted run (tested). ``processes`` runs each in a
+   fresh process of this machine (one torch thread each unless the run's ``torch_threads`` says; ``--processes`` of
+   them at once, default one per core; logs as with Ray); a process that dies fails its run only, and the grid run
+   again resumes it. ``loop`` runs them here, one after another. A run that depends on another (``sr_mt8``
+   continues the seed's ``sr`` run) starts when that one has finished. A run that raises an error stops the loop;
+   with Ray or processes the other runs go on, and the failed ones (with the runs waiting for them) are named in one
+   error at the end, the summary then left unwritten;
 4. copies every run into ``--archive`` as it finishes and logs one line per finished run (variant, seed, final
    AFSR, wall time); Ray's dashboard shows the tasks where ``ray[default]`` is installed (not pinned here);
 5. writes the summary once, at the end (``--summary_only=true``: only the summary, of the finished runs found).
@@ -44,20 +47,21 @@ import importlib
 import json
 import logging
 import os
+import sys
 import threading
 import time
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, NamedTuple, Protocol
 
 from sr_imitation.experiments.archive import RunKey, archive_run, check_archive
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.offscreen import setup_offscreen_rendering
-from sr_imitation.progress import format_duration
+from sr_imitation.progress import PROGRESS_ENV, format_duration
 from sr_imitation.reporting.results import final_headline
 from sr_imitation.stream.rundir import PROGRESS_FILE, RunDirectory
 
@@ -70,7 +74,7 @@ SUBSTRATES: dict[str, str] = {
 """Substrate -> the module whose ``GRID`` (a :class:`GridSubstrate`) builds, runs and summarizes its runs; imported
 on use, so a needle grid never imports Meta-World and a SAC grid never imports the needle environment."""
 
-RUNNERS = ("loop", "ray")
+RUNNERS = ("loop", "ray", "processes")
 
 KILL_HOOK_ENV = "SR_GRID_TEST_KILL"
 """Test hook (fault injection): ``<run name>:<phase key>:<marker file>`` makes the Ray task of that run kill its
@@ -164,8 +168,11 @@ class GridConfig:
     ``<archive>.weights/<run>/``, their checksums in the archived ``weights.json`` (what a re-sleep of a stored stage
     reads: :mod:`sr_imitation.substrates.sac.resleep`, ``sr-sleep``)."""
     runner: str = "ray"
-    """``ray``: every run a Ray task, as many at once as the cluster's resources allow; ``loop``: one after another
-    in this process."""
+    """``ray``: every run a Ray task, as many at once as the cluster's resources allow; ``processes``: every run a
+    process of this machine, ``processes`` at once, one torch thread each (no Ray); ``loop``: one after another in
+    this process."""
+    processes: int | None = None
+    """With ``--runner=processes``: how many runs at once (``None``: one per core of this machine)."""
     summary_only: bool = False
     """Run nothing, only write the summary of the planned runs found finished (archive first, then
     ``output_root``; not checked against the settings)."""
@@ -175,6 +182,8 @@ class GridConfig:
     def __post_init__(self) -> None:
         if self.runner not in RUNNERS:
             raise ValueError(f"runner: unknown {self.runner!r}; choose from {list(RUNNERS)}")
+        if self.processes is not None and self.processes < 1:
+            raise ValueError(f"processes: must be >= 1, got {self.processes}")
 
 
 def run_name(variant: str, seed: int) -> str:
@@ -344,7 +353,8 @@ def run_grid(cfg: GridConfig, substrate: GridSubstrate | None = None) -> dict[st
         logger.info(_finished_line(key, {**info, "run_dir": out}, len(done), len(todo), time.monotonic() - start))
 
     if todo:
-        (_run_ray if cfg.runner == "ray" else _run_loop)(cfg, substrate, plan, todo, on_finished)
+        runner = {"ray": _run_ray, "processes": _run_processes, "loop": _run_loop}[cfg.runner]
+        runner(cfg, substrate, plan, todo, on_finished)
     runs: dict[str, dict[str, Path]] = {}
     for key, run in plan.items():
         out = Path(run.output_dir)
@@ -357,11 +367,12 @@ def run_grid(cfg: GridConfig, substrate: GridSubstrate | None = None) -> dict[st
 
 def _pin_threads(plan: Mapping[RunKey, Any], cfg: GridConfig) -> None:
     """A run that leaves its torch threads to the process (``torch_threads`` null) gets the number it will run with
-    (a Ray task: its cores; the loop: this process's), so that the driver's fingerprints, the archive check and the
-    run itself agree: results are reproducible at a fixed thread count only, and the count is fingerprinted."""
+    (a Ray task: its cores; a process of ``--runner=processes``: one; the loop: this process's), so that the
+    driver's fingerprints, the archive check and the run itself agree: results are reproducible at a fixed thread
+    count only, and the count is fingerprinted."""
     import torch
 
-    threads = max(1, int(cfg.ray.num_cpus)) if cfg.runner == "ray" else torch.get_num_threads()
+    threads = {"ray": max(1, int(cfg.ray.num_cpus)), "processes": 1}.get(cfg.runner) or torch.get_num_threads()
     for run in plan.values():
         if getattr(run, "torch_threads", 0) is None:
             run.torch_threads = threads
@@ -449,13 +460,136 @@ def _run_ray(cfg: GridConfig, substrate: GridSubstrate, plan: Mapping[RunKey, An
                 continue
             on_finished(key, info)
             release(key, True)
-        if failed:
-            raise RuntimeError(f"{len(failed)} of {len(todo)} runs failed (the finished ones are kept"
-                               f"{' and archived' if cfg.archive else ''}; run the grid again to resume the others): "
-                               + "; ".join(f"{run_name(*k)}: {why}" for k, why in failed.items()))
+        _raise_failed(failed, len(todo), cfg)
     finally:
         if started:
             ray.shutdown()
+
+
+def _raise_failed(failed: Mapping[RunKey, str], total: int, cfg: GridConfig) -> None:
+    """One error naming every failed run and why (nothing when none failed).
+
+    Args:
+        failed: (variant, seed) -> why it failed, in a few words.
+        total: how many runs the grid started or held back.
+        cfg: the grid's settings (``archive``: whether the finished runs were archived).
+    """
+    if failed:
+        raise RuntimeError(f"{len(failed)} of {total} runs failed (the finished ones are kept"
+                           f"{' and archived' if cfg.archive else ''}; run the grid again to resume the others): "
+                           + "; ".join(f"{run_name(*k)}: {why}" for k, why in failed.items()))
+
+
+POLL_S = 5.0
+"""Seconds between two looks of the ``processes`` runner at its runs (ended processes, newly completed phases)."""
+
+
+def _process_main(module: str, variant: str, run: Any, log_file: str, threads: int) -> None:
+    """The body of one run's process (``--runner=processes``): :func:`_task` with everything the process writes
+    (log lines, progress as log lines, warnings, a traceback) in the run's log, not on the driver's console where two
+    runs would interleave; an error exits with status 1."""
+    os.environ[PROGRESS_ENV] = "log"
+    os.environ["OMP_NUM_THREADS"] = str(threads)
+    Path(log_file).parent.mkdir(parents=True, exist_ok=True)
+    with open(log_file, "ab", buffering=0) as log:
+        for stream in (sys.stdout, sys.stderr):
+            stream.flush()
+            os.dup2(log.fileno(), stream.fileno())
+    logging.getLogger().handlers.clear()  # a console handler an import installed writes to the log now: no copies
+    try:
+        _task(module, variant, run, log_file, threads)
+    except BaseException:  # noqa: BLE001 - logged by _task; the driver reads the exit status
+        sys.exit(1)
+
+
+class _Started(NamedTuple):
+    """One run's process as the ``processes`` runner follows it."""
+
+    process: Any
+    start: float
+    resumed: list[str]
+    """Phases done before the process started."""
+
+
+def _start_process(ctx: Any, module: str, key: RunKey, run: Any, logs: Path) -> _Started:
+    """Start ``run``'s process (spawned: a fresh interpreter) and log where its output goes.
+
+    Args:
+        ctx: the ``spawn`` multiprocessing context.
+        module: the module whose ``GRID`` runs it.
+        key: (variant, seed).
+        run: the run's config (``output_dir``, ``torch_threads`` pinned).
+        logs: the folder of the runs' logs.
+
+    Returns:
+        The process, its start time and the phases the run had already done.
+    """
+    log = logs / f"{run_name(*key)}.log"
+    resumed = completed_phases(run.output_dir)
+    process = ctx.Process(target=_process_main, name=run_name(*key),
+                          args=(module, key[0], run, str(log), int(getattr(run, "torch_threads", None) or 1)))
+    process.start()
+    logger.info("started %s seed %d -> %s (log: %s)", key[0], key[1], run.output_dir, log)
+    return _Started(process, time.perf_counter(), resumed)
+
+
+def _log_new_phases(plan: Mapping[RunKey, Any], running: Mapping[RunKey, _Started], seen: dict[RunKey, int]) -> None:
+    """One line for each running run that completed phases since the last look: how many, and its latest stage
+    (``seen``: the count at the last look, updated)."""
+    for key in running:
+        phases = completed_phases(plan[key].output_dir)
+        if len(phases) > seen.get(key, 0):
+            stage = max((int(p.split(".")[0]) for p in phases if p.split(".")[0].isdigit()), default=0)
+            logger.info("%s: %d phases done, stage %d reached", run_name(*key), len(phases), stage)
+        seen[key] = len(phases)
+
+
+def _run_processes(cfg: GridConfig, substrate: GridSubstrate, plan: Mapping[RunKey, Any], todo: list[RunKey],
+                   on_finished: Callable[[RunKey, dict[str, Any]], None]) -> None:
+    """Every run in ``todo`` in its own process, ``cfg.processes`` at once (default: one per core); a run waits for
+    the run it continues (``substrate.after``). A process that fails fails its run (and those waiting for it) only;
+    they are named in one error at the end."""
+    import multiprocessing
+    from multiprocessing.connection import wait
+
+    ctx = multiprocessing.get_context("spawn")
+    slots = cfg.processes or os.cpu_count() or 1
+    logs = Path(cfg.output_root) / "logs"
+    logs.mkdir(parents=True, exist_ok=True)
+    module = type(substrate).__module__  # its GRID, imported by the process
+    waiting = {key: substrate.after(*key) for key in todo}
+    ready = [key for key in todo if waiting[key] not in todo]
+    waiting = {key: dep for key, dep in waiting.items() if dep in todo}
+    running: dict[RunKey, _Started] = {}
+    seen: dict[RunKey, int] = {}
+    failed: dict[RunKey, str] = {}
+    try:
+        while ready or running:
+            while ready and len(running) < slots:
+                key = ready.pop(0)
+                running[key] = _start_process(ctx, module, key, plan[key], logs)
+                seen[key] = len(running[key].resumed)
+            wait([started.process.sentinel for started in running.values()], timeout=POLL_S)
+            _log_new_phases(plan, running, seen)
+            for key in [k for k, started in running.items() if not started.process.is_alive()]:
+                started = running.pop(key)
+                started.process.join()
+                ok = started.process.exitcode == 0
+                if ok:
+                    on_finished(key, {"wall_s": time.perf_counter() - started.start, "resumed_phases": started.resumed})
+                else:
+                    log = logs / f"{run_name(*key)}.log"
+                    failed[key] = f"its process ended with status {started.process.exitcode} (log: {log})"
+                    logger.error("failed %s seed %d: %s", key[0], key[1], failed[key])
+                for dependent in [k for k, dep in waiting.items() if dep == key and ok]:
+                    del waiting[dependent]
+                    ready.append(dependent)
+    finally:  # the driver stopped early (an interrupt, an error): its runs stop with it (a re-run resumes them)
+        for started in running.values():
+            started.process.terminate()
+            started.process.join()
+    failed.update({key: f"not started: {run_name(*dep)} failed" for key, dep in waiting.items()})
+    _raise_failed(failed, len(todo), cfg)
 
 
 def main(args: list[str] | None = None, config_class: type[GridConfig] = GridConfig,

@@ -77,7 +77,7 @@ VARIANTS: dict[str, list[str]] = {
     "sr_reverse": ["--stream.name=mt5-reverse"],
     "sr_mt8": ["--stream.name=mt8"],  # + --stream.extend_from=<the seed's sr run>
     "mt_joint": [],  # the oracle (substrates.sac.mt_joint): all skills at once, plain actor; reported apart
-    # issue 59's candidate sleeps as whole runs (docs/RESULTS.md, its protocol: step B and the confirmation's V):
+    # the candidate sleeps as whole runs (docs/RESULTS.md, "a SAC sleep that keeps what its wakes learn"):
     # sr_<candidate> with the screening's flags; c adds Reset & Distill's wake to the A-winner's setting (or to none)
     **{f"sr_{name}": flags for name, flags in SLEEP_CANDIDATES.items() if name != "control"},
     "sr_c": ["--method_options={reset_wake: true}"],
@@ -103,7 +103,7 @@ SECTIONS: dict[str, list[str]] = {
         "wake_only", "sr_mean_grad", "sr_no_anchor", "sr_no_exc", "sr_no_wake_exc", "sr_no_sleep_exc"],
     "Order and length (the paper's order/length table; MT8's metrics are over its eight skills)": [
         "sr_reverse", "sr_mt8"],
-    "Issue 59's candidate sleeps as whole runs (docs/RESULTS.md, its protocol), beside Reset & Distill": [
+    "The candidate SAC sleeps as whole runs (docs/RESULTS.md, their protocol), beside Reset & Distill": [
         "sr_a1", "sr_a2", "sr_b1", "sr_b2", "sr_c", "sr_c_a1", "sr_c_a2", "sr_c_b1", "sr_c_b2", "sr_c_b1_pw",
         "reset_distill"],
     "Oracle, reported apart (multi-task SAC on all skills at once; BWT 0 by definition)": ["mt_joint"],

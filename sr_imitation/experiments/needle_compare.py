@@ -13,7 +13,8 @@ per earlier skill, as many as SR's memories hold, mixed into every wake batch; n
 Distill on ACT (:mod:`sr_imitation.stream.methods.reset_distill`: a fresh ACT per skill, its action chunks on as many
 frames as SR's memory holds distilled into the shared ACT after every skill, with the presets' sleep budget);
 ``sr_c``, SR with Reset & Distill's wake (``--method_options={reset_wake: true}``: every wake from a fresh ACT, every
-sleep from the shared policy; issue 59's variant c on ACT, whose memories already distill the wake-end actor); the SR
+sleep from the shared policy; the SAC protocol's variant c on ACT, whose memories already distill the wake-end
+actor); the SR
 ablations ``sr_no_anchor`` (anchor strength 0), ``sr_mean_grad`` (the paper's Mean-grad: raw-gradient mean),
 ``sr_mean_normalized`` (mean of normalized gradients), ``sr_nash_fw`` (the paper's warm-started Frank-Wolfe, 5
 iterations) and ``sr_sleep_only`` (our ablation: no wake-time distillation, gamma_k = 0, so every wake is sequential
@@ -89,9 +90,9 @@ VARIANTS: dict[str, Variant] = {
     # distilled into the shared ACT after every skill; the paper gives no ACT settings: our choice is the presets'
     # sleep budget (1000 steps, batch 32, lr 1e-5), so that it differs from SR in the method, not the optimizer's budget
     "reset_distill": Variant("reset_distill", {"enabled": True}, {"iterations": 1000, "batch_size": 32, "lr": 1e-5}),
-    # issue 59's variant c on ACT: Reset & Distill's wake (a fresh ACT per skill) with SR's sleep. ACT-SR's memories are
-    # already the wake-end actor's outputs on stored frames (the paper's IL memory objective), which is what the SAC
-    # option expert_memory: instead ("b1") adds there, so sr_c here is the SAC gate's sr_c_b1
+    # the SAC protocol's variant c on ACT: Reset & Distill's wake (a fresh ACT per skill) with SR's sleep. ACT-SR's
+    # memories are already the wake-end actor's outputs on stored frames (the paper's IL memory objective), which is
+    # what the SAC option expert_memory: instead ("b1") adds there, so sr_c here is the SAC gate's sr_c_b1
     "sr_c": Variant("sr", {"enabled": True}, {"reset_wake": True}),
     "mt_joint": Variant("sequential_bc", _OFF),  # the oracle: run by substrates.act.mt_joint, not the stream
     # EWC's lambda grid on ACT (ewc above: lambda 1, the paper's MT5 choice); our grid, wider than the paper's MT5

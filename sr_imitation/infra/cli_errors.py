@@ -14,6 +14,8 @@ from __future__ import annotations
 import errno
 import logging
 import os
+import re
+import shlex
 import sys
 from collections.abc import Callable, Sequence
 from typing import TypeVar
@@ -31,6 +33,86 @@ DISK_FULL = (errno.ENOSPC, errno.EDQUOT)
 """Errors of a full disk or an exhausted quota: reported as one line naming the file, whatever wrote it."""
 DISK_FULL_ADVICE = ("free space, then continue with --resume=true (a phase is recorded only once all its files are "
                     "written, so the interrupted one is redone)")
+"""The advice of a full disk; ``continue with --resume=true`` in it (and in ``WriteError.RESUME_ADVICE``) becomes
+what the command that failed can do (:func:`next_step`)."""
+
+RESUME_FLAGS = {"sr-train": "--resume", "sr-rl-train": "--resume", "sr-main": "--train.resume"}
+"""The flag that continues an interrupted run, of each command that has one (the others have none)."""
+
+FLAG_NAMES = {"sr-main": {"--resume": "--train.resume", "--overwrite": "--train.overwrite",
+                          "--output_dir": "--train.output_dir"}}
+"""A command's own names of the flags that messages shared with ``sr-train`` name (``sr-main`` sets them in its
+train section)."""
+
+CONTINUE = "continue with --resume=true"
+"""The phrase of a shared message that :func:`next_step` replaces."""
+
+_started: list[str] = []
+"""The run folders this process started or resumed (:func:`note_run_started`): only then is a resume possible."""
+
+
+def note_run_started(folder: str | os.PathLike[str]) -> None:
+    """Record that ``folder`` now holds a run (its settings fingerprint is written or was checked), so that an
+    interruption or a failed write suggests resuming it.
+
+    Args:
+        folder: the run folder.
+    """
+    _started.append(str(folder))
+
+
+def next_step(prog: str, args: Sequence[str]) -> str | None:
+    """What a user can do after ``prog`` stopped on an interruption or a failed write, as a pasteable command with
+    every value shell-quoted, or ``None`` where no command would do what it says.
+
+    Args:
+        prog: the command's name (``sr-train``).
+        args: its command line (without ``--debug``).
+
+    Returns:
+        ``continue with: sr-train ... --resume=true`` for a command with a resume flag once its run exists (every
+        ``--resume`` / ``--overwrite`` flag given replaced by the resume flag); ``run it again: ...`` for such a
+        command before its run exists and for ``sr-grid`` (finished runs are skipped, the others resume); else
+        ``None``.
+    """
+    flag = RESUME_FLAGS.get(prog)
+    if flag is not None and _started:
+        names = {flag, FLAG_NAMES.get(prog, {}).get("--overwrite", "--overwrite")}
+        kept = [a for a in args if a.split("=", 1)[0] not in names]
+        return "continue with: " + shlex.join([prog, *kept, f"{flag}=true"])
+    if flag is not None or prog == "sr-grid":
+        return "run it again: " + shlex.join([prog, *args])
+    return None
+
+
+def own_flag_names(prog: str, message: str) -> str:
+    """``message`` with the flags it names as ``sr-train`` does spelled as ``prog`` spells them (:data:`FLAG_NAMES`).
+
+    Args:
+        prog: the command that prints it.
+        message: a message shared with ``sr-train``.
+
+    Returns:
+        The message in ``prog``'s flag names; a message that names a command (``... with sr-record``) is kept as it
+        is: its flags are that command's.
+    """
+    if re.search(r"\bsr-[a-z]", message):
+        return message
+    for flag, own in FLAG_NAMES.get(prog, {}).items():
+        message = re.sub(rf"(?<![\w.-]){re.escape(flag)}(?=[=\s,;)]|$)", own, message)
+    return message
+
+
+def _with_next_step(prog: str, args: Sequence[str], message: str) -> str:
+    """``message`` with its ``continue with --resume=true`` (in ``sr-train``'s or ``prog``'s flag names) replaced by
+    :func:`next_step`, or dropped where there is none."""
+    phrase = next((p for p in (CONTINUE, own_flag_names(prog, CONTINUE)) if p in message), None)
+    if phrase is None:
+        return message
+    step = next_step(prog, args)
+    if step is None:
+        return message.replace(f" and {phrase}", "").replace(f", then {phrase}", "").replace(phrase, "")
+    return message.replace(phrase, step)
 
 
 class UsageError(ValueError):
@@ -155,16 +237,19 @@ def setup_logging(level: int = logging.INFO) -> None:
 def run_cli[T](prog: str, main: Callable[[list[str]], T], args: Sequence[str] | None = None) -> T:
     """Run ``main(args)`` (``sys.argv[1:]`` by default), turning user errors into one line and exit status 2."""
     debug, rest = split_debug(list(sys.argv[1:] if args is None else args))
+    _started.clear()
     try:
         return main(rest)
     except KeyboardInterrupt:
-        sys.stderr.write(f"{prog}: interrupted (resume with --resume=true)\n")
+        step = next_step(prog, rest)
+        sys.stderr.write(f"{prog}: interrupted{'' if step is None else f'; {step}'}\n")
         raise SystemExit(130) from None
     except Exception as exc:
         user = _user_error(exc)
         if user is None or debug:
             raise
         message = " ".join((_yaml_message(user) or str(user)).split())  # one line
+        message = _with_next_step(prog, rest, own_flag_names(prog, message))
         key = _decoding_key(exc)
         if key and not message.startswith(("`", key)):
             message = f"{key}: {message}"  # draccus knew which setting it was decoding

@@ -6,8 +6,11 @@ import contextlib
 import dataclasses
 import fcntl
 import json
+import logging
 import os
+import re
 import shlex
+import shutil
 import socket
 import sys
 import threading
@@ -16,6 +19,8 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from sr_imitation.io import WriteError
+
+logger = logging.getLogger(__name__)
 
 LOCK_SUFFIX = ".lock"
 """``.<name>.lock``: the lock of the folder ``<name>``, in the folder's parent (outside the folder, so that neither
@@ -195,6 +200,26 @@ def _same_file(fd: int, path: Path) -> bool:
     return (on_disk.st_dev, on_disk.st_ino) == (opened.st_dev, opened.st_ino)
 
 
+def check_folder_path(folder: str | os.PathLike[str]) -> None:
+    """``folder`` can be a folder: neither it nor a folder above it is a file (or anything else but a folder).
+
+    Args:
+        folder: a run or output folder about to be written (it need not exist).
+
+    Raises:
+        NotADirectoryError: one line naming ``folder`` and the file in the way, before anything is written (instead
+            of an ``[Errno 20]`` once the command's work is done, or a resume hint for a run that cannot exist).
+    """
+    folder = Path(os.path.abspath(folder))
+    for path in (folder, *folder.parents):
+        if path.exists() and not path.is_dir():
+            what = "is a file" if path == folder else f"lies in {path}, which is a file"
+            raise NotADirectoryError(f"{folder}: {what}, not a folder; choose another output folder (nothing was "
+                                     "written)")
+        if path.is_dir():
+            return
+
+
 def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
     """Take the lock of ``folder`` for this process (again, if it holds it already: counted, see :func:`release`).
 
@@ -208,6 +233,7 @@ def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
 
     Raises:
         FolderBusyError: another process holds the lock (one line naming the folder and the holder).
+        NotADirectoryError: ``folder`` or a folder above it is a file (:func:`check_folder_path`).
         WriteError: the parent folder or the lock file cannot be made.
     """
     path = lock_path(folder)
@@ -215,6 +241,7 @@ def acquire(folder: str | os.PathLike[str], command: str | None = None) -> Path:
         if path in _HELD:
             _HELD[path].depth += 1
             return path
+        check_folder_path(folder)
         made = _make_parents(path, Path(folder))
         try:
             fd = _open_locked(path, Path(folder))
@@ -281,3 +308,74 @@ def holds(folder: str | os.PathLike[str]) -> bool:
     """
     with _HELD_GUARD:
         return lock_path(folder) in _HELD
+
+
+MKDTEMP_SUFFIX = r"[a-z0-9_]{8}"
+"""What ``tempfile.mkdtemp`` appends to its prefix (a regular expression): the staging folders' random part."""
+
+
+def leftovers(where: str | os.PathLike[str], pattern: str) -> list[Path]:
+    """The entries of the folder ``where`` whose names match the regular expression ``pattern`` entirely, never a
+    lock file (:func:`is_lock_file`).
+
+    Args:
+        where: the folder to look in (missing: none).
+        pattern: a regular expression for a whole name (``\\.out\\.[a-z0-9_]{8}``).
+
+    Returns:
+        Their paths, sorted.
+    """
+    where = Path(where)
+    if not where.is_dir():
+        return []
+    regex = re.compile(pattern)
+    return sorted(p for p in where.iterdir() if regex.fullmatch(p.name) and not is_lock_file(p))
+
+
+def remove_leftovers(folder: str | os.PathLike[str], where: str | os.PathLike[str], pattern: str,
+                     command: str) -> list[Path]:
+    """Remove what a killed earlier ``command`` on ``folder`` left in ``where`` (``pattern``: :func:`leftovers`),
+    each in one log line, or one warning line naming what cannot be removed. Only while this process holds
+    ``folder``'s lock: a live writer's staging folder is its own (it holds the lock), so one found by the lock's
+    holder was left by a process that died; without the lock nothing is touched.
+
+    Args:
+        folder: the output folder whose lock this process must hold.
+        where: the folder the leftovers lie in (``folder``'s parent for staging folders beside it, or ``folder``).
+        pattern: a regular expression for a leftover's whole name.
+        command: the command that left them, for the log line (``sr-sleep``).
+
+    Returns:
+        The leftovers removed.
+    """
+    if not holds(folder):
+        return []
+    removed = []
+    for path in leftovers(where, pattern):
+        try:
+            if path.is_dir() and not path.is_symlink():
+                shutil.rmtree(path)
+            else:
+                path.unlink()
+        except OSError as exc:
+            logger.warning("%s: cannot remove what a killed earlier %s left (%s); remove it yourself", path, command,
+                           exc.strerror or exc)
+            continue
+        logger.info("%s: removed, left by a killed earlier %s", path, command)
+        removed.append(path)
+    return removed
+
+
+def remove_staging_beside(folder: str | os.PathLike[str], command: str) -> list[Path]:
+    """:func:`remove_leftovers` of the staging folders ``.<name>.XXXXXXXX`` that
+    :func:`sr_imitation.io.staged_directory` builds ``folder`` in, beside it (never its lock ``.<name>.lock``).
+
+    Args:
+        folder: the output folder (its lock held by this process).
+        command: the command that builds it (``sr-sleep``).
+
+    Returns:
+        The staging folders removed.
+    """
+    folder = Path(os.path.abspath(folder))
+    return remove_leftovers(folder, folder.parent, rf"\.{re.escape(folder.name)}\.{MKDTEMP_SUFFIX}", command)

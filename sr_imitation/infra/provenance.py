@@ -62,7 +62,7 @@ LIBRARY_ISA_VARIABLES = ("MKL_ENABLE_INSTRUCTIONS", "MKL_CBWR", "ATEN_CPU_CAPABI
                          "OPENBLAS_CORETYPE", "NPY_DISABLE_CPU_FEATURES")
 """Environment variables that make the numerical libraries pick other kernels on the same CPU (MKL behind torch's
 Linear, torch's ATen kernels, oneDNN, OpenBLAS and numpy behind numpy), so other floats from the same seed:
-tools/experiments/isa_env.sh sets them for queued runs (docs/RESULTS.md, issue 59's 2026-11-30 07:30 line)."""
+tools/experiments/isa_env.sh sets them for queued runs (docs/results/records/sac_sleep.md, 2026-11-30 07:30)."""
 
 
 def library_caps(environ: Mapping[str, str] | None = None) -> dict[str, str]:

@@ -12,11 +12,17 @@ LOGGERS = ("lerobot.utils.import_utils", "lerobot.datasets.video_utils")
 
 
 class _DropTorchcodecTracebacks(logging.Filter):
-    """Keeps one line of LeRobot's warning that torchcodec does not load (FFmpeg's libraries are missing)."""
+    """Keeps one line of LeRobot's warning that torchcodec does not load (FFmpeg's libraries are missing), once a
+    process: LeRobot repeats it for every dataset it opens."""
+
+    said = False
 
     def filter(self, record: logging.LogRecord) -> bool:
         message = record.getMessage()
         if "torchcodec" in message and "cannot be loaded" in message:
+            if _DropTorchcodecTracebacks.said:
+                return False
+            _DropTorchcodecTracebacks.said = True
             record.msg, record.args = NOTICE, ()
         return True
 

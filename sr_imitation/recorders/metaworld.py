@@ -43,11 +43,12 @@ from sr_imitation.envs.metaworld.tasks import (
 )
 from sr_imitation.envs.metaworld.video import CAMERAS
 from sr_imitation.infra.cli_parsing import parse_command
-from sr_imitation.infra.folder_lock import hold_folder
+from sr_imitation.infra.folder_lock import hold_folder, remove_leftovers
 from sr_imitation.io import write_checked_json
 from sr_imitation.progress import Progress
 from sr_imitation.recorders.needle import (
     RECORD_SETTINGS_FILE,
+    STAGING_PATTERN,
     VIDEO_CODECS,
     _canonical_data_files,
     _canonical_stats,
@@ -231,6 +232,7 @@ def record(cfg: MetaWorldRecordConfig) -> list[Path]:
     (:func:`sr_imitation.recorders.needle.foreign_dataset_problem`: nothing is removed). ``cfg.root``'s lock is held
     throughout, taken before the targets are looked at."""
     with hold_folder(cfg.root, "sr-record"):
+        remove_leftovers(cfg.root, cfg.root, STAGING_PATTERN, "sr-record")  # a killed earlier recording's
         return _record(cfg)
 
 

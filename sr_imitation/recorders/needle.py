@@ -30,7 +30,7 @@ from sr_imitation.envs.needle.expert import ExpertSettings, NeedleExpert
 from sr_imitation.envs.needle.skills import SKILL_NAMES, skill_from_name
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
-from sr_imitation.infra.folder_lock import hold_folder
+from sr_imitation.infra.folder_lock import MKDTEMP_SUFFIX, hold_folder, remove_leftovers
 from sr_imitation.io import read_checked_json, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import Progress
@@ -291,6 +291,11 @@ def _canonical_stats(dataset_root: Path) -> None:
     stats_path.write_text(json.dumps(ordered, indent=4, ensure_ascii=False))
 
 
+STAGING_PATTERN = r"\..+\.tmp-" + MKDTEMP_SUFFIX
+"""The name of a dataset being recorded (``.<skill>.tmp-XXXXXXXX`` in the root, both recorders): one found while
+``sr-record`` holds the root's lock was left by a killed recording, and is removed."""
+
+
 def record_skill(cfg: RecordConfig, skill: str, skill_index: int) -> Path:
     """Record ``cfg.num_episodes`` successful demos of ``skill``; returns the dataset path.
 
@@ -417,6 +422,7 @@ def record(cfg: RecordConfig) -> list[Path]:
     the targets are looked at); refuses up front if a target exists and not ``overwrite``, or, with ``overwrite``, if
     a target is not a dataset of ours (:func:`check_overwrite`)."""
     with hold_folder(cfg.root, "sr-record"):
+        remove_leftovers(cfg.root, cfg.root, STAGING_PATTERN, "sr-record")  # a killed earlier recording's
         if not cfg.overwrite:
             existing = [str(cfg.target(s)) for s in cfg.skills if cfg.target(s).exists()]
             if existing:

@@ -312,7 +312,13 @@ def _losses_markdown(results: Mapping[str, Any]) -> list[str]:
     return lines
 
 
-def _save(fig: Any, path: Path) -> None:
+def save_figure(fig: Any, path: Path) -> None:
+    """Write a matplotlib figure as a PNG atomically (tight layout, 110 dpi) and close it.
+
+    Args:
+        fig: the figure.
+        path: the PNG file.
+    """
     import matplotlib.pyplot as plt
 
     buf = io.BytesIO()
@@ -348,7 +354,7 @@ def write_plots(results: Mapping[str, Any], out: Path) -> None:
         ax.set_xticks(ks)
         ax.grid(alpha=0.3)
     fig.suptitle(f"{results['substrate']} / {results['label']} / seed {results['seed']}", fontsize=9)
-    _save(fig, out / "metrics.png")
+    save_figure(fig, out / "metrics.png")
 
     s = np.array([[np.nan if x is None else x for x in row] for row in results["success_matrix"]], dtype=float)
     wake = np.array([np.nan if x is None else x for x in results["success_after_own_wake"]], dtype=float)
@@ -364,7 +370,7 @@ def write_plots(results: Mapping[str, Any], out: Path) -> None:
     ax.set_xlabel("evaluated skill i")
     ax.set_title("success S[k][i]")
     fig.colorbar(im, ax=ax, fraction=0.046)
-    _save(fig, out / "success_matrix.png")
+    save_figure(fig, out / "success_matrix.png")
 
 
 def write_results(out: Path, results: Mapping[str, Any], plots: bool = True) -> None:

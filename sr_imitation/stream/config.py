@@ -153,8 +153,8 @@ is one ``--flag`` is that ``sr-train`` flag (accepted as it; giving both is refu
 answer (``{value}``: the value given). A flag ``sr-train`` has itself (``--seed``, ``--output_dir``, ``--resume``,
 ``--wandb.enable``, ``--policy.*``) is never looked up here, so a flag added to the config later wins over its entry.
 ``--policy.type`` other than ``act_sr`` is answered by :data:`LEROBOT_TRAIN_NOTES`; ``--eval.n_episodes`` by
-:data:`RENAMED_FLAGS`. Applied by :func:`sr_imitation.infra.cli_parsing.parse_command`; README, "Coming from
-LeRobot"."""
+:data:`RENAMED_FLAGS`. Applied by :func:`sr_imitation.infra.cli_parsing.parse_command`; docs/COMMANDS.md, "A command
+line that teaches (coming from LeRobot)"."""
 
 LEROBOT_TRAIN_NOTES: dict[str, str] = {
     "--policy.type": "sr-train trains ACT-SR (ACT with sleep consolidation) only; train other LeRobot policies with "

@@ -35,6 +35,7 @@ from collections.abc import Callable, Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+from sr_imitation.infra.cli_errors import note_run_started
 from sr_imitation.infra.fingerprint import (
     FINGERPRINT_FILE,
     SettingsFingerprint,
@@ -282,8 +283,7 @@ class RunDirectory:
             self._set_aside()
             exists = False
         elif exists and not self.resume:
-            raise FileExistsError(
-                f"{self.path} already exists; pass --resume=true to continue it or --overwrite=true to replace it")
+            raise FileExistsError(self.exists_message())
         elif not exists and self.resume:
             raise FileNotFoundError(f"--resume=true but {self.path} holds no run to resume")
         if exists:
@@ -298,6 +298,7 @@ class RunDirectory:
             verify_run_files(self.path, (*REGENERATED_FILES, self.config_file, *LEGACY_CONFIG_FILES, FINGERPRINT_FILE))
             self._remove_leftovers()
             self._finish_start()
+            note_run_started(self.path)
             return
         with self.undo_on_error():
             try:
@@ -307,7 +308,23 @@ class RunDirectory:
             for leftover in sorted(self.path.glob(START_LEFTOVER)):  # a start killed while writing the fingerprint
                 leftover.unlink()
             write_fingerprint(self.path / FINGERPRINT_FILE, self.fingerprint)
+            note_run_started(self.path)
             write_checked_json(self.path / self.config_file, self.stored_config)
+
+    def exists_message(self) -> str:
+        """Why a fresh start in the occupied ``path`` is refused, naming only the flags that would work: resume and
+        overwrite for a run (its settings fingerprint is there), overwrite for what ``--overwrite`` may replace,
+        neither for a folder of other files.
+
+        Returns:
+            The one-line refusal.
+        """
+        if (self.path / FINGERPRINT_FILE).is_file():
+            return f"{self.path} already exists; pass --resume=true to continue it or --overwrite=true to replace it"
+        problem = run_entries_problem(self.path, self.entries)
+        if problem is None:
+            return f"{self.path} already exists and holds no run to resume; pass --overwrite=true to replace it"
+        return f"{self.path} already exists and holds no run ({problem}); choose another output_dir"
 
     def start_unfinished(self) -> bool:
         """Whether the run's start was killed after its fingerprint and before its stored config was in place: it

@@ -111,7 +111,8 @@ def test_the_lock_file_lies_beside_the_folder_and_is_no_entry_of_a_run(tmp_path)
 def test_an_unwritable_parent_is_one_line_naming_it(tmp_path):
     blocker = tmp_path / "a_file"
     blocker.write_text("x")
-    with pytest.raises(OSError, match=r"cannot write .*cannot lock") as refused, hold_folder(blocker / "run"):
+    with pytest.raises(OSError, match=r"run: lies in .*a_file, which is a file, not a folder") as refused, \
+            hold_folder(blocker / "run"):
         pass
     assert "\n" not in str(refused.value)
 

@@ -31,6 +31,7 @@ REPO = Path(__file__).resolve().parents[2]
 def command_configs() -> dict[str, type]:
     """The config dataclass of every ``sr-*`` command that parses one."""
     from sr_imitation.experiments.grid import GridConfig
+    from sr_imitation.experiments.main_compare import MainCompareConfig
     from sr_imitation.recorders.metaworld import MetaWorldRecordConfig
     from sr_imitation.recorders.needle import RecordConfig
     from sr_imitation.substrates.act.cli import EvalCommandConfig
@@ -41,7 +42,8 @@ def command_configs() -> dict[str, type]:
 
     return {"sr-train": TrainStreamConfig, "sr-train --substrate=sac": RLTrainConfig, "sr-main": MainJobConfig,
             "sr-eval": EvalCommandConfig, "sr-sleep": OfflineSleepConfig, "sr-record": RecordConfig,
-            "sr-record --env=metaworld": MetaWorldRecordConfig, "sr-grid": GridConfig, "sr-sac-sleep": ResleepConfig}
+            "sr-record --env=metaworld": MetaWorldRecordConfig, "sr-grid": GridConfig, "sr-sac-sleep": ResleepConfig,
+            "main_compare (.ci/main.sh)": MainCompareConfig}
 
 
 @pytest.fixture(autouse=True)

@@ -1,6 +1,6 @@
 """Reset & Distill (Ahn et al., "Prevalence of negative transfer in continual reinforcement learning: analyses and a
 simple baseline", ICLR 2025, arXiv:2403.05066; the paper's ``ahn2025reset``) as the paper's MT5 baseline (appendix
-B.1), and the same recipe on the ACT imitation substrate (issue 59; our port, the paper runs it on SAC only).
+B.1), and the same recipe on the ACT imitation substrate (our port; the paper runs it on SAC only).
 
 Each skill is learned by freshly initialized networks (SAC: actor, critic and temperature, the observation normalizer
 shared; ACT: the whole policy, the stream's statistics shared), seeded from (run seed, skill), the global random

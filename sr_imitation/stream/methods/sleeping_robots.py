@@ -5,7 +5,7 @@ losses of the frozen memories M_1..M_{k-1} (paper Eq. L_wake); a memory M_k afte
 over M_1..M_k (Nash bargaining, Eq. 1, with the anchor of Eq. 2), run by the engine.
 
 Two options (``--method_options``, :class:`SleepingRobotsConfig`; both off by default, which is the paper's SR) serve
-issue 59's question, why SR's SAC sleep keeps less than Reset & Distill: ``expert_memory`` adds to each skill's memory
+the question why SR's SAC sleep keeps less than Reset & Distill: ``expert_memory`` adds to each skill's memory
 (``beside``) or puts in its place (``instead``) the wake-end actor's Gaussian on the memory's states, so the sleep
 bargains over distillation objectives (Reset & Distill's expert memory and loss, the paper's IL memory objective);
 ``reset_wake`` gives every wake fresh networks (Reset & Distill's wake) and starts every sleep from the shared actor
@@ -42,11 +42,11 @@ class SleepingRobotsConfig:
     ``instead``: the wake-end actor's pre-tanh Gaussian [mean, log std] on the memory's states, with the loss
     ||[mu_theta, log sigma_theta] - [mu_i, log sigma_i]||^2 summed over the 8 numbers (Reset & Distill's expert memory;
     substrates with a Gaussian actor). ``beside``: both, two objectives per skill in the bargaining (our choice for
-    issue 59's screening)."""
+    the SAC sleep's screening)."""
     reset_wake: bool = False
     """Every wake from freshly initialized actor, critic and temperature (Reset & Distill's wake; the normalizer is
     kept), and every sleep from the shared actor the previous sleep left (after skill 1: the first wake's actor)
-    instead of from the wake's actor (issue 59's candidate c; substrates with resettable networks)."""
+    instead of from the wake's actor (the SAC protocol's candidate c; substrates with resettable networks)."""
 
     def __post_init__(self) -> None:
         if self.expert_memory not in EXPERT_MEMORY:

@@ -29,13 +29,14 @@ from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
 from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
 from sr_imitation.infra.cli_parsing import parse_command, take_flag, wants_help
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
-from sr_imitation.infra.folder_lock import hold_folder
-from sr_imitation.io import MANIFEST, read_checked_json, read_config_json, verify_manifest, write_checked_json
+from sr_imitation.infra.folder_lock import hold_folder, remove_leftovers, remove_staging_beside
+from sr_imitation.io import read_checked_json, read_config_json, verify_checkpoint, write_checked_json
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 from sr_imitation.substrates.act.config import LEGACY_DEFAULTS, MainJobConfig
 from sr_imitation.substrates.act.evaluate import EvalConfig, evaluate_skills, make_env_factory
 from sr_imitation.substrates.act.trainer import TrainStreamConfig, train_stream
+from sr_imitation.video import PARTIAL_VIDEO
 
 logger = logging.getLogger(__name__)
 
@@ -278,6 +279,7 @@ def eval_main(args: list[str] | None = None) -> None:
     with checkpoint_defaults(rest) if config_path is None else contextlib.nullcontext(config_path) as defaults:
         cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=defaults, names=LEROBOT_EVAL_FLAGS)
     with hold_folder(cfg.output_dir, "sr-eval"):  # the only writer of output_dir, before it is looked at
+        remove_leftovers(cfg.output_dir, Path(cfg.output_dir) / "videos", PARTIAL_VIDEO, "sr-eval")
         evaluate_checkpoint(cfg)
 
 
@@ -291,8 +293,7 @@ def evaluate_checkpoint(cfg: EvalCommandConfig) -> None:
     if not (path / "config.json").is_file():
         raise FileNotFoundError(f"{path}: not a LeRobot pretrained_model directory (no config.json)")
     earlier_videos = check_eval_output(cfg)
-    if (path.parent / MANIFEST).is_file():  # an sr-train stage or sr-sleep checkpoint: sealed, checked before use
-        verify_manifest(path.parent)
+    verify_checkpoint(path, "policy.path")  # an sr-train stage or sr-sleep checkpoint is sealed; else one warning
     policy_cfg = PreTrainedConfig.from_pretrained(path)
     policy_cfg.device = cfg.device
     policy = get_policy_class(policy_cfg.type).from_pretrained(path, config=policy_cfg)
@@ -328,6 +329,7 @@ def sleep_main(args: list[str] | None = None) -> dict:
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_command(OfflineSleepConfig, rest, prog="sr-sleep", config_path=config_path)
     with hold_folder(cfg.output_dir, "sr-sleep"):  # the only writer of output_dir, before it is looked at
+        remove_staging_beside(cfg.output_dir, "sr-sleep")  # a killed earlier sr-sleep's .<output_dir>.XXXXXXXX
         record = run_offline_sleep(cfg)
     print(report_markdown(record), end="")
     print(f"written: {cfg.output_dir / 'pretrained_model'} (lerobot-eval --policy.path=...), "

@@ -311,8 +311,8 @@ SETTINGS_ADDED: dict[str, Any] = {
     "eval.env_options": {},
     "stream.stats": "first",
     "stream.reexpress_inputs": True,
-    "sleep.early_stop_scale": "window",  # 2026-11-29 (issue 59)
-    "stack.lerobot": "0.4.4",  # 2026-12-07 (issue 86): every run before the port was made with LeRobot 0.4.4
+    "sleep.early_stop_scale": "window",  # added 2026-11-29
+    "stack.lerobot": "0.4.4",  # added 2026-12-07: every run before then was made with LeRobot 0.4.4
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had
 (the needle environment): a stored fingerprint without one of them resumes with that value and is refused

@@ -169,8 +169,9 @@ def check_data_files(meta: LeRobotDatasetMetadata) -> None:
     frame of every video decoded, covering every frame its episodes use (:func:`read_video_through`). A corrupt or
     truncated file is one :class:`DatasetMismatchError` naming it (and the episode, frame and column where it
     applies), before the first gradient and before an earlier run is replaced (``--overwrite``), instead of a
-    traceback when its skill's stage begins; the videos are read whether or not the policy uses images, since
-    LeRobot decodes them for every item either way."""
+    traceback when its skill's stage begins. Every data file's columns must be those ``meta/info.json`` declares,
+    with its shapes and dtypes (:func:`check_parquet_schema`), before any is read through; the videos are read
+    whether or not the policy uses images, since LeRobot decodes them for every item either way."""
     data = {meta.get_data_file_path(e) for e in range(meta.total_episodes)}
     videos: dict[Path, list[tuple[int, float, int]]] = {}  # file -> (episode, its start in s, its frames)
     ends, begins = meta.episodes["dataset_to_index"], meta.episodes["dataset_from_index"]
@@ -183,6 +184,8 @@ def check_data_files(meta: LeRobotDatasetMetadata) -> None:
     missing = sorted(str(p) for p in paths if not (meta.root / p).is_file() or (meta.root / p).stat().st_size == 0)
     if missing:
         raise DatasetMismatchError(f"{meta.root}: missing or empty data files {missing}")
+    for path in sorted(data):
+        check_parquet_schema(meta.root / path, dataset_info_path(meta.root), meta.features)
     columns = finite_columns(meta)
     frames = sum(read_through(meta.root / p, columns) for p in sorted(data))
     if frames != meta.total_frames:
@@ -190,6 +193,102 @@ def check_data_files(meta: LeRobotDatasetMetadata) -> None:
                                    f"files hold {frames}")
     for path in sorted(videos):
         read_video_through(meta.root / path, videos[path], meta.fps)
+
+
+def check_parquet_schema(path: Path, info: Path, features: dict[str, dict]) -> None:
+    """The data file ``path`` holds exactly the columns ``info`` (the dataset's ``meta/info.json``) declares, other
+    than its videos, each with the declared shape (every list length, fixed or not) and dtype. Reads the file's
+    schema (its footer), and only for a column stored as lists of varying length, that column's lengths.
+
+    Args:
+        path: a parquet data file of the dataset.
+        info: the dataset's ``meta/info.json`` (for the message).
+        features: its ``features`` (name -> ``dtype``, ``shape``).
+
+    Raises:
+        DatasetMismatchError: one line naming the file, ``info`` and the first column that disagrees (a parquet
+            that does not even open: :class:`DamagedDatasetError`).
+    """
+    import pyarrow.parquet as pq
+
+    try:
+        schema = pq.read_schema(path)
+    except Exception as exc:  # noqa: BLE001 - Arrow raises OSError, ArrowInvalid and others for a damaged file
+        first = str(exc).splitlines()[0] if str(exc) else ""
+        raise DamagedDatasetError(path, f"unreadable parquet file ({type(exc).__name__}: {first}); "
+                                        f"{DAMAGED_ADVICE}") from exc
+    declared = {name: feature for name, feature in features.items() if feature.get("dtype") != "video"}
+    problem = _columns_problem(list(schema.names), list(declared))
+    for name in declared:
+        if problem is None:
+            problem = _column_problem(path, name, schema.field(name).type, declared[name])
+    if problem is not None:
+        raise DatasetMismatchError(f"{path}: disagrees with {info}: {problem}; record or copy the dataset again")
+
+
+def _columns_problem(held: list[str], declared: list[str]) -> str | None:
+    """Which declared column the file lacks, or which column it holds that is not declared, in words; ``None``."""
+    missing = [name for name in declared if name not in held]
+    if missing:
+        return f"the file lacks declared column(s) {missing}"
+    extra = [name for name in held if name not in declared]
+    return f"the file holds undeclared column(s) {extra}" if extra else None
+
+
+def _column_problem(path: Path, name: str, arrow_type: Any, feature: dict) -> str | None:
+    """How the column ``name`` of type ``arrow_type`` disagrees with its declared ``feature``, in words; ``None``."""
+    import pyarrow as pa
+
+    dtype, shape = str(feature.get("dtype")), tuple(int(n) for n in feature.get("shape") or ())
+    if dtype == "image":
+        return None if pa.types.is_struct(arrow_type) or pa.types.is_binary(arrow_type) else \
+            f"column {name!r} holds {arrow_type}, declared images"
+    if isinstance(arrow_type, pa.ExtensionType):  # datasets' ArrayND columns
+        arrow_type = arrow_type.storage_type
+    lengths, leaf = [], arrow_type
+    while pa.types.is_list(leaf) or pa.types.is_large_list(leaf) or pa.types.is_fixed_size_list(leaf):
+        lengths.append(leaf.list_size if pa.types.is_fixed_size_list(leaf) else None)
+        leaf = leaf.value_type
+    wanted = () if shape == (1,) else shape
+    if len(lengths) != len(wanted) or any(n is not None and n != w for n, w in zip(lengths, wanted, strict=True)):
+        held = "".join(f"{'?' if n is None else n}," for n in lengths)
+        return f"column {name!r} has shape ({held}), declared {shape}"
+    if None in lengths:
+        varying = _varying_length(path, name, wanted)
+        if varying is not None:
+            return f"column {name!r} {varying}, declared shape {shape}"
+    return _dtype_problem(name, leaf, dtype)
+
+
+def _dtype_problem(name: str, leaf: Any, dtype: str) -> str | None:
+    """How the values' Arrow type ``leaf`` disagrees with the declared ``dtype``, in words; ``None`` (also for a
+    dtype Arrow has no name for)."""
+    import pyarrow as pa
+
+    try:
+        wanted = pa.type_for_alias(dtype)
+    except ValueError:
+        return None
+    if leaf == wanted or (pa.types.is_string(wanted) and pa.types.is_large_string(leaf)):
+        return None
+    return f"column {name!r} holds {leaf} values, declared {dtype}"
+
+
+def _varying_length(path: Path, name: str, wanted: tuple[int, ...]) -> str | None:
+    """For a column of ``path`` stored as lists of varying length: the first row whose list lengths are not
+    ``wanted``, in words (``has 6 values in row 3``); ``None`` if every row has the declared shape."""
+    import pyarrow.compute as pc
+    import pyarrow.parquet as pq
+
+    values = pq.read_table(path, columns=[name]).column(name).combine_chunks()
+    for depth, size in enumerate(wanted):
+        counts = np.asarray(pc.list_value_length(values).fill_null(0))
+        bad = np.flatnonzero(counts != size)
+        if len(bad):
+            where = f"row {bad[0]}" if depth == 0 else f"a list {depth} deep, element {bad[0]}"
+            return f"has {int(counts[bad[0]])} values in {where}"
+        values = pc.list_flatten(values)
+    return None
 
 
 def read_through(path: Path, finite: Sequence[str] = ()) -> int:

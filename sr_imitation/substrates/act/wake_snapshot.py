@@ -49,7 +49,7 @@ from sr_imitation.infra.snapshot import (
 )
 
 FORMAT = "sr_imitation.imitation.wake_snapshot"
-"""The format name written in the file (the module's name before issue 61 moved it: files keep their format)."""
+"""The format name written in the file (the module's name before the substrates/ move: files keep their format)."""
 VERSION = 1
 
 

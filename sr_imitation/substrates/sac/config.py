@@ -337,7 +337,7 @@ class RLTrainConfig(RunConfig):
 
 
 SETTINGS_ADDED: dict[str, Any] = {
-    "sleep.early_stop_scale": "window",  # 2026-11-29 (issue 59): every earlier run measured against the window
+    "sleep.early_stop_scale": "window",  # added 2026-11-29: every earlier run measured against the window
 }
 """Settings added after SAC runs were first fingerprinted, with the value every run that predates them had: such a
 run resumes with that value and is refused with another (:attr:`SettingsFingerprint.added`)."""

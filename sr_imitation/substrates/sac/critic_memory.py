@@ -112,7 +112,7 @@ class CriticMemory(Memory):
     def scale(self, policy: Callable[[Tensor], Tensor], generator: torch.Generator) -> float:
         """The critic's action gap for ``policy``: | E_s [ Q_i(s, pi(s)) - E_{a ~ U[-1,1]^A} Q_i(s, a) ] | over the
         whole state buffer, 16 uniform actions per state drawn from ``generator``: the scale on which this critic
-        tells the policy's action from a random one (``sleep.early_stop_scale=memory_scale``; issue 59, our
+        tells the policy's action from a random one (``sleep.early_stop_scale=memory_scale``; our
         choice)."""
         states = self.tensors["state"]
         n, a = states.shape[0], int(self.config["act_dim"])

@@ -4,7 +4,7 @@
         --archived=docs/results/sac_sleep_calibration/sr_seed100 --stage=5 \\
         --output_dir=outputs/resleep/sr_seed100_a1 --changes=[--sleep.early_stop_tol=0]
 
-A sleep variant can so be screened in minutes on wakes that took hours (issue 59): the new run directory starts as
+A sleep variant can so be screened in minutes on wakes that took hours: the new run directory starts as
 the source run killed right after stage ``stage``'s wake evaluation (its stages before, checkpoints, memories and
 records, copied; the stage's own wake checkpoint and records), and the stream engine resumes it with the changed
 settings: it redoes every memory phase up to that stage from the stored wake checkpoints (the same memory if the

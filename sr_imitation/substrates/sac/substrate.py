@@ -59,7 +59,7 @@ WAKE_SNAPSHOT = "wake_snapshot.safetensors"
 """A wake's snapshot in its stage folder, while the wake runs (:mod:`sr_imitation.substrates.sac.wake_snapshot`)."""
 CHECKPOINT_FORMAT = "sr_imitation.rl.stage"
 """The format name of every file this substrate writes is ``sr_imitation.rl.<what>`` (the package's
-name before issue 61 moved it: files keep their format)."""
+name before the substrates/ move: files keep their format)."""
 CHECKPOINT_VERSION = 3
 """3: one checkpoint per policy-changing phase (``wake/``, ``sleep/``) of the stream engine (2: one per stage with
 the wake snapshot inside; 1: per-stage evaluation draws)."""

@@ -47,7 +47,7 @@ from sr_imitation.substrates.sac.sac import ReplayBuffer, SACAgent, UpdateInfo
 logger = logging.getLogger(__name__)
 
 FORMAT = "sr_imitation.rl.wake_snapshot"
-"""The format name written in the file (the module's name before issue 61 moved it: files keep their format)."""
+"""The format name written in the file (the module's name before the substrates/ move: files keep their format)."""
 VERSION = 2
 _BUFFER_FIELDS = ("obs", "next_obs", "actions", "rewards", "terminated")
 _OPTIMIZERS = ("actor_optimizer", "critic_optimizer", "alpha_optimizer")
