@@ -15,25 +15,35 @@ import pytest
 from tests.conftest import recipe_init, recipe_method
 
 REPO = Path(__file__).resolve().parents[2]
-COPIED = ("sr_imitation", "tests", "policies", "configs", "tools", "docs", ".ci", "pyproject.toml",
-          "datasets/README.md")
-"""What the copy holds: the package, its plugins, the tests and what they read (of datasets/, the tracked file: the
-recorded datasets beside it are git-ignored)."""
 SKIPPED = shutil.ignore_patterns("__pycache__", "*.egg-info", "results", "*.weights", ".venv", "build")
 """Not copied: caches, installs, and docs/results (archived runs: 85 MB no test here reads)."""
+DATA_FOLDERS = ("datasets",)
+"""Top-level folders of which only the tracked files are copied (the recorded datasets beside them are ignored)."""
 TESTS = ("tests/test_architecture.py", "tests/test_architecture_doc.py", "tests/test_cli.py",
          "tests/stream/test_recipes.py")
 """The tests that list files, methods or substrates, and the recipes' own."""
 
 
+def _tracked() -> list[str]:
+    """The repository's tracked files (``git ls-files``), relative to it."""
+    listed = subprocess.run(["git", "ls-files", "-z"], cwd=REPO, capture_output=True, text=True, check=True).stdout
+    return [path for path in listed.split("\0") if path]
+
+
 def _copy_tree(root: Path) -> Path:
-    """The repository's :data:`COPIED` entries under ``root``."""
-    for name in COPIED:
+    """The repository under ``root``: every top-level entry git tracks, as the working tree holds it (edits not yet
+    committed included), less :data:`SKIPPED`; of :data:`DATA_FOLDERS` only the tracked files."""
+    tracked = _tracked()
+    for name in sorted({path.split("/", 1)[0] for path in tracked}):
         source = REPO / name
-        if source.is_dir():
+        if name in DATA_FOLDERS:
+            for path in (p for p in tracked if p.startswith(f"{name}/")):
+                (root / path).parent.mkdir(parents=True, exist_ok=True)
+                shutil.copy2(REPO / path, root / path)
+        elif source.is_dir():
             shutil.copytree(source, root / name, ignore=SKIPPED)
-        else:
-            (root / name).parent.mkdir(parents=True, exist_ok=True)
+        elif source.is_file():
+            root.mkdir(parents=True, exist_ok=True)
             shutil.copy2(source, root / name)
     return root
 
