@@ -92,8 +92,10 @@ def test_the_declared_settings_are_the_ones_the_method_s_sleep_uses(method):
     method builds is exactly the run's with them in place."""
     cls = METHODS[method]
     fields = {f.name for f in dataclasses.fields(SleepConfig)}
-    declared = {**cls.fixed_settings, **cls.own_settings}
+    declared = {k: v for k, v in {**cls.fixed_settings, **cls.own_settings}.items() if k != "sleep.enabled"}
     assert {key.split(".", 1)[1] for key in declared} <= fields and all(k.startswith("sleep.") for k in declared)
+    if "sleep.enabled" in cls.fixed_settings:  # the run's switch, which the method's sleeps_after answers itself
+        assert all(cls.sleeps_after(cls.__new__(cls), n) for n in (1, 2, 3))
     assert set(cls.own_settings.values()) <= {f.name for f in dataclasses.fields(cls.config)}
     run = SleepConfig(max_iterations=11, batch_size=5, lr=0.5, aggregator="nash", anchor_strength=2.0,
                       early_stop_tol=0.3, early_stop_window=9)

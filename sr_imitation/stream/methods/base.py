@@ -205,8 +205,9 @@ class ContinualMethod:
     to give instead (:func:`~sr_imitation.stream.methods.registry.replaced_setting_refusal`): a setting the user
     gives is never silently replaced. The option's value is the one used and fingerprinted (``method_config.*``)."""
     fixed_settings: ClassVar[Mapping[str, Any]] = {}
-    """Shared settings the method fixes, whatever the run says: ``"sleep.anchor_strength": 0.0``; refused on the
-    command line as :attr:`own_settings` are."""
+    """Shared settings the method fixes, whatever the run says: ``"sleep.anchor_strength": 0.0``, or
+    ``"sleep.enabled": True`` for a method that always runs its own sleep phase; refused on the command line as
+    :attr:`own_settings` are."""
 
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
@@ -321,5 +322,6 @@ class ContinualMethod:
         """
         own = {key: getattr(self.config, option) for key, option in self.own_settings.items()}
         values = {**self.fixed_settings, **own}
+        names = {f.name for f in dataclasses.fields(config)}  # sleep.enabled: the run's switch, not the core's
         fields = {key.split(".", 1)[1]: value for key, value in values.items() if key.startswith("sleep.")}
-        return dataclasses.replace(config, **fields)
+        return dataclasses.replace(config, **{name: value for name, value in fields.items() if name in names})

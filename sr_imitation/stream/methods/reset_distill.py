@@ -85,14 +85,14 @@ class ResetDistill(ContinualMethod):
     own_settings: ClassVar[dict[str, str]] = {"sleep.max_iterations": "iterations", "sleep.batch_size": "batch_size",
                                               "sleep.lr": "lr"}
     fixed_settings: ClassVar[dict[str, Any]] = {"sleep.aggregator": "mean_grad", "sleep.anchor_strength": 0.0,
-                                                "sleep.early_stop_tol": 0.0}
+                                                "sleep.early_stop_tol": 0.0, "sleep.enabled": True}
 
     def setup(self, substrate: Substrate) -> None:
         if not isinstance(substrate, GaussianActor):  # the expert is the substrate's own memory (ACT)
             self.memory_name = "memory"  # what a resume loads back
 
     def sleeps_after(self, skill_number: int) -> bool:
-        return True  # the distillation, after every skill (not SR's sleep: --sleep.enabled does not apply)
+        return True  # the distillation, after every skill (not SR's sleep: --sleep.enabled is refused, fixed_settings)
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
