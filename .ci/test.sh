@@ -23,10 +23,10 @@ if [ -n "$tmp" ] && mkdir -p "$tmp" 2>/dev/null && [ -w "$tmp" ] \
 fi
 # tests/test_install.py fails (instead of skipping) unless the tests run under this clone's overlay.
 export SR_TEST_OVERLAY="$venv"
-"$venv/bin/ruff" check sr_imitation policies tests
+"$venv/bin/ruff" check sr_imitation policies tests experiments
 # This clone's code byte-compiled once, before the tests: every process they start (lerobot-train, torchrun ranks, Ray
 # workers, the sr-* commands) compiles it again where PYTHONDONTWRITEBYTECODE is set (0.6-0.9 s a process here).
-"$venv/bin/python" -m compileall -q -j 0 sr_imitation policies tests >/dev/null
+"$venv/bin/python" -m compileall -q -j 0 sr_imitation policies tests experiments >/dev/null
 if [ "$workers" = "0" ]; then
   exec "$venv/bin/python" -m pytest "$@"
 fi

@@ -25,7 +25,9 @@ from pathlib import Path
 from typing import Any
 
 from sr_imitation.infra.cli_errors import check_config_file, run_cli, split_config_path
-from sr_imitation.stream.config import renamed_flag_hint, renamed_key_hint
+from sr_imitation.infra.cli_parsing import take_flag
+from sr_imitation.stream.config import RunConfig, renamed_flag_hint, renamed_key_hint
+from sr_imitation.stream.methods import replaced_setting_refusal
 from sr_imitation.substrates import substrate_command
 
 DEFAULT_SUBSTRATE = "act"
@@ -58,11 +60,31 @@ def _read_config(config_path: str) -> object:
 
 def _config_substrate(data: object) -> str | None:
     """The ``substrate`` key of a config file's JSON (an ``sr-main`` preset's under ``train``)."""
+    return _config_key(data, "substrate")
+
+
+def _config_key(data: object, key: str) -> str | None:
+    """The text under ``key`` in a config file's JSON (an ``sr-main`` preset's under ``train``), or ``None``."""
     if not isinstance(data, dict):
         return None
     train = data.get("train") if isinstance(data.get("train"), dict) else {}
-    found = data.get("substrate", train.get("substrate"))
+    found = data.get(key, train.get(key))
     return found if isinstance(found, str) else None
+
+
+def method_of(args: list[str], config: object = None) -> str:
+    """The method a command line asks for: ``--method``, else its config file's (``config``, the JSON), else the
+    default (:class:`~sr_imitation.stream.config.RunConfig`'s)."""
+    return take_flag(list(args), "--method")[1] or _config_key(config, "method") or RunConfig.method
+
+
+def check_replaced_settings(args: list[str], config: object = None) -> None:
+    """One-line ``ValueError`` for a flag of a shared setting that the run's method replaces with an option of its
+    own (``--method=reset_distill --sleep.max_iterations=3``: the method's ``iterations``), before anything is
+    parsed or written; the rule for every method (docs/ARCHITECTURE.md, "Adding a method")."""
+    refusal = replaced_setting_refusal(method_of(args, config), args)
+    if refusal is not None:
+        raise ValueError(refusal)
 
 
 def _function(args: list[str], which: str) -> Callable[[list[str]], Any]:
@@ -74,6 +96,7 @@ def _function(args: list[str], which: str) -> Callable[[list[str]], Any]:
     hint = renamed_key_hint(config)
     if hint is not None:
         raise ValueError(f"{config_path}: {hint}")
+    check_replaced_settings(args, config)
     return substrate_command(substrate_of(args, config)).function(which)
 
 

@@ -20,6 +20,7 @@ from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_p
 from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.recorders.needle import ensure_recorded
+from sr_imitation.stream.methods import replaced_setting_refusal
 from sr_imitation.substrates.act.cli import parse_config, parse_preset
 from sr_imitation.substrates.act.config import MainJobConfig
 from sr_imitation.substrates.act.trainer import train_stream
@@ -81,6 +82,9 @@ def main(args: list[str] | None = None) -> None:
     setup_logging()
     config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
     cfg = parse_config(MainJobConfig, config_path, rest, prog="sr-main")
+    refusal = replaced_setting_refusal(cfg.train.method, rest, prefix="train.")  # the rule of sr-train's flags
+    if refusal is not None:
+        raise ValueError(refusal)
     results = run_main_job(cfg)
     out = Path(cfg.train.output_dir)
     m = results["metrics"]

@@ -2,9 +2,6 @@
 
 from __future__ import annotations
 
-try:  # the ACT substrate's tests live in tests/substrates/act/ (issue 88) or, before, in tests/imitation/
-    from tests.substrates.act.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
-except ImportError:
-    from tests.imitation.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
+from tests.substrates.act.helpers import fake_env_factory, make_skill_dataset, tiny_stream_config
 
 __all__ = ["fake_env_factory", "make_skill_dataset", "tiny_stream_config"]

@@ -6,6 +6,7 @@ import atexit
 import json
 import os
 import shutil
+import sys
 import tempfile
 from pathlib import Path
 
@@ -58,3 +59,49 @@ def heaviest_files_first(items: list, seconds: dict[str, float]) -> list:
         return -seconds.get(name, 0.0), first_seen[name]
 
     return sorted(items, key=key)
+
+
+ARCHITECTURE = Path(__file__).resolve().parents[1] / "docs" / "ARCHITECTURE.md"
+
+
+def recipe_code(heading: str) -> str:
+    """The first python block of docs/ARCHITECTURE.md's section ``### <heading>``.
+
+    Args:
+        heading: the recipe's heading (``Adding a method``, ``Adding a substrate``).
+
+    Returns:
+        The block's text, as a file holds it.
+    """
+    recipe = ARCHITECTURE.read_text().split(f"### {heading}", 1)[1].split("\n## ", 1)[0]
+    return recipe.split("```python\n", 1)[1].split("\n```", 1)[0] + "\n"
+
+
+def recipe_init() -> str:
+    """The substrate folder's ``__init__.py``: the first python block of docs/ARCHITECTURE.md's recipe "Adding a
+    substrate" (the toy's, ``module = "tests.stream.toy"``)."""
+    return recipe_code("Adding a substrate")
+
+
+def recipe_method() -> str:
+    """The method file of docs/ARCHITECTURE.md's recipe "Adding a method" (``tests/stream/l2_anchor.py``, whole)."""
+    return recipe_code("Adding a method")
+
+
+@pytest.fixture
+def sr_train(tmp_path_factory, monkeypatch):
+    """``sr-train`` (:func:`sr_imitation.cli.train_main`) with the toy substrate added as the recipe says: a folder
+    ``toy/`` of the substrates package whose ``__init__.py`` is the recipe's, in a temporary folder on
+    ``sr_imitation.substrates.__path__`` (so that the test writes nothing into the package); nothing else is
+    registered or edited. A tree that holds the folder already (the recipe done for real) uses its own."""
+    import sr_imitation.substrates as substrates_package
+    from sr_imitation import cli
+
+    if "toy" not in substrates_package.discover():
+        root = tmp_path_factory.mktemp("substrates")
+        (root / "toy").mkdir()
+        (root / "toy" / "__init__.py").write_text(recipe_init())
+        monkeypatch.setattr(substrates_package, "__path__", [*substrates_package.__path__, str(root)])
+    yield cli.train_main
+    substrates_package.SUBSTRATES.pop("toy", None)
+    sys.modules.pop("sr_imitation.substrates.toy", None)

@@ -19,7 +19,7 @@ from sr_imitation.lerobot_compat import LEGACY_TAG, lerobot_version
 from sr_imitation.substrates.act.cli import sleep_main
 from sr_imitation.substrates.act.offline_sleep import SleepFailedError
 from sr_imitation.substrates.act.trainer import ACTTrainer
-from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+from tests.substrates.act.helpers import fake_env_factory, tiny_stream_config
 
 FIXTURE = Path(__file__).resolve().parent / "fixtures" / "lerobot_044"
 WAKE = Path("skill_1_approach") / "wake"

@@ -120,15 +120,3 @@ def test_rendering_modules_set_up_egl_before_mujoco_loads(monkeypatch):
     kept = _run_json("import json, os\nfrom sr_imitation.offscreen import setup_offscreen_rendering\n"
                      "setup_offscreen_rendering()\nprint(json.dumps({'gl': os.environ['MUJOCO_GL']}))\n", timeout=60)
     assert kept == {"gl": "glfw"}
-
-
-@pytest.mark.parametrize(("old", "new"), [
-    ("sr_imitation.imitation.mt_joint", "sr_imitation.substrates.act"),
-    ("sr_imitation.rl.resleep", "sr_imitation.substrates.sac"),
-    ("sr_imitation.benchmarks.grid", "sr_imitation.experiments.grid_benchmark"),
-])
-def test_a_module_path_from_before_issue_61_is_answered_with_its_new_name_in_one_line(old, new):
-    proc = subprocess.run([sys.executable, "-m", old, "--help"], capture_output=True, text=True, cwd=ROOT,
-                          timeout=300)
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode != 0 and len(lines) == 1 and new in lines[0], proc.stderr

@@ -11,8 +11,9 @@ file, and for every JSON file of the runs (``results.json``, ``eval.json``, ``sl
 ``settings_fingerprint.json``, ``checksums.json``, ...) the sha256 of its JSON with what names the commit, the
 machine, a path or a time left out (those differ between any two runs). Both sides read the same recorded datasets
 (a dataset recorded twice differs in its files' bytes, and the run's fingerprint holds their digest).
-The runs are the test suite's tiny configurations (``tests/imitation/helpers.py``: ``tiny_stream_config`` with its
-fake environment; ``tests/rl/test_trainer.py``: ``tiny_config``'s settings as ``sr-train --substrate=sac`` flags).
+The runs are the test suite's tiny configurations (``tests/substrates/act/helpers.py``: ``tiny_stream_config`` with its
+fake environment; ``tests/substrates/sac/test_trainer.py``: ``tiny_config``'s settings as ``sr-train --substrate=sac``
+flags).
 The substrates are imported from either package layout (before and after issue 61's move to
 ``sr_imitation/substrates/``), so one driver serves both sides of the comparison.
 """
@@ -58,14 +59,14 @@ def _act_module(name: str):
 
 
 def record_datasets(datasets: Path) -> None:
-    from tests.imitation.helpers import make_skill_dataset
+    from tests.substrates.act.helpers import make_skill_dataset
 
     for i, skill in enumerate(ACT_SKILLS):
         make_skill_dataset(datasets, skill, i, image=False)
 
 
 def run_act(datasets: Path, out: Path) -> None:
-    from tests.imitation.helpers import fake_env_factory, tiny_stream_config
+    from tests.substrates.act.helpers import fake_env_factory, tiny_stream_config
 
     trainer = _act_module("trainer")
     trainer.train_stream(tiny_stream_config(datasets, out / "act", ACT_SKILLS, use_images=False), fake_env_factory)

@@ -36,7 +36,6 @@ from typing import Any
 from sr_imitation.experiments.archive import RunKey
 from sr_imitation.experiments.grid import GridConfig, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
-from sr_imitation.experiments.sleep_screening import CANDIDATES
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.reporting.summary import load_groups, write_summary
 from sr_imitation.reporting.summary import summarize as summary_of
@@ -47,6 +46,15 @@ logger = logging.getLogger(__name__)
 PROG = "python -m sr_imitation.experiments.mt5_compare"
 """The command as a user types it (usage errors and ``--help`` name it)."""
 
+SLEEP_CANDIDATES: dict[str, list[str]] = {
+    "control": [],
+    "a1": ["--sleep.early_stop_tol=0"],
+    "a2": ["--sleep.early_stop_scale=memory_scale"],
+    "b1": ["--method_options={expert_memory: instead}"],
+    "b2": ["--method_options={expert_memory: beside}"],
+}
+"""Issue 59's sleep candidates -> the ``sr-train`` flags each changes (the protocol's a1, a2, b1, b2; ``control``:
+none): the ``sr_<name>`` variants below, and the re-sleeps of ``experiments/sleep_screening.py``."""
 PLAIN_ACTOR = ["--excitability.enabled=false"]
 VARIANTS: dict[str, list[str]] = {
     "sr": [],
@@ -71,7 +79,7 @@ VARIANTS: dict[str, list[str]] = {
     "mt_joint": [],  # the oracle (substrates.sac.mt_joint): all skills at once, plain actor; reported apart
     # the candidate sleeps as whole runs (docs/RESULTS.md, "a SAC sleep that keeps what its wakes learn"):
     # sr_<candidate> with the screening's flags; c adds Reset & Distill's wake to the A-winner's setting (or to none)
-    **{f"sr_{name}": flags for name, flags in CANDIDATES.items() if name != "control"},
+    **{f"sr_{name}": flags for name, flags in SLEEP_CANDIDATES.items() if name != "control"},
     "sr_c": ["--method_options={reset_wake: true}"],
     "sr_c_a1": ["--method_options={reset_wake: true}", "--sleep.early_stop_tol=0"],
     "sr_c_a2": ["--method_options={reset_wake: true}", "--sleep.early_stop_scale=memory_scale"],

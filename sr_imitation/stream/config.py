@@ -34,6 +34,7 @@ from draccus.utils import DecodingError
 
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra.runlog import WandbConfig
+from sr_imitation.stream.methods.registry import method_config
 
 
 @dataclass
@@ -311,11 +312,15 @@ def check_choices(key: str, given: Sequence[str], known: Iterable[str]) -> None:
 
 
 def check_shared_settings(cfg: Any, substrate: str) -> None:
-    """Refuse a configuration of another substrate and a hand-set ``sleep.seed`` (set per stage from ``--seed``).
-    Raises ``ValueError`` naming the key."""
+    """Refuse a configuration of another substrate, a hand-set ``sleep.seed`` (set per stage from ``--seed``) and
+    ``method_options`` the method lacks or of another type than its option (a number given text: one line naming
+    the option, the type and the value, :func:`~sr_imitation.stream.methods.base.with_options`), before anything
+    is built. Raises ``ValueError`` naming the key."""
     if cfg.substrate != substrate:
         raise ValueError(f"substrate: this configuration is for {substrate!r}, got {cfg.substrate!r}")
     if cfg.sleep.seed != 0:
         raise ValueError("sleep.seed: set per stage from --seed by the substrate; leave it 0 and change --seed")
     if cfg.resume and cfg.overwrite:
         raise ValueError("--resume and --overwrite exclude each other")
+    if cfg.method_options:
+        method_config(cfg.method, cfg.method_options)

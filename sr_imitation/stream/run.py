@@ -2,8 +2,8 @@
 whatever the policy family, and runs it.
 
     check_substrate(substrate)                                                  # the protocol, in one line
-    check_shared_settings(cfg, substrate.name); method options passed through  # what could be left out silently
-    method    = make_method(cfg.method, substrate, substrate.method_settings())
+    check_shared_settings(cfg, substrate.name)                                  # what could be left out silently
+    method    = make_method(cfg.method, substrate, substrate.method_settings(), cfg.method_options)
     run_dir   = RunDirectory(cfg.output_dir, fingerprint, train_config.json, ...)  # checked before anything is written
     engine    = StreamEngine(substrate, method, run_dir, ...)                    # Algorithm 1, once
     preflight()                                                                 # the substrate's checks
@@ -28,7 +28,7 @@ from sr_imitation.stream.config import RunConfig, check_shared_settings
 from sr_imitation.stream.engine import StreamEngine
 from sr_imitation.stream.methods import ContinualMethod, make_method
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, RunDirectory
-from sr_imitation.stream.substrate import Substrate, SubstrateProtocolError, check_substrate
+from sr_imitation.stream.substrate import Substrate, check_substrate
 
 
 class StreamRun:
@@ -55,14 +55,10 @@ class StreamRun:
         self.out = Path(cfg.output_dir)
         check_substrate(substrate)
         check_shared_settings(cfg, substrate.name)  # here, for every substrate: none can leave it out
-        settings = substrate.method_settings()
-        if dict(settings.options) != dict(cfg.method_options or {}):
-            raise SubstrateProtocolError(
-                f"{type(substrate).__name__}.method_settings() does not pass --method_options through (options "
-                f"{dict(settings.options)}, the run's {dict(cfg.method_options or {})}): the method would run with "
-                "its defaults")
         self.substrate = substrate
-        self.method: ContinualMethod = make_method(cfg.method, substrate, settings)
+        # --method_options go from the run's configuration straight to the method, not through the substrate
+        self.method: ContinualMethod = make_method(cfg.method, substrate, substrate.method_settings(),
+                                                   cfg.method_options or {})
         self.run_dir = RunDirectory(self.out, fingerprint, RUN_CONFIG_FILE, stored_config, cfg.resume, cfg.overwrite,
                                     check_inputs=check_inputs, inputs=[*inputs, cfg.stream.extend_from])
         self.after_phase = after_phase

@@ -107,7 +107,9 @@ class MethodSettings:
         distill_weight: gamma_k, the weight of wake-time distillation from the memories for the k-th skill
             (1-based); ``None`` when the substrate's wake has no distillation term (SAC).
         extra: substrate-specific settings a method may read.
-        options: ``--method_options``: values for fields of the method's own ``config`` (e.g. EWC's ``lam``).
+        options: ``--method_options``: values for fields of the method's own ``config`` (e.g. EWC's ``lam``), set
+            by :func:`~sr_imitation.stream.methods.make_method` from the run's configuration (a substrate leaves it
+            empty).
     """
 
     sleep: bool = True

@@ -141,7 +141,7 @@ def test_a_bad_task_name_is_one_line_with_a_suggestion():
 
 def test_a_two_skill_stream_evaluates_in_metaworld(tmp_path_factory):
     from sr_imitation.substrates.act.trainer import train_stream
-    from tests.imitation.helpers import tiny_stream_config
+    from tests.substrates.act.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_state")
     record(MetaWorldRecordConfig(skills=TASKS, num_episodes=2, root=root))
@@ -159,7 +159,7 @@ def test_a_two_skill_stream_evaluates_in_metaworld(tmp_path_factory):
 
 def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written(tmp_path_factory):
     from sr_imitation.substrates.act.trainer import train_stream
-    from tests.imitation.helpers import tiny_stream_config
+    from tests.substrates.act.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_bad")
     record(MetaWorldRecordConfig(skills=TASKS[:1], num_episodes=1, root=root))
@@ -174,7 +174,7 @@ def test_a_skill_that_is_no_metaworld_task_is_refused_before_anything_is_written
 
 def test_a_dataset_recorded_on_another_task_is_refused_naming_its_file(tmp_path_factory):
     from sr_imitation.substrates.act.trainer import train_stream
-    from tests.imitation.helpers import tiny_stream_config
+    from tests.substrates.act.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_swap")
     record(MetaWorldRecordConfig(skills=TASKS, num_episodes=1, root=root))

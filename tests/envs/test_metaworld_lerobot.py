@@ -86,7 +86,7 @@ def test_stock_lerobot_eval_evaluates_a_meta_world_checkpoint(tmp_path_factory):
     from sr_imitation.recorders.metaworld import MetaWorldRecordConfig, record
     from sr_imitation.substrates.act.evaluate import EvalConfig
     from sr_imitation.substrates.act.trainer import train_stream
-    from tests.imitation.helpers import tiny_stream_config
+    from tests.substrates.act.helpers import tiny_stream_config
 
     root = tmp_path_factory.mktemp("mw_lerobot_eval")
     record(MetaWorldRecordConfig(skills=["reach-v3"], num_episodes=2, root=root))

@@ -193,7 +193,7 @@ def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(mod
 
 def test_the_sac_grid_on_ray_gives_the_loops_results(local_ray, tmp_path):
     from sr_imitation.substrates.sac.config import EvalConfig
-    from tests.rl.test_trainer import tiny_config
+    from tests.substrates.sac.test_trainer import tiny_config
 
     stored = tiny_config(tmp_path / "unused", eval=EvalConfig(episodes=1, videos_per_skill=0)).stored_config()
     stored.pop("output_dir", None)

@@ -1,4 +1,4 @@
-"""The cosine-matrix summary of re-sleeps (sr_imitation.experiments.sleep_cosines): what it copies, what it refuses
+"""The cosine-matrix summary of re-sleeps (experiments.sleep_cosines): what it copies, what it refuses
 before the archive changes, and Eq. 1's optimum it reports on families of cosine matrices (orthogonal: 1/k; an
 aligned pair: the third memory weighs more; a zero gradient: masked)."""
 
@@ -10,9 +10,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sr_imitation.core.aggregation import nash_weights
-from sr_imitation.experiments import sleep_cosines
-from sr_imitation.experiments.sleep_cosines import (
+import experiments.sleep_cosines as sleep_cosines
+from experiments.sleep_cosines import (
     CosinesConfig,
     collect,
     differing_values,
@@ -21,6 +20,7 @@ from sr_imitation.experiments.sleep_cosines import (
     run_cosines,
     summarize_run,
 )
+from sr_imitation.core.aggregation import nash_weights
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.infra.fingerprint import settings_fingerprint, write_fingerprint
 from sr_imitation.io import read_checked_json, write_checked_json

@@ -1,16 +1,16 @@
-"""Issue 59's step A driver (sr_imitation.experiments.sleep_screening): rule A as the protocol states it, and the
+"""Issue 59's step A driver (experiments.sleep_screening): rule A as the protocol states it, and the
 screening of a stored tiny SAC run end to end (control reproduced, table written, a rerun skips what is done)."""
 
 from __future__ import annotations
 
 import pytest
 
+from experiments.sleep_screening import ScreeningConfig, rule_a, run_screening
 from sr_imitation.experiments.archive import archive_run
-from sr_imitation.experiments.sleep_screening import ScreeningConfig, rule_a, run_screening
 from sr_imitation.io import read_checked_json
 from sr_imitation.substrates.sac.config import EvalConfig
 from sr_imitation.substrates.sac.trainer import SACTrainer
-from tests.rl.test_trainer import tiny_config
+from tests.substrates.sac.test_trainer import tiny_config
 
 
 def test_rule_a_picks_the_best_by_the_margin_and_breaks_ties_in_the_protocol_order():

@@ -1,4 +1,4 @@
-"""Issue 59's step B driver (sr_imitation.experiments.sleep_step_b): rule B as the protocol states it, each step-B
+"""Issue 59's step B driver (experiments.sleep_step_b): rule B as the protocol states it, each step-B
 run checked to be the variant its folder names (settings against its calibration run's), and the table, figure and
 decision written from archived runs. The calibration runs are the real archived ones (docs/results); the step-B runs
 are those results with a variant's settings and other AFSRs, written through the checked-JSON writer."""
@@ -11,7 +11,7 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.experiments.sleep_step_b import (
+from experiments.sleep_step_b import (
     StepBConfig,
     check_run,
     flag_settings,
@@ -120,7 +120,7 @@ def test_a_run_that_is_not_its_variant_is_one_line_naming_the_file_and_the_key(t
                   "sr_b1", 100)
     assert str(path) in str(caught.value)
     with pytest.raises(SystemExit) as stop:
-        run_cli("sr_imitation.experiments.sleep_step_b", main,
+        run_cli("experiments.sleep_step_b", main,
                 [f"--archive={tmp_path / 'step_b'}", f"--calibration={CALIBRATION}", "--variants=[sr_b1]"])
     assert stop.value.code == 2
     err = capsys.readouterr().err.splitlines()

@@ -1,7 +1,8 @@
 """Settings fingerprints (core): flattening, allow-lists, digests, diffs, the one-line error, the stored file.
 
 The helpers at the bottom (``leaves``, ``changed_values``, ``tree_state``) are shared with the resume-settings
-property tests of both programs (tests/imitation/test_resume_settings.py, tests/rl/test_resume_settings.py).
+property tests of both programs (tests/substrates/act/test_resume_settings.py,
+tests/substrates/sac/test_resume_settings.py).
 """
 
 from __future__ import annotations

@@ -12,7 +12,7 @@ import pytest
 from sr_imitation.reporting.input_scale import STATE_INPUT, main, stage_input_norms
 from sr_imitation.substrates.act.evaluate import EvalConfig
 from sr_imitation.substrates.act.trainer import ACTTrainer
-from tests.imitation.helpers import make_skill_dataset, tiny_stream_config
+from tests.substrates.act.helpers import make_skill_dataset, tiny_stream_config
 
 SKILLS = ["approach", "place", "insert"]
 

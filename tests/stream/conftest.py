@@ -23,20 +23,22 @@ class KilledError(Exception):
 
 def make_engine(out: Path, method: str = "sr", resume: bool = False, settings: dict[str, Any] | None = None,
                 after_phase=None, skills: list[str] | None = None, extend_from: Path | None = None,
-                substrate_class: type[ToySubstrate] = ToySubstrate, **substrate_kwargs: Any) -> StreamEngine:
-    """The engine running ``method`` on a :class:`ToySubstrate` (or ``substrate_class``, a subclass) of ``skills`` in
-    ``out``; the fingerprinted settings are the substrate's arguments (``substrate_kwargs`` over their defaults) and
-    ``settings``."""
+                substrate_class: type[ToySubstrate] = ToySubstrate, options: dict[str, Any] | None = None,
+                **substrate_kwargs: Any) -> StreamEngine:
+    """The engine running ``method`` with ``options`` (``--method_options``) on a :class:`ToySubstrate` (or
+    ``substrate_class``, a subclass) of ``skills`` in ``out``; the fingerprinted settings are the substrate's
+    arguments (``substrate_kwargs`` over their defaults), ``options`` and ``settings``."""
     skills = SKILLS if skills is None else skills
     substrate = substrate_class(out, skills, **substrate_kwargs)
     defaults = {"seed": 0, "sleep": True, "wake_steps": 30, "sleep_iterations": 15, "distill_weight": 0.5,
                 "anchor_after_final": False}
     config = {"method": method, "stream": {"skills": skills, "extend_from": None if extend_from is None
                                            else str(extend_from)},
-              **defaults, **substrate_kwargs, **(settings or {})}
+              **({"method_options": dict(options)} if options else {}), **defaults, **substrate_kwargs,
+              **(settings or {})}
     run = RunDirectory(out, settings_fingerprint(config), "config.json", config, resume=resume, overwrite=False)
-    return StreamEngine(substrate, make_method(method, substrate, substrate.method_settings()), run, progress=False,
-                        after_phase=after_phase, extend_from=extend_from)
+    method_ = make_method(method, substrate, substrate.method_settings(), options)
+    return StreamEngine(substrate, method_, run, progress=False, after_phase=after_phase, extend_from=extend_from)
 
 
 @pytest.fixture

@@ -290,8 +290,11 @@ def test_method_options_are_parsed_and_fingerprinted_on_both_substrates():
     assert act.method_options == {"lam": 100.0}
     # a resume with another value is refused (the datasets' digests are given: nothing is recorded here)
     assert resume_fingerprint(act, inputs={}).settings["method_options.lam"] == 100.0
-    assert parse(["--config_path=configs/sac_mt5_cpu.json", "--method_options={lam: 500}"]).method_options == {
-        "lam": 500.0}
+    assert parse(["--config_path=configs/sac_mt5_cpu.json", "--method=ewc", "--method_options={lam: 500}"]
+                 ).method_options == {"lam": 500.0}
+    with pytest.raises(Exception) as err:  # checked when parsed, for the method the run names (draccus wraps it)
+        parse(["--config_path=configs/sac_mt5_cpu.json", "--method_options={lam: 500}"])
+    assert "method_options: 'sr' has no option(s) ['lam']" in str(err.value.__cause__)
 
 
 def test_every_grid_variant_of_the_needle_comparison_sets_existing_options_of_its_method():

@@ -6,14 +6,13 @@ of the protocol is refused in one line before anything is written."""
 
 from __future__ import annotations
 
-import sys
+import re
 from pathlib import Path
 
 import pytest
 import torch
 
 import sr_imitation.stream.methods as methods_package
-import sr_imitation.substrates as substrates_package
 import tests.stream.l2_anchor  # registers l2_anchor, as the methods package registers its files
 from sr_imitation import cli
 from sr_imitation.core.memory import OutputDistillationMemory
@@ -23,33 +22,14 @@ from sr_imitation.stream.capabilities import protocol_members
 from sr_imitation.stream.methods.base import ContinualMethod
 from sr_imitation.stream.run import StreamRun
 from sr_imitation.stream.substrate import MethodSettings, Substrate, SubstrateProtocolError, check_substrate
+from sr_imitation.substrates import discover
 from sr_imitation.substrates.registry import SUBSTRATES
+from tests.conftest import recipe_init, recipe_method
 from tests.stream import toy
 from tests.stream.conftest import KilledError
 from tests.stream.toy import ToySubstrate
 
 DOC = Path(__file__).resolve().parents[2] / "docs" / "ARCHITECTURE.md"
-
-
-def recipe_init() -> str:
-    """The substrate folder's ``__init__.py``: the first python block of the recipe "Adding a substrate"."""
-    recipe = DOC.read_text().split("### Adding a substrate", 1)[1].split("\n## ", 1)[0]
-    return recipe.split("```python\n", 1)[1].split("```", 1)[0]
-
-
-@pytest.fixture
-def sr_train(tmp_path_factory, monkeypatch):
-    """``sr-train`` with the toy substrate added as the recipe says: a folder ``toy/`` of the substrates package
-    whose ``__init__.py`` is the recipe's (in a temporary folder on ``sr_imitation.substrates.__path__``, so that
-    the test writes nothing into the package); nothing else is registered or edited."""
-    root = tmp_path_factory.mktemp("substrates")
-    (root / "toy").mkdir()
-    (root / "toy" / "__init__.py").write_text(recipe_init())
-    assert "toy" not in SUBSTRATES
-    monkeypatch.setattr(substrates_package, "__path__", [*substrates_package.__path__, str(root)])
-    yield cli.train_main
-    SUBSTRATES.pop("toy", None)
-    sys.modules.pop("sr_imitation.substrates.toy", None)
 
 
 def _weights(result) -> list[torch.Tensor]:
@@ -104,7 +84,10 @@ def test_the_example_method_runs_on_any_substrate_through_sr_train_and_resumes_t
 
 # -- adding a substrate --------------------------------------------------------------------------------------------
 def test_the_toy_substrate_added_as_one_folder_runs_a_stream_with_sleep_through_sr_train(tmp_path, sr_train):
-    with pytest.raises(ValueError, match=r"^substrate: unknown substrate 'toyy'; choose from \['act', 'sac', 'toy'\]$"):
+    known = sorted(discover())  # the registry: the package's own folders and the toy's
+    assert "toy" in known and {"act", "sac"} <= set(known)
+    choices = re.escape(str(known))
+    with pytest.raises(ValueError, match=rf"^substrate: unknown substrate 'toyy'; choose from {choices}$"):
         cli.substrate_of(["--substrate=toyy"])  # the folder alone registered it, beside the package's own
     out = tmp_path / "run"
     result = sr_train(["--substrate=toy", "--method=sr", "--stream.skills=[a,b]", "--progress=false",
@@ -182,6 +165,7 @@ def test_the_recipes_name_every_protocol_member_and_the_files_they_cite():
         assert cited in substrate, cited
     assert 'module = "tests.stream.toy"' in recipe_init() and "sr_imitation/substrates/toy/" in (toy.__doc__ or "")
     example = Path(tests.stream.l2_anchor.__file__).read_text()
+    assert recipe_method() == example  # the whole file, as the recipe shows it
     for line in ('name = "l2_anchor"', 'substrate.parameters_at(k - 1, "wake")', "0.5 * self.config.lam"):
         assert line in method and line in example, line
     for path in ("tests/stream/toy.py", "tests/stream/l2_anchor.py", "tests/stream/test_recipes.py",
@@ -208,13 +192,13 @@ def _toy_run(tmp_path, substrate_class, *flags, cfg_edit=None):
     cfg = toy.parse(["--stream.skills=[a,b]", "--progress=false", f"--output_dir={out}", *flags])
     if cfg_edit is not None:
         cfg_edit(cfg)
-    substrate = substrate_class(out, cfg.stream.skills, options=dict(cfg.method_options))
+    substrate = substrate_class(out, cfg.stream.skills)
     return out, StreamRun(cfg, substrate, fingerprint=toy.fingerprint(cfg), stored_config=toy.stored_config(cfg))
 
 
-class DropsOptions(ToySubstrate):
+class ClaimsOptions(ToySubstrate):
     def method_settings(self):
-        return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma)
+        return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma, options={"lam": 0.5})
 
 
 class SkipsAdjust(ToySubstrate):
@@ -247,13 +231,15 @@ class ForgetsToSave(ToySubstrate):
         return OutputDistillationMemory.from_snapshot(self.skills[k], self.policy_fn, {"x": torch.randn(64, 4)})
 
 
-def test_a_substrate_dropping_the_method_options_is_refused_before_anything_is_written(tmp_path):
-    out = tmp_path / "run"
-    with pytest.raises(SubstrateProtocolError, match=r"^DropsOptions.method_settings\(\) does not pass "
-                                                     r"--method_options through \(options \{\}, the run's "
-                                                     r"\{'lam': 5.0\}\)"):
-        _toy_run(tmp_path, DropsOptions, "--method=l2_anchor", "--method_options={lam: 5}")
-    assert not out.exists()
+def test_the_method_options_go_from_the_run_config_to_the_method_whatever_the_substrate_says(tmp_path):
+    """--method_options never pass through the substrate: the run's own options reach the method, whatever its
+    ``method_settings()`` holds (none from the toy, others from ``ClaimsOptions``)."""
+    for substrate_class in (ToySubstrate, ClaimsOptions):
+        _, run = _toy_run(tmp_path / substrate_class.__name__, substrate_class, "--method=l2_anchor",
+                          "--method_options={lam: 5}")
+        assert run.method.config.lam == 5.0, substrate_class
+    _, run = _toy_run(tmp_path / "none", ClaimsOptions, "--method=l2_anchor")
+    assert run.method.config.lam == type(run.method).config.lam == 1.0  # its default: the run gave no options
 
 
 def test_the_shared_settings_are_checked_for_every_substrate(tmp_path):

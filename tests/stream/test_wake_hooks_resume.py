@@ -30,7 +30,7 @@ HOOKED = sorted(name for name, cls in METHODS.items()
                 if cls.wake_hooks_used() and (cls.__module__.startswith("sr_imitation.") or cls is L2Anchor))
 ON_TOY = [name for name in HOOKED if missing_capabilities(ToySubstrate, METHODS[name].requires) == []]
 # not on the toy (they need stored demonstrations): replay, LwF, M2Distill, whose hooks carry only WakeHooks' own
-# generator and counters (tests/imitation/test_wake_snapshot.py kills an ACT wake with replay's hooks)
+# generator and counters (tests/substrates/act/test_wake_snapshot.py kills an ACT wake with replay's hooks)
 KILL = (2, 7)  # after update 7 of the third wake (30 updates; A-GEM recomputes its reference at 0 and 30)
 
 

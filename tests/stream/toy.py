@@ -55,9 +55,8 @@ class ToySubstrate:
 
     def __init__(self, out: Path, skills: Sequence[str], seed: int = 0, sleep: bool = True, wake_steps: int = 30,
                  sleep_iterations: int = 15, distill_weight: float = 0.5, anchor_after_final: bool = False,
-                 sleep_config: SleepConfig | None = None, options: dict[str, Any] | None = None) -> None:
+                 sleep_config: SleepConfig | None = None) -> None:
         self.out, self.skills, self.seed, self.sleep = Path(out), list(skills), seed, sleep
-        self.options = dict(options or {})  # --method_options, handed to the method (method_settings)
         self.wake_steps, self.gamma = wake_steps, distill_weight
         self.sleep_config = sleep_config or SleepConfig(max_iterations=sleep_iterations, batch_size=16, lr=1e-2,
                                                         early_stop_window=5, anchor_after_final=anchor_after_final)
@@ -68,12 +67,11 @@ class ToySubstrate:
     def from_config(cls, cfg: ToyConfig) -> ToySubstrate:
         core = {f.name: getattr(cfg.sleep, f.name) for f in dataclasses.fields(SleepConfig)}
         return cls(cfg.output_dir, cfg.stream.skills, seed=cfg.seed, sleep=cfg.sleep.enabled,
-                   wake_steps=cfg.wake_steps, distill_weight=cfg.distill_weight, sleep_config=SleepConfig(**core),
-                   options=dict(cfg.method_options))
+                   wake_steps=cfg.wake_steps, distill_weight=cfg.distill_weight, sleep_config=SleepConfig(**core))
 
     # -- what continual methods read, set-up and seeding ---------------------------------------------------------
     def method_settings(self) -> MethodSettings:
-        return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma, options=self.options)
+        return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma)
 
     def memory_skill(self, k: int) -> str:
         return self.skills[k]

@@ -118,8 +118,8 @@ def _benchmark(skill: str, task_seed: int) -> Any:
     """``metaworld.MT1(skill, seed=task_seed)``, built once a process (our choice, for speed): building it resets a
     fresh environment 50 times to draw the configurations (about 2 s on a 2-core CPU); with a seed it restores
     numpy's global generator after, so a second build gives the same configurations and leaves the same state
-    (``tests/rl/test_envs_evaluate.py`` checks both). Only its immutable task list and its environment class are
-    read."""
+    (``tests/substrates/sac/test_envs_evaluate.py`` checks both). Only its immutable task list and its environment
+    class are read."""
     import metaworld
 
     return metaworld.MT1(skill, seed=task_seed)

@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import typing
 from collections.abc import Callable, Mapping, Sequence
 from contextlib import AbstractContextManager
 from dataclasses import dataclass
@@ -137,8 +138,33 @@ def with_options(method: str, config: Any, options: Mapping[str, Any]) -> Any:
     unknown = sorted(set(options) - set(names))
     if unknown:
         raise ValueError(f"method_options: {method!r} has no option(s) {unknown}; its options: {names or 'none'}")
+    options = _as_option_numbers(type(config), options)
     check_settings(type(config), options, "method_options", text_numbers=False)  # nothing converts an option's text
     return dataclasses.replace(config, **options)
+
+
+def _as_option_numbers(config_class: type, options: Mapping[str, Any]) -> dict[str, Any]:
+    """``options`` with each number as its option's kind: ``--method_options`` is read as ``bool | float | str``
+    (the command line's ``{iterations: 3}`` arrives as 3.0), so a whole float becomes an ``int`` option's integer
+    and an integer a ``float`` option's float; anything else is left for the type check to answer.
+
+    Args:
+        config_class: the method's settings dataclass.
+        options: the run's ``--method_options``.
+
+    Returns:
+        The options, numbers converted.
+    """
+    hints = typing.get_type_hints(config_class)
+    out = dict(options)
+    for name, value in options.items():
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            continue
+        if hints.get(name) is int and isinstance(value, float) and value.is_integer():
+            out[name] = int(value)
+        elif hints.get(name) is float and isinstance(value, int):
+            out[name] = float(value)
+    return out
 
 
 class ContinualMethod:
@@ -172,6 +198,16 @@ class ContinualMethod:
     start or generator); what they hold fixed is set in :meth:`begin_wake`. A mid-wake snapshot then keeps that
     state and a killed wake continues from it. False (the default, the safe answer for a method whose state is not
     declared): such a wake, killed, starts again from its start, with the same numbers."""
+
+    own_settings: ClassVar[Mapping[str, str]] = {}
+    """Shared settings the method replaces with options of its own: ``"sleep.max_iterations": "iterations"``
+    (Reset & Distill's budget). ``sr-train`` refuses such a flag on the command line, in one line naming the option
+    to give instead (:func:`~sr_imitation.stream.methods.registry.replaced_setting_refusal`): a setting the user
+    gives is never silently replaced. The option's value is the one used and fingerprinted (``method_config.*``)."""
+    fixed_settings: ClassVar[Mapping[str, Any]] = {}
+    """Shared settings the method fixes, whatever the run says: ``"sleep.anchor_strength": 0.0``, or
+    ``"sleep.enabled": True`` for a method that always runs its own sleep phase; refused on the command line as
+    :attr:`own_settings` are."""
 
     def __init__(self, settings: MethodSettings) -> None:
         self.settings = settings
@@ -273,3 +309,19 @@ class ContinualMethod:
         uses the sleep phase for its own offline consolidation (Reset & Distill's distillation) changes the policy
         function, the configuration or the parameters' starting point here."""
         return problem
+
+    def own_sleep_config(self, config: Any) -> Any:
+        """``config`` (the run's ``SleepConfig``) with the ``sleep.*`` entries of :attr:`fixed_settings` and
+        :attr:`own_settings` (from the method's ``config``, options applied) in place of the run's values.
+
+        Args:
+            config: the sleep configuration of the substrate's :class:`SleepProblem`.
+
+        Returns:
+            A copy with the method's own values, the ones it declares.
+        """
+        own = {key: getattr(self.config, option) for key, option in self.own_settings.items()}
+        values = {**self.fixed_settings, **own}
+        names = {f.name for f in dataclasses.fields(config)}  # sleep.enabled: the run's switch, not the core's
+        fields = {key.split(".", 1)[1]: value for key, value in values.items() if key.startswith("sleep.")}
+        return dataclasses.replace(config, **{name: value for name, value in fields.items() if name in names})

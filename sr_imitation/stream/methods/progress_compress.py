@@ -24,7 +24,6 @@ outputs (kept for a resume; only the current one is used).
 from __future__ import annotations
 
 import contextlib
-import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -89,10 +88,8 @@ class ProgressCompress(ResetDistill):
         if k > 0:  # the knowledge base after compression k - 1
             capability(substrate, ResettableNetworks).load_actor(k - 1, "sleep")
             fishers = [self._fisher(i, substrate) for i in range(k)]
-        c = self.config
-        config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
-                                     batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
-        lam = c.lam
+        config = self.own_sleep_config(problem.config)
+        lam = self.config.lam
 
         def ewc(params: Any) -> torch.Tensor:
             return 0.5 * lam * sum(f.penalty(params) for f in fishers)

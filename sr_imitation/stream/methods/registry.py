@@ -7,11 +7,13 @@ substrate provides, so a new substrate gets every method it can run without any 
 
 from __future__ import annotations
 
+import dataclasses
 import importlib
 import pkgutil
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
+from sr_imitation.infra.cli_parsing import take_flag
 from sr_imitation.infra.fingerprint import to_jsonable
 from sr_imitation.stream.capabilities import missing_capabilities
 from sr_imitation.stream.methods.base import ContinualMethod, with_options
@@ -92,9 +94,23 @@ def check_method(name: str, substrate: Any) -> type[ContinualMethod]:
     return cls
 
 
-def make_method(name: str, substrate: Any, settings: MethodSettings) -> ContinualMethod:
+def make_method(name: str, substrate: Any, settings: MethodSettings,
+                options: Mapping[str, Any] | None = None) -> ContinualMethod:
     """The method ``name`` for ``substrate`` (a substrate instance or class), refused as :func:`check_method`
-    says."""
+    says.
+
+    Args:
+        name: the registry name (``--method``).
+        substrate: the substrate it runs on (instance or class).
+        settings: what the substrate tells methods (``substrate.method_settings()``).
+        options: ``--method_options``, straight from the run's configuration (they replace ``settings.options``;
+            ``None`` keeps those).
+
+    Returns:
+        The method, its ``config`` with the options applied.
+    """
+    if options is not None:
+        settings = dataclasses.replace(settings, options=dict(options))
     return check_method(name, substrate)(settings)
 
 
@@ -107,3 +123,31 @@ def method_config(name: str, options: Mapping[str, Any] | None = None) -> dict[s
     if options:
         config = with_options(name, config, options)
     return to_jsonable(config) if config is not None else {}
+
+
+def replaced_setting_refusal(name: str, args: Sequence[str], prefix: str = "") -> str | None:
+    """Why a command line may not give a shared setting that method ``name`` replaces (its
+    :attr:`~ContinualMethod.own_settings` and :attr:`~ContinualMethod.fixed_settings`), in one line naming the flag
+    and the method option to give instead; ``None`` when it gives none (or ``name`` is not a registered method).
+
+    Args:
+        name: the run's method (``--method``, else its config file's).
+        args: the command line's flags (a config file's values are not the user's flag for this method: presets
+            are shared by every method).
+        prefix: where the run's settings sit on this command line (``train.`` for ``sr-main``).
+
+    Returns:
+        The refusal, or ``None``.
+    """
+    cls = METHODS.get(name)
+    if cls is None:
+        return None
+    for setting, option in cls.own_settings.items():
+        given = take_flag(list(args), f"--{prefix}{setting}")[1]
+        if given is not None:
+            return (f"--{prefix}{setting}: {name} sets it with its own option {option!r} (default "
+                    f"{getattr(cls.config, option)}); use --{prefix}method_options={{{option}: {given}}}")
+    for setting, value in cls.fixed_settings.items():
+        if take_flag(list(args), f"--{prefix}{setting}")[1] is not None:
+            return f"--{prefix}{setting}: {name} fixes it at {value!r} whatever the flag says; leave the flag out"
+    return None

@@ -40,7 +40,6 @@ raw frames and the expert's action chunks on them, as SR's memory.
 
 from __future__ import annotations
 
-import dataclasses
 from dataclasses import dataclass
 from typing import Any, ClassVar
 
@@ -82,13 +81,18 @@ class ResetDistill(ContinualMethod):
     stores_memories = True
     memory_name = EXPERT
     config: ClassVar[ResetDistillConfig] = ResetDistillConfig()
+    # the distillation's budget is the method's own; the flags of SR's sleep are refused, naming these options
+    own_settings: ClassVar[dict[str, str]] = {"sleep.max_iterations": "iterations", "sleep.batch_size": "batch_size",
+                                              "sleep.lr": "lr"}
+    fixed_settings: ClassVar[dict[str, Any]] = {"sleep.aggregator": "mean_grad", "sleep.anchor_strength": 0.0,
+                                                "sleep.early_stop_tol": 0.0, "sleep.enabled": True}
 
     def setup(self, substrate: Substrate) -> None:
         if not isinstance(substrate, GaussianActor):  # the expert is the substrate's own memory (ACT)
             self.memory_name = "memory"  # what a resume loads back
 
     def sleeps_after(self, skill_number: int) -> bool:
-        return True  # the distillation, after every skill (not SR's sleep: --sleep.enabled does not apply)
+        return True  # the distillation, after every skill (not SR's sleep: --sleep.enabled is refused, fixed_settings)
 
     def begin_wake(self, k: int, memories: Any, substrate: Substrate) -> None:
         super().begin_wake(k, memories, substrate)
@@ -102,9 +106,7 @@ class ResetDistill(ContinualMethod):
     def prepare_sleep(self, k: int, problem: SleepProblem, substrate: Substrate) -> SleepProblem:
         if k > 0:  # the shared policy as the previous distillation left it
             capability(substrate, ResettableNetworks).load_actor(k - 1, "sleep")
-        c = self.config
-        config = dataclasses.replace(problem.config, aggregator="mean_grad", max_iterations=c.iterations,
-                                     batch_size=c.batch_size, lr=c.lr, anchor_strength=0.0, early_stop_tol=0.0)
+        config = self.own_sleep_config(problem.config)
         parameters = capability(substrate, LikelihoodPolicy).policy_parameters()
         # the policy as the experts' memories evaluate it: the Gaussian (SAC), the substrate's sleep policy (ACT)
         policy = state_gaussian(substrate) if isinstance(substrate, GaussianActor) else problem.policy

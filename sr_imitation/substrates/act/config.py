@@ -285,10 +285,10 @@ RESUME_ALLOW_LIST: dict[str, str] = {
     "eval.video_height": "video frame size only (see eval.videos_per_skill)",
     "eval.video_width": "video frame size only (see eval.videos_per_skill)",
     "wake.snapshot_every_s": "when a wake writes its snapshot: writing one reads the state and draws nothing, and a "
-                             "resumed wake continues bit for bit (tests/imitation/test_wake_snapshot.py)",
+                             "resumed wake continues bit for bit (tests/substrates/act/test_wake_snapshot.py)",
     "wake.num_workers": "DataLoader worker processes: sampling and its seed draw stay in the main process (torch "
                         "draws the worker base seed with or without workers) and the in-memory dataset has no "
-                        "randomness, so the batches are the same (tests/imitation/test_resume_settings.py resumes "
+                        "randomness, so the batches are the same (tests/substrates/act/test_resume_settings.py resumes "
                         "with workers and gets bit-identical weights)",
     "policy.input_features": "derived from the stream's first dataset at set-up (any given value is overwritten); "
                              "the datasets are inputs, not settings",

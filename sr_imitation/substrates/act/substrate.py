@@ -167,7 +167,7 @@ class ACTSubstrate:
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=self.policy_cfg.distill_weight,
-                              extra={"aggregator": self.cfg.sleep.aggregator}, options=dict(self.cfg.method_options))
+                              extra={"aggregator": self.cfg.sleep.aggregator})
 
     # -- set-up ------------------------------------------------------------------------------------------
     def setup(self) -> None:

@@ -19,7 +19,7 @@ on to one checked safetensors file, and a wake that finds that file continues fr
   (``ContinualMethod.wake_state``; every method with wake hooks declares ``resumable_wake_hooks``).
 
 When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
-the numbers of a run never depend on it (``tests/imitation/test_wake_snapshot.py`` kills wakes inside an epoch and
+the numbers of a run never depend on it (``tests/substrates/act/test_wake_snapshot.py`` kills wakes inside an epoch and
 checks the resumed ones bit for bit against wakes that were never stopped). The file is removed when the wake ends.
 Only the main process writes (the processes of a launched run hold the same state); every process reads it. A wake
 shaped by hooks that do not declare their state (``resumable_wake_hooks`` False, a new method's default) is not

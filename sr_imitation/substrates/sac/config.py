@@ -351,12 +351,12 @@ RESUME_ALLOW_LIST: dict[str, str] = {
     "plots": "PNG plots drawn from results.json at the end",
     "wandb": "experiment tracking only (the run log mirrored to Weights & Biases)",
     "eval.videos_per_skill": "which evaluation episodes are also rendered to mp4: rendering only reads the "
-                             "simulation state, the outcome is identical (tests/rl/test_video.py)",
+                             "simulation state, the outcome is identical (tests/substrates/sac/test_video.py)",
     "eval.video_height": "video frame size only (see eval.videos_per_skill)",
     "eval.video_width": "video frame size only (see eval.videos_per_skill)",
     "eval.video_camera": "video camera only (see eval.videos_per_skill)",
     "wake.snapshot_every_s": "when a wake writes its snapshot: writing one reads the state and draws nothing, and a "
-                             "resumed wake continues bit for bit (tests/rl/test_wake_snapshot.py)",
+                             "resumed wake continues bit for bit (tests/substrates/sac/test_wake_snapshot.py)",
 }
 """Settings of ``sr-rl-train`` that may differ on ``--resume`` (fnmatch patterns, each covering the keys below it),
 with the reason each cannot change results. Every other setting of :class:`RLTrainConfig` is fingerprinted at the

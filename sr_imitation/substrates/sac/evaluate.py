@@ -2,7 +2,7 @@
 
 The same harness scores our SAC actor, Meta-World's own scripted policies (``metaworld.policies``) and a random
 policy, which is how it is checked against code nobody here wrote: the scripted policies must reach >= 0.9
-success on every MT5 skill and the random policy stays near 0 (``tests/rl/test_envs_evaluate.py``,
+success on every MT5 skill and the random policy stays near 0 (``tests/substrates/sac/test_envs_evaluate.py``,
 ``docs/BENCHMARKS.md``).
 
 Success: ``any_step`` (the episode succeeds if Meta-World reports success at any step, the Continual World /
@@ -19,7 +19,7 @@ SPI: only the robot's own state enters (``SPI_FEATURES``, :func:`sr_imitation.co
 Videos: with a :class:`~sr_imitation.envs.metaworld.video.VideoSpec` the first ``spec.episodes`` episodes are also
 rendered offscreen (the frame after reset, then one per step) into ``<skill>_episode<i>_<success|failure>.mp4``.
 Rendering only reads the simulation state, so the outcome is identical with and without videos
-(``tests/rl/test_video.py``).
+(``tests/substrates/sac/test_video.py``).
 """
 
 from __future__ import annotations

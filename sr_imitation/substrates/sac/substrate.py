@@ -86,7 +86,7 @@ class SACSubstrate:
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=None,
-                              extra={"aggregator": self.cfg.sleep.aggregator}, options=dict(self.cfg.method_options))
+                              extra={"aggregator": self.cfg.sleep.aggregator})
 
     # -- set-up and seeding ---------------------------------------------------------------------------------
     def setup(self) -> None:

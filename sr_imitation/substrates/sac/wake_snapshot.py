@@ -16,9 +16,9 @@ depends on to one checked safetensors file, and a wake that finds that file cont
   last update's numbers.
 
 When and whether a snapshot is written depends on wall time only; writing one reads the state and draws nothing, so
-the numbers of a run never depend on it (``tests/rl/test_wake_snapshot.py`` kills a wake between episodes and checks
-the resumed one bit for bit against one that was never stopped). The file is removed when the wake ends. A continual
-method's wake hooks travel with the snapshot: their generator and counters and the method's own wake state
+the numbers of a run never depend on it (``tests/substrates/sac/test_wake_snapshot.py`` kills a wake between episodes
+and checks the resumed one bit for bit against one that was never stopped). The file is removed when the wake ends.
+A continual method's wake hooks travel with the snapshot: their generator and counters and the method's own wake state
 (``ContinualMethod.wake_state``: A-GEM's reference gradient, PCGrad's projection-order generator, Nash-MTL's warm
 start); a wake shaped by hooks that do not declare their state (``resumable_wake_hooks`` False, a new method's
 default) is not snapshotted: killed, it starts again.
