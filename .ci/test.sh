@@ -8,6 +8,15 @@ source .ci/env.sh
 # (SR_TEST_WORKERS=0 runs in one process). Each test file runs on one worker (--dist loadfile): a module's shared
 # fixtures (recorded datasets, tiny trained runs, the grid's Ray) are built once, and the Ray tests never run beside
 # each other. (--dist loadgroup's xdist_group marks do nothing under pytest 9 with xdist 3.8: tests/test_ci_dist.py.)
+# Two tiers: without --all, the tests marked `slow` (the multi-process end-to-end routes: stock lerobot-train /
+# lerobot-eval subprocesses, torchrun, pip installs, the kill -9 harness, two writers at once, the grid on Ray, the
+# recipe copy) are left out; every unit-level check of the same code stays. `--all` runs both tiers (CI: .ci/run).
+tier=(-m "not slow")
+args=()
+for arg in "$@"; do
+  if [ "$arg" = "--all" ]; then tier=(); else args+=("$arg"); fi
+done
+set -- "${args[@]+"${args[@]}"}"
 workers="${SR_TEST_WORKERS:-2}"
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}"
 # Temporary files (pytest's tmp_path and every tempfile of the tests and of the processes they start) on a RAM disk
@@ -28,6 +37,6 @@ export SR_TEST_OVERLAY="$venv"
 # workers, the sr-* commands) compiles it again where PYTHONDONTWRITEBYTECODE is set (0.6-0.9 s a process here).
 "$venv/bin/python" -m compileall -q -j 0 sr_imitation policies tests experiments >/dev/null
 if [ "$workers" = "0" ]; then
-  exec "$venv/bin/python" -m pytest "$@"
+  exec "$venv/bin/python" -m pytest "${tier[@]+"${tier[@]}"}" "$@"
 fi
-exec "$venv/bin/python" -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder "$@"
+exec "$venv/bin/python" -m pytest -n "$workers" --dist loadfile --no-loadscope-reorder "${tier[@]+"${tier[@]}"}" "$@"

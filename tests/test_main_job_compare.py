@@ -110,14 +110,16 @@ def test_a_resumed_comparison_continues_only_the_unfinished_run(job):
     before = job["interrupted"]
     out = job["out"]
     assert before["killed"] and not before["figure"]  # the interrupted job wrote no comparison
-    assert before["wake_only_phases"] == ["1.wake"]
+    # killed once stage 1's wake is recorded (the kill hook watches from another thread: its memory may be recorded too)
+    assert "1.wake" in before["wake_only_phases"] and set(before["wake_only_phases"]) <= {"1.wake", "1.memory"}
     # sr had finished: skipped, not touched; wake_only resumed from its recorded phases
     assert (out / "sr_seed0" / "results.json").read_bytes() == before["sr_results"]
     assert (out / "sr_seed0" / "progress.json").stat().st_mtime_ns == before["sr_progress"]
     assert any("1 finished in" in line and "1 to run" in line for line in job["log"]), job["log"]
     finished = [line for line in job["log"] if line.startswith("finished ")]
     assert len(finished) == 1 and finished[0].startswith("finished wake_only seed 0")
-    assert "resumed with 1 phase done" in finished[0]
+    done = len(before["wake_only_phases"])
+    assert f"resumed with {done} phase{'s' if done > 1 else ''} done" in finished[0], finished[0]
 
 
 def test_the_job_s_flags_and_defaults(job, tmp_path):

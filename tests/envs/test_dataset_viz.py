@@ -24,6 +24,7 @@ def video_dataset(tmp_path_factory) -> Path:
     return root / "approach"
 
 
+@pytest.mark.slow
 def test_the_printed_hint_pasted_into_a_shell_writes_a_rerun_recording_beside_the_dataset(video_dataset):
     hint = view_hint("approach", video_dataset)
     command = hint.removeprefix("view an episode: ").split("   (then:")[0]

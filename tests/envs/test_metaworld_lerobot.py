@@ -79,6 +79,7 @@ def test_a_camera_image_maps_to_the_key_sr_record_writes():
         vec.close()
 
 
+@pytest.mark.slow
 def test_stock_lerobot_eval_evaluates_a_meta_world_checkpoint(tmp_path_factory):
     """A tiny one-skill stream trained on ``sr-record --env=metaworld`` data, evaluated by stock ``lerobot-eval``
     (a real subprocess) in ``--env.type=sr_meta_world``, headless with no ``MUJOCO_GL`` set (the plugin's import

@@ -119,6 +119,7 @@ def _assert_same_run(reference: Path, run: Path) -> None:
         assert x.keys() == y.keys() and all(torch.equal(x[k], y[k]) for k in x), file
 
 
+@pytest.mark.slow
 def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(preset, loop_runs, local_ray, tmp_path,
                                                                              monkeypatch, caplog):
     marker = tmp_path / "killed"
@@ -137,6 +138,7 @@ def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(pres
     _assert_same_run(loop_runs / "sr_seed0", out / "sr_seed0")
 
 
+@pytest.mark.slow
 def test_runs_in_the_archive_are_not_submitted_and_a_grid_on_ray_gives_the_loops_results(preset, loop_runs, local_ray,
                                                                                            tmp_path, caplog):
     import ray
@@ -166,6 +168,7 @@ def test_runs_in_the_archive_are_not_submitted_and_a_grid_on_ray_gives_the_loops
     assert ray.is_initialized()  # a Ray the runner did not start is left to its owner
 
 
+@pytest.mark.slow
 def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(module_ray, tmp_path, caplog):
     import ray
 
@@ -191,6 +194,7 @@ def test_waiting_runs_start_after_theirs_and_a_failed_run_stops_only_its_own(mod
     assert not ray.is_initialized() and _ray_processes() == []  # the Ray the runner started is stopped
 
 
+@pytest.mark.slow
 def test_the_sac_grid_on_ray_gives_the_loops_results(local_ray, tmp_path):
     from sr_imitation.substrates.sac.config import EvalConfig
     from tests.substrates.sac.test_trainer import tiny_config

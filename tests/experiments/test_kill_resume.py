@@ -20,6 +20,7 @@ TOY_TRAIN = ["python", "-c", "from sr_imitation import cli; from sr_imitation.su
              "--substrate=toy", "--stream.skills=[a,b,c]", "--progress=false", "--wake_steps=1000"]
 
 
+@pytest.mark.slow
 def test_runs_killed_with_sigkill_and_resumed_agree_with_the_uninterrupted_one(tmp_path):
     root = tmp_path / "kill"
     # (the start-up moments: test_the_start_up_moments_are_run_again_and_compared_file_by_file)

@@ -132,6 +132,7 @@ def check_same_run(run: Path, reference: Path) -> None:
     assert sorted(p.name for p in run.parent.iterdir() if p.name.startswith(f".{run.name}")) == []
 
 
+@pytest.mark.slow
 def test_two_fresh_starts_at_once(tmp_path, clean):
     run = tmp_path / "run"
     procs = start_writers(tmp_path / "go", [f"--output_dir={run}"], [f"--output_dir={run}"])
@@ -139,6 +140,7 @@ def test_two_fresh_starts_at_once(tmp_path, clean):
     check_same_run(run, clean["fresh"])
 
 
+@pytest.mark.slow
 def test_two_resumes_at_once(tmp_path, clean):
     run = tmp_path / "run"
     shutil.copytree(clean["killed"], run, symlinks=True)
@@ -149,6 +151,7 @@ def test_two_resumes_at_once(tmp_path, clean):
     assert len(log_lines(run)) == len(log_lines(clean["fresh"]))  # not every record twice
 
 
+@pytest.mark.slow
 def test_two_overwrites_at_once(tmp_path, clean):
     run = tmp_path / "run"
     shutil.copytree(clean["fresh"], run, symlinks=True)
@@ -159,6 +162,7 @@ def test_two_overwrites_at_once(tmp_path, clean):
     check_same_run(run, clean["fresh"])
 
 
+@pytest.mark.slow
 def test_an_overwrite_and_a_resume_at_once(tmp_path, clean):
     run = tmp_path / "run"
     shutil.copytree(clean["killed"], run, symlinks=True)

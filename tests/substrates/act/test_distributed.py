@@ -49,6 +49,7 @@ def _torchrun(config: Path, out: Path, tmp: Path) -> subprocess.CompletedProcess
     return subprocess.run([sys.executable, *launcher, *cli], capture_output=True, text=True, env=env, timeout=600)
 
 
+@pytest.mark.slow
 def test_two_processes_give_the_one_process_run_and_write_it_once(state_datasets, tmp_path):
     cfg = tiny_stream_config(state_datasets, tmp_path / "unused", SKILLS, use_images=False, dropout=0.0,
                              use_vae=False)

@@ -192,6 +192,7 @@ def test_sr_train_refuses_to_overwrite_an_existing_run(main_job_run):
         train_main([f"--config_path={tmp / 'run' / 'train_config.json'}"])
 
 
+@pytest.mark.slow
 def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     """Stock lerobot-train (a real subprocess) makes act_sr from its plugin. Without --policy.sleep the policy keeps
     no reservoir and writes no memory; --policy.use_images=false gives a state-only model there too (it used to be
@@ -220,6 +221,7 @@ def test_stock_lerobot_train_finds_act_sr(main_job_run, tmp_path):
     assert not any("backbone" in name for name in weights)
 
 
+@pytest.mark.slow
 def test_stock_lerobot_eval_evaluates_a_consolidated_checkpoint(main_job_run, tmp_path):
     """The workflow's last step as a real subprocess: stock ``lerobot-eval`` loads a consolidated (sleep)
     checkpoint of the stream and evaluates it in the needle env this package registers."""
