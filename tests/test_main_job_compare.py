@@ -17,23 +17,13 @@ from sr_imitation.experiments.grid import KILL_HOOK_ENV, GridConfig, run_grid
 from sr_imitation.experiments.main_compare import DEFAULT_PRESET, MainCompareConfig, main, run_dirs
 from sr_imitation.experiments.needle_compare import run_config
 from sr_imitation.substrates.act.cli import parse_config
-from tests.experiments.toy_grid import ToyGrid
+from tests.experiments.toy_grid import TINY_NEEDLE_TRAIN, ToyGrid
 
 REPO = Path(__file__).resolve().parents[1]
 TINY = {
     "record": {"num_episodes": 2, "image_size": 32},
-    "train": {
-        "policy": {"type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2,
-                   "dim_feedforward": 64, "n_encoder_layers": 1, "n_vae_encoder_layers": 1, "chunk_size": 8,
-                   "n_action_steps": 8},
-        "memory": {"buffer_size": 32},
-        "sleep": {"max_iterations": 4, "batch_size": 4, "early_stop_window": 2},
-        "stream": {"skills": ["approach", "place"]},
-        "wake": {"max_epochs": 1, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 2},
-        "eval": {"episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 0},
-        "progress": False,
-        "seed": 0,
-    },
+    "train": {**TINY_NEEDLE_TRAIN, "seed": 0,
+              "wake": {"max_epochs": 1, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 2}},
     "expert_video": False,
 }
 """A two-skill state-only needle preset of seconds a run."""

@@ -48,11 +48,16 @@ def last_sleep_row(run: Path) -> dict[str, Any]:
     woke, slept = after_wake[-1], results["success_matrix"][-1]
     if any(v is None for v in (*woke, *slept)):
         raise ValueError(f"{run}: the last stage was not evaluated on every skill")
+    return _row(str(run), results.get("label", results.get("method")), results.get("seed"), skills, woke, slept, sleep)
+
+
+def _row(run: str, method: Any, seed: Any, skills: Sequence[str], woke: Sequence[float], slept: Sequence[float],
+         sleep: dict[str, Any]) -> dict[str, Any]:
+    """One row from the success right after the last wake and after the final sleep, and the sleep's record."""
     before, after = sleep["initial_memory_losses"], sleep["final_memory_losses"]
     older = {s: slept[i] - woke[i] for i, s in enumerate(skills[:-1])}
     return {
-        "run": str(run), "method": results.get("label", results.get("method")), "seed": results.get("seed"),
-        "skills": skills, "newest": skills[-1],
+        "run": run, "method": method, "seed": seed, "skills": list(skills), "newest": skills[-1],
         "newest_after_wake": woke[-1], "newest_after_sleep": slept[-1], "newest_change": slept[-1] - woke[-1],
         "older_change": older, "older_mean_change": sum(older.values()) / len(older) if older else 0.0,
         "loss_before": sum(before), "loss_after": sum(after),
@@ -82,17 +87,8 @@ def resleep_row(folder: Path) -> dict[str, Any]:
         raise ValueError(f"{folder}: the re-sleep was not evaluated on every skill (--eval.skills)")
     woke = [success[s]["before"] for s in skills]
     slept = [success[s]["after"] for s in skills]
-    before, after = sleep["initial_memory_losses"], sleep["final_memory_losses"]
-    older = {s: slept[i] - woke[i] for i, s in enumerate(skills[:-1])}
-    return {
-        "run": str(folder), "method": f"re-sleep, anchor strength {record['sleep_settings']['anchor_strength']}",
-        "seed": None, "skills": skills, "newest": skills[-1],
-        "newest_after_wake": woke[-1], "newest_after_sleep": slept[-1], "newest_change": slept[-1] - woke[-1],
-        "older_change": older, "older_mean_change": sum(older.values()) / len(older) if older else 0.0,
-        "loss_before": sum(before), "loss_after": sum(after),
-        "newest_loss_before": before[-1], "newest_loss_after": after[-1],
-        "anchor_lambda": sleep.get("anchor_lambda"), "stop_iteration": sleep.get("stop_iteration"),
-    }
+    method = f"re-sleep, anchor strength {record['sleep_settings']['anchor_strength']}"
+    return _row(str(folder), method, None, skills, woke, slept, sleep)
 
 
 def render_markdown(rows: Sequence[dict[str, Any]]) -> str:

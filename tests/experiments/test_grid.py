@@ -30,6 +30,7 @@ from sr_imitation.experiments.mt5_compare import MT5CompareConfig
 from sr_imitation.experiments.needle_compare import CompareConfig
 from sr_imitation.infra.fingerprint import SettingsMismatchError
 from sr_imitation.main_job import preset_with_datasets
+from tests.experiments.toy_grid import TINY_NEEDLE_TRAIN
 
 CONFIGS = Path(__file__).resolve().parents[2] / "configs"
 VARIANTS = ["sr", "wake_only"]
@@ -40,17 +41,7 @@ def preset(tmp_path_factory) -> Path:
     tmp = tmp_path_factory.mktemp("grid_preset")
     config = {
         "record": {"num_episodes": 2, "root": str(tmp / "datasets"), "image_size": 32},
-        "train": {
-            "policy": {"type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2,
-                       "dim_feedforward": 64, "n_encoder_layers": 1, "n_vae_encoder_layers": 1, "chunk_size": 8,
-                       "n_action_steps": 8},
-            "memory": {"buffer_size": 32},
-            "sleep": {"max_iterations": 4, "batch_size": 4, "early_stop_window": 2},
-            "stream": {"skills": ["approach", "place"]},
-            "wake": {"max_epochs": 2, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 3},
-            "eval": {"episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 0},
-            "progress": False,
-        },
+        "train": TINY_NEEDLE_TRAIN,
     }
     path = tmp / "preset.json"
     path.write_text(json.dumps(config))

@@ -79,3 +79,18 @@ class ToyGrid:
 
 
 GRID = ToyGrid()
+
+
+TINY_NEEDLE_TRAIN = {
+    "policy": {"type": "act_sr", "device": "cpu", "use_images": False, "dim_model": 32, "n_heads": 2,
+               "dim_feedforward": 64, "n_encoder_layers": 1, "n_vae_encoder_layers": 1, "chunk_size": 8,
+               "n_action_steps": 8},
+    "memory": {"buffer_size": 32},
+    "sleep": {"max_iterations": 4, "batch_size": 4, "early_stop_window": 2},
+    "stream": {"skills": ["approach", "place"]},
+    "wake": {"max_epochs": 2, "min_epochs": 1, "batch_size": 8, "max_steps_per_epoch": 3},
+    "eval": {"episodes": 1, "seeds": [0], "max_steps": 40, "videos_per_skill": 0},
+    "progress": False,
+}
+"""The train section of a two-skill state-only needle preset of seconds a run (the grid's and the comparison job's
+tests; each overrides what it needs)."""
