@@ -152,10 +152,16 @@ def _stop(module: str, name: str, after: bool) -> Iterator[None]:
         setattr(mod, name, real)
 
 
-def _up_to(module: str, main: str, stop_at: str, *, after: bool = False) -> Callable[[list[str]], object]:
-    """A command's own ``main`` run on ``args`` until it reaches ``stop_at`` (its first work, or its parser)."""
+def _up_to(module: str, main: str, stop_at: str, *, after: bool = False,
+           also: tuple[str, str, bool] | None = None) -> Callable[[list[str]], object]:
+    """A command's own ``main`` run on ``args`` until it reaches ``stop_at`` (its first work, or its parser) or
+    ``also`` ((module, name, after) of another route through it)."""
     def run(args: list[str]) -> object:
-        with _stop(module, stop_at, after), pytest.raises(Parsed) as stopped:
+        with contextlib.ExitStack() as stack:
+            stack.enter_context(_stop(module, stop_at, after))
+            if also is not None:
+                stack.enter_context(_stop(*also))
+            stopped = stack.enter_context(pytest.raises(Parsed))
             getattr(importlib.import_module(module), main)(args)
         return stopped.value.value
     return run
@@ -221,7 +227,9 @@ PARSERS: dict[str, Callable[[list[str]], object]] = {
     "sr-train": _sr_train,
     "python -m sr_imitation.cli": _sr_train,
     "sr-main": _up_to("sr_imitation.main_job", "main", "run_main_job"),
-    "sr-record": _up_to("sr_imitation.recorders.needle", "main", "report_recorded"),
+    "sr-record": _up_to("sr_imitation.recorders.needle", "main", "report_recorded"),  # the needle recorder
+    "sr-record --env=metaworld": _up_to("sr_imitation.recorders.cli", "main", "report_recorded", after=True,
+                                        also=("sr_imitation.recorders.metaworld", "parse_command", True)),
     "sr-grid": _up_to("sr_imitation.experiments.grid", "main", "run_grid"),
     "sr-sleep": _up_to("sr_imitation.substrates.act.cli", "sleep_main", "hold_folder"),
     "sr-sac-sleep": _up_to("sr_imitation.substrates.sac.resleep", "main", "resleep"),
@@ -244,6 +252,8 @@ def dry_parse(command: str) -> object:
     argv = shlex.split(command)
     while re.match(r"^[A-Z_]+=", argv[0]):
         argv = argv[1:]
+    if argv[0] == "sr-record" and "--env=metaworld" in argv:
+        return PARSERS["sr-record --env=metaworld"](argv[1:])
     for length in (3, 2, 1):
         program = " ".join(argv[:length])
         if program in PARSERS and (length > 1 or program not in ("python", "bash")):
