@@ -13,7 +13,7 @@ from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ["README.md", "configs/README.md", *(f"docs/{name}" for name in (
-    "COMMANDS.md", "ARCHITECTURE.md", "BENCHMARKS.md", "EVIDENCE.md", "NEEDLE_ENV.md"))]
+    "COMMANDS.md", "ARCHITECTURE.md", "BENCHMARKS.md", "EVIDENCE.md", "NEEDLE_ENV.md")), "policies/README.md"]
 """The user-facing pages (the dated records, docs/RESULTS.md and docs/results/, keep what was said when)."""
 NEEDS_A_GPU = re.compile(r"\b(?:needs?|requires?|meant for|calls? for|only on) (?:a |one |the )?GPUs?\b", re.I)
 PRESET = re.compile(r"\b(\w+)\.json\b")

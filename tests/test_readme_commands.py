@@ -26,7 +26,8 @@ from tests.tool_loader import load_tool
 
 ROOT = Path(__file__).resolve().parents[1]
 PAGES = ["README.md", *(f"docs/{name}" for name in (
-    "COMMANDS.md", "ARCHITECTURE.md", "BENCHMARKS.md", "EVIDENCE.md", "NEEDLE_ENV.md")), "configs/README.md"]
+    "COMMANDS.md", "ARCHITECTURE.md", "BENCHMARKS.md", "EVIDENCE.md", "NEEDLE_ENV.md")), "configs/README.md",
+         "policies/README.md"]
 """The user-facing pages (the dated records, docs/RESULTS.md and docs/results/, keep the commands of their day)."""
 PROGRAMS = ("sr-", "lerobot-", "bash ", "python ", "pip ", "torchrun ", "accelerate ", "ray ", "source ")
 """How an inline code span that is a command starts."""
@@ -87,6 +88,10 @@ PARSED: set[str] = {
     "sr-sac-sleep --source=docs/results/sac_sleep_calibration.weights/sr_seed100 "
     "--archived=docs/results/sac_sleep_calibration/sr_seed100 --output_dir=outputs/resleep/a1_seed100 "
     "--changes=[--sleep.early_stop_tol=0,--eval.videos_per_skill=0]",
+    # policies/README.md (LeRobot's default ACT, 20 000 steps)
+    "lerobot-train --policy.type=act_sr --policy.sleep=true --policy.push_to_hub=false --policy.device=cpu "
+    "--dataset.repo_id=local/sr_needle_approach --dataset.root=datasets/needle/approach "
+    "--dataset.video_backend=pyav --steps=20000 --batch_size=8 --output_dir=outputs/approach",
     # docs/BENCHMARKS.md
     "PYTHONPATH=. MUJOCO_GL=egl HF_HUB_OFFLINE=1 python -m sr_imitation.benchmarks.needle_env --record_episodes=100 "
     "--output=outputs/needle_bench_100.json",
@@ -321,13 +326,17 @@ def test_lerobot_train_parses_the_first_wake_as_the_cpu_presets_small_act(stock_
 
 
 def test_sleep_flag_on_each_command_does_what_readme_says(capsys):
-    """README: ``--policy.sleep=true`` is ``--sleep.enabled=true`` on sr-train; sr-sleep does not take it."""
+    """README: ``--policy.sleep=true`` is ``--sleep.enabled=true`` on sr-train; sr-sleep does not take it. (What it does
+    on lerobot-train, from --policy.path too, and that lerobot-eval saves nothing: tests/substrates/act/
+    test_stock_route.py.)"""
     from sr_imitation.infra.cli_errors import run_cli
     from sr_imitation.substrates.act.cli import sleep_main
 
     readme = " ".join((ROOT / "README.md").read_text().split())
     assert "on `sr-train` it is the same switch as `--sleep.enabled=true`" in readme
     assert "`sr-sleep` always sleeps and does not take the flag" in readme
+    assert "on `lerobot-train` it writes the skill's frozen memory into every checkpoint (from `--policy.path` too" \
+        in readme and "`lerobot-eval` reads it from the checkpoint and only evaluates" in readme
     args = ["--stream.skills=[a,b]", "--stream.dataset_paths=[x,y]", "--eval.env=none"]
     assert _sr_train([*args, "--policy.sleep=true"]).sleep.enabled is True
     assert _sr_train([*args, "--policy.sleep=false"]).sleep.enabled is False
