@@ -132,13 +132,19 @@ def test_the_job_s_flags_and_defaults(job, tmp_path):
         main([f"--config_path={job['preset']}", f"--output_dir={job['out']}", "--train.overwrite=true"])
 
 
-def test_the_processes_runner_runs_at_once_and_a_failed_run_fails_alone(tmp_path):
-    """Two toy runs overlap in time (two processes); a failing run is named at the end while the others finish, and
-    the run waiting for it is not started."""
-    run_grid(GridConfig(variants=["a", "b"], seeds=[0], output_root=tmp_path / "ok", runner="processes",
+def test_the_processes_runner_runs_at_once_and_a_failed_run_fails_alone(tmp_path, monkeypatch):
+    """Two toy runs are alive at the same time (two processes; each waits to see the other, so the load cannot make
+    it pass or fail); a failing run is named at the end while the others finish, and the run waiting for it is not
+    started."""
+    run_grid(GridConfig(variants=["meet_a", "meet_b"], seeds=[0], output_root=tmp_path / "ok", runner="processes",
                         processes=2), ToyGrid())
-    a, b = (json.loads((tmp_path / "ok" / f"{v}_seed0" / "results.json").read_text()) for v in ("a", "b"))
-    assert a["start"] < b["end"] and b["start"] < a["end"]  # at the same time
+    a, b = (json.loads((tmp_path / "ok" / f"{v}_seed0" / "results.json").read_text()) for v in ("meet_a", "meet_b"))
+    assert a["met"] is True and b["met"] is True  # each saw the other alive
+    monkeypatch.setenv("TOY_GRID_MEET_TIMEOUT", "1")
+    run_grid(GridConfig(variants=["meet_a", "meet_b"], seeds=[0], output_root=tmp_path / "one", runner="processes",
+                        processes=1), ToyGrid())
+    first = json.loads((tmp_path / "one" / "meet_a_seed0" / "results.json").read_text())
+    assert first["met"] is False  # one process at a time: the first run never sees the second (the check can fail)
     with pytest.raises(RuntimeError, match=r"2 of 3 runs failed.*fails_seed0: its process ended with status 1.*"
                                            r"after_fails_seed0: not started: fails_seed0 failed"):
         run_grid(GridConfig(variants=["fails", "a", "after_fails"], seeds=[0], output_root=tmp_path / "bad",

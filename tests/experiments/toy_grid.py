@@ -5,6 +5,7 @@ for the grid runner's scheduling: runs that wait for another, runs that fail. Im
 from __future__ import annotations
 
 import json
+import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -15,6 +16,7 @@ from sr_imitation.infra.fingerprint import FINGERPRINT_FILE, settings_fingerprin
 from sr_imitation.stream.config import check_choices
 
 AFTER = {"after_a": "a", "after_fails": "fails"}
+MEET = ("meet_a", "meet_b")
 
 
 @dataclass
@@ -38,7 +40,11 @@ def _ray_health_checks() -> list[int] | None:
 
 
 class ToyGrid:
-    variants = {"a": None, "b": None, "fails": None, **dict.fromkeys(AFTER)}
+    """Runs of the :data:`MEET` variants each leave a mark beside their folder and wait (up to
+    ``$TOY_GRID_MEET_TIMEOUT`` s, default 120) for the marks of the others, recording ``met``: true only when the runs
+    were alive at the same time, however slowly their processes started (a load-independent test of running at once)."""
+
+    variants = {"a": None, "b": None, "fails": None, **dict.fromkeys(AFTER), **dict.fromkeys(MEET)}
     default_variants = ["a", "b"]
     default_seeds = [0]
 
@@ -70,9 +76,21 @@ class ToyGrid:
         before = AFTER.get(variant)
         waited = before is None or (out.parent / run_name(before, run.seed) / "results.json").is_file()
         time.sleep(0.3)
+        met = self._meet(variant, run) if variant in MEET else None
         results = {"metrics": {"afsr": {"final": 0.5}}, "start": start, "end": time.time(), "waited": waited,
+                   "met": met,
                    "ray_health_checks": _ray_health_checks()}
         (out / "results.json").write_text(json.dumps(results))
+
+    def _meet(self, variant: str, run: ToyRun) -> bool:
+        marks = Path(run.output_dir).parent
+        (marks / f".{variant}_seed{run.seed}.here").touch()
+        deadline = time.monotonic() + float(os.environ.get("TOY_GRID_MEET_TIMEOUT", "120"))
+        while time.monotonic() < deadline:
+            if all((marks / f".{v}_seed{run.seed}.here").exists() for v in MEET):
+                return True
+            time.sleep(0.05)
+        return False
 
     def summarize(self, runs: dict[str, dict[str, Path]], output_root: Path) -> dict[str, Any]:
         return {"runs": {v: {s: str(p) for s, p in seeds.items()} for v, seeds in runs.items()}}
