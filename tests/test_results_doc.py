@@ -1488,13 +1488,24 @@ def test_results_opens_with_a_summary_of_at_most_600_words_whose_every_number_th
 
 
 def test_the_contents_link_every_section_and_every_protocol_links_its_record():
+    """RESULTS keeps the summary, the contents and the protocols; the contents link every protocol (by its anchor)
+    and every record file; each protocol links its record, and each record file names what it records in its first
+    line: ``# Record: Protocol: ...`` for a protocol's record, ``# Record: <the section's title>`` for the others."""
     results = (DOCS / "RESULTS.md").read_text()
     headings = [line[3:] for line in results.splitlines() if line.startswith("## ")]
     toc = re.findall(r"^- \[(.+)\]\(#([^)]+)\)$", results, re.M)
     assert [t for t, _ in toc] == [h for h in headings if h not in ("Summary (2026-12-07)", "Contents")]
+    assert all(t.startswith("Protocol: ") for t, _ in toc) and len(toc) >= 5
     for title, anchor in toc:  # GitHub's anchors: lower case, punctuation dropped, spaces to hyphens
         assert anchor == re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-"), title
-    linked = re.findall(r"\(results/records/([\w]+\.md)\)", results)
-    assert sorted(linked) == sorted(p.name for p in RECORDS.glob("*.md")) and len(linked) >= 4
-    for name in linked:
-        assert (RECORDS / name).read_text().startswith("# Record: Protocol: "), name
+    files = sorted(p.name for p in RECORDS.glob("*.md"))
+    listed = re.findall(r"^- (\d{4}-\d\d-\d\d): \[(.+?)\]\(results/records/([\w]+\.md)\)", results, re.M)
+    assert sorted(name for _, _, name in listed) == files and len(files) >= 17
+    assert [d for d, _, _ in listed] == sorted(d for d, _, _ in listed)  # by the date of their first entry
+    for _, title, name in listed:
+        assert (RECORDS / name).read_text().splitlines()[0] == f"# Record: {title}", name
+    sections = results.split("\n## ")
+    for title, _ in toc:  # each protocol links its record, whose title is the protocol's
+        (body,) = [s for s in sections if s.startswith(title)]
+        (name,) = set(re.findall(r"\(results/records/([\w]+\.md)\)", body))
+        assert (RECORDS / name).read_text().startswith(f"# Record: {title}\n"), name
