@@ -1468,3 +1468,30 @@ def test_a_block_is_found_by_its_id_and_a_drifted_number_fails(monkeypatch):
             _states("x", *numbers)
     with pytest.raises(AssertionError, match="no block has the id"):
         _by_id("y")
+
+
+def test_the_lerobot06_replication_r1_recomputes():
+    """R1 of the LeRobot 0.6 replication (descriptive, seeds 0-4): each arm's final AFSR per seed and mean +- SE, BWT,
+    the paired differences with the protocol's "holds" rule and the descriptive p values, the change from LeRobot
+    0.4.4's archived runs on the same seeds, from the archive; the evidence page's paragraph states the same."""
+    archive = DOCS / "results" / "lerobot06_needle_m16"
+    arms = ("sr", "wake_only", "replay")
+    afsr = {v: archived_values(archive, v, "afsr") for v in arms}
+    assert all(sorted(afsr[v]) == [0, 1, 2, 3, 4] for v in arms)
+    values = {v: [afsr[v][s] for s in range(5)] for v in arms}
+    bwt = {v: list(archived_values(archive, v, "bwt").values()) for v in arms}
+    _states("r1-complete", *(x for v in arms for x in (" / ".join(f"{a:.3f}" for a in values[v]),
+                                                       f"({_mean_se(values[v])})")),
+            *(f"{np.mean(bwt[v]):.3f}" for v in arms))
+    tests = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only", "sr>replay"]))
+    for t in tests:
+        diffs = np.subtract(t["a_values"], t["b_values"])
+        holds = t["mean"] > 0 and sum(diffs > 0) >= 4
+        _states("r1-complete", " / ".join(f"{d:+.3f}" for d in diffs), f"{t['mean']:+.3f} +- {t['sem']:.3f}",
+                "**holds**" if holds else "**does not hold**", f"p = {t['p']:.4f}", f"p = {t['sign_flip_p']:.4f}")
+        _states("ev-lerobot06", f"{t['mean']:+.3f} +- {t['sem']:.3f}")
+    for v in arms:  # what the stack changed: 0.6.1 - 0.4.4 on the same seeds
+        old = archived_values(ARCHIVE, v, "afsr")
+        _states("r1-complete", _signed([afsr[v][s] - old[s] for s in range(5)]),
+                f"{np.mean(values[v]):.3f} against {np.mean(list(old.values())):.3f}")
+    _states("ev-lerobot06", *(_mean_se(values[v]) for v in arms))
