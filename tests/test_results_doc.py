@@ -1495,3 +1495,35 @@ def test_the_lerobot06_replication_r1_recomputes():
         _states("r1-complete", _signed([afsr[v][s] - old[s] for s in range(5)]),
                 f"{np.mean(values[v]):.3f} against {np.mean(list(old.values())):.3f}")
     _states("ev-lerobot06", *(_mean_se(values[v]) for v in arms))
+
+
+def test_the_sac_sleep_lengths_and_the_cross_cpu_sentence_recompute():
+    """The evidence page's SAC sentences: SR's sleeps on the gate's runs stop after 200-900 of their 4000 iterations
+    and up to 1600 in the calibration runs; SR's final AFSR on the Xeon test runs against the gate's runs of the same
+    seeds (seed 3 the farthest apart), from the archives."""
+    def stops(archive: str) -> list[int]:
+        return [st["sleep"]["stop_iteration"] for run in sorted((DOCS / "results" / archive).glob("sr_seed*"))
+                for st in read_checked_json(run / "results.json")["stages"] if st.get("sleep")]
+
+    gate, calibration = stops("sac_mt5_gate"), stops("sac_sleep_calibration")
+    limit = json.loads((DOCS / "results" / "sac_mt5_gate" / "sr_seed0" / "train_config.json").read_text())
+    assert len(gate) == 20 and len(calibration) == 12
+    _states("ev-which-method-prose", f"{min(gate)}-{max(gate)} of {limit['sleep']['max_iterations']}",
+            f"up to {max(calibration)}")
+    xeon, amd = (archived_values(DOCS / "results" / a, "sr", "afsr") for a in ("sac_mt5_gate_xeon", "sac_mt5_gate"))
+    assert sorted(xeon) == sorted(amd) == [0, 1, 2, 3, 4]
+    far = max(range(5), key=lambda s: abs(xeon[s] - amd[s]))
+    _states("ev-which-method-prose", _mean_se(list(xeon.values())), _mean_se(list(amd.values())),
+            f"seed {far}: {xeon[far]:.3f} against {amd[far]:.3f}")
+
+
+def test_reach_on_mt5_by_imitation_is_kept_by_the_fresh_network_methods():
+    """The correction to "kept by no method" (reach on MT5 by imitation): Reset & Distill on ACT's and SR c on ACT's
+    final reach over seeds 0-9 against SR's, replay's and wake-only's range, from the archive."""
+    reach = {v: np.mean([read_checked_json(MT5_IMITATION / f"{v}_seed{s}" / "results.json")["success_matrix"][-1][0]
+                         for s in range(10)]) for v in ("sr", "replay", "wake_only", "reset_distill", "sr_c")}
+    kept = [reach[v] for v in ("sr", "replay", "wake_only")]
+    _states("ev-mt5-imitation", f"{min(kept):.2f}-{max(kept):.2f}", f"({reach['reset_distill']:.3f})",
+            f"({reach['sr_c']:.3f})")
+    for ident in ("mt5-descriptive", "mt5-evidence-summary"):
+        _states(ident, f"{min(kept):.2f}-{max(kept):.2f}", f"{reach['reset_distill']:.3f}", f"{reach['sr_c']:.3f}")
