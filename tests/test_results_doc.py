@@ -1527,3 +1527,20 @@ def test_reach_on_mt5_by_imitation_is_kept_by_the_fresh_network_methods():
             f"({reach['sr_c']:.3f})")
     for ident in ("mt5-descriptive", "mt5-evidence-summary"):
         _states(ident, f"{min(kept):.2f}-{max(kept):.2f}", f"{reach['reset_distill']:.3f}", f"{reach['sr_c']:.3f}")
+
+
+def test_step_b_s_cpu_types_are_stated_where_its_numbers_are():
+    """Step B compared runs of different CPU types; the record's step-B entry and the evidence page say which, as the
+    step-B runs' results.json files record them (the calibration SR runs recorded no CPU; the record names it)."""
+    step_b = DOCS / "results" / "sac_sleep_step_b"
+    types = {run.name: _cpu_type(run) for run in sorted(step_b.glob("sr*_seed*"))}
+    assert types == {"sr_b1_seed100": "25/1", "sr_b1_seed101": "6/167", "sr_b1_seed102": "6/167",
+                     "sr_c_b1_seed100": "6/167", "sr_c_b1_seed101": "6/167", "sr_c_b1_seed102": "6/167"}
+    assert all("machine" not in read_checked_json(run / "results.json")
+               for run in (DOCS / "results" / "sac_sleep_calibration").glob("sr_seed*"))
+    for ident in ("step-b-complete", "ev-which-method-prose"):
+        _states(ident, "0.743 +- 0.025" if ident == "step-b-complete" else "0.687 +- 0.058", "family 25 model 1",
+                "model 167", "(seed 100)", "model 167")
+    means = {v: _mean_se([read_checked_json(step_b / f"{v}_seed{s}" / "results.json")["metrics"]["afsr"]["final"]
+                          for s in (100, 101, 102)]) for v in ("sr_b1", "sr_c_b1")}
+    _states("step-b-complete", means["sr_c_b1"], means["sr_b1"])
