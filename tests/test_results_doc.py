@@ -1436,12 +1436,12 @@ def test_results_opens_with_a_summary_of_at_most_600_words_whose_every_number_th
 def test_the_contents_link_every_section_and_every_protocol_links_its_record():
     """RESULTS keeps the summary, the contents and the protocols; the contents link every protocol (by its anchor)
     and every record file; each protocol links its record, and each record file names what it records in its first
-    line: ``# Record: Protocol: ...`` for a protocol's record, ``# Record: <the section's title>`` for the others."""
+    line: ``# Record: <the protocol's or the section's title>``."""
     results = (DOCS / "RESULTS.md").read_text()
     headings = [line[3:] for line in results.splitlines() if line.startswith("## ")]
     toc = re.findall(r"^- \[(.+)\]\(#([^)]+)\)$", results, re.M)
     assert [t for t, _ in toc] == [h for h in headings if h not in ("Summary (2026-12-07)", "Contents")]
-    assert all(t.startswith("Protocol: ") for t, _ in toc) and len(toc) >= 5
+    assert len(toc) >= 5  # the protocols (the SAC gate's statement keeps its own title: it is not edited)
     for title, anchor in toc:  # GitHub's anchors: lower case, punctuation dropped, spaces to hyphens
         assert anchor == re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-"), title
     files = sorted(p.name for p in RECORDS.glob("*.md"))
