@@ -1,12 +1,5 @@
-"""The checkpoint and file half of the :class:`~sr_imitation.stream.substrate.Substrate` protocol, written once.
-
-A substrate that derives from :class:`SubstrateBase` declares where its files go (:attr:`~SubstrateBase.stage_folder`,
-:attr:`~SubstrateBase.policy_files`, :attr:`~SubstrateBase.checkpoint_file`, :attr:`~SubstrateBase.memory_files`,
-format strings) and names its policy (:class:`CheckpointedPolicy`: the module whose state a checkpoint holds and theta
-in it); the base then saves and loads its checkpoints (checked safetensors with a header, extra files
-as checked JSON), memories and the stages of a run it extends. What a substrate must still write itself is the
-policy half: :data:`SUBSTRATE_WRITES`.
-"""
+"""The checkpoint and file half of the :class:`~sr_imitation.stream.substrate.Substrate` protocol, written once for
+every substrate (:class:`SubstrateBase`)."""
 
 from __future__ import annotations
 
@@ -54,11 +47,16 @@ def load_weights(module: nn.Module, state: dict[str, Tensor], path: Path) -> Non
 
 
 class SubstrateBase:
-    """The checkpoint and file members of the :class:`~sr_imitation.stream.substrate.Substrate` protocol (module
-    docstring). A subclass sets ``self.out`` (the run directory) and ``self.skills`` and writes
-    :data:`SUBSTRATE_WRITES`; the layout attributes below are format strings with the fields ``k`` (the 0-based
-    stage), ``n`` (``k + 1``), ``skill`` (:meth:`memory_skill`), and for the files ``phase``, ``name`` and ``suffix``
-    (``""`` for the substrate's own memory, ``".<name>"`` for a method's)."""
+    """The checkpoint and file members of the :class:`~sr_imitation.stream.substrate.Substrate` protocol.
+
+    A subclass sets ``self.out`` (the run directory) and ``self.skills``, declares where its files go (the layout
+    attributes below: format strings with the fields ``k``, the 0-based stage, ``n`` = ``k + 1``, ``skill``,
+    :meth:`memory_skill`, and for the files ``phase``, ``name`` and ``suffix``, ``""`` for the substrate's own memory
+    and ``".<name>"`` for a method's), names its policy (:class:`CheckpointedPolicy`) and writes the rest of
+    :data:`SUBSTRATE_WRITES`. The base then saves and loads its checkpoints (checked safetensors with a header, the
+    extra files as checked JSON), its memories and the stages of a run it extends. A substrate with another checkpoint
+    format (ACT's LeRobot ``pretrained_model/``) overrides :meth:`save_policy` and :meth:`checkpoint_state` only.
+    """
 
     out: Path
     skills: list[str]
