@@ -1,15 +1,10 @@
 """A toy substrate: the engine's test bed and the complete example of docs/ARCHITECTURE.md's "Adding a substrate".
 
-A 2-layer MLP regresses a fixed random linear map per skill: wake = SGD on the skill's map plus distillation from the
-memories, with the method's wake hooks; memory = the core's :class:`OutputDistillationMemory` on stored inputs;
-evaluation = fraction of test inputs within a tolerance. Torch only, a few milliseconds per phase.
-
-The file holds all a substrate is: :class:`ToySubstrate` (the protocol's policy half on
-:class:`~sr_imitation.stream.substrate_base.SubstrateBase`, which writes the checkpoints and files, and a few
-capabilities of :mod:`sr_imitation.stream.capabilities`), its run configuration (:class:`ToyConfig`), the settings
-fingerprint and stored config of a run, and the two functions ``sr-train`` calls (:func:`parse`, :func:`main`). A
-folder ``sr_imitation/substrates/toy/`` whose ``__init__.py`` registers ``module = "tests.stream.toy"`` (the recipe's
-code block) makes it ``sr-train --substrate=toy``.
+A 2-layer MLP regresses a fixed random linear map per skill (torch only, milliseconds per phase). The file holds all
+a substrate is: :class:`ToySubstrate` (the protocol's policy half on ``SubstrateBase``, which writes the checkpoints
+and files, and a few capabilities), its run configuration (:class:`ToyConfig`), its fingerprint and stored config, and
+the two functions ``sr-train`` calls (:func:`parse`, :func:`main`). A folder ``sr_imitation/substrates/toy/`` whose
+``__init__.py`` registers ``module = "tests.stream.toy"`` (the recipe's code block) makes it ``--substrate=toy``.
 """
 
 from __future__ import annotations
@@ -229,15 +224,13 @@ RESUME_ALLOW_LIST = ("output_dir", "resume", "overwrite", "progress", "wandb")
 
 
 def fingerprint(cfg: ToyConfig) -> SettingsFingerprint:
-    """What a resume must keep: every setting but :data:`RESUME_ALLOW_LIST`, plus the method's own settings with
-    their defaults (``method_config``)."""
+    """What a resume must keep: every setting but :data:`RESUME_ALLOW_LIST`, and the method's (``method_config``)."""
     return settings_fingerprint(cfg, RESUME_ALLOW_LIST,
                                 {"method_config": method_config(cfg.method, cfg.method_options)})
 
 
 def stored_config(cfg: ToyConfig) -> dict[str, Any]:
-    """``train_config.json``: the configuration ``--config_path`` reads back, without the per-invocation flags and
-    with ``output_dir`` "." (the run's own directory, wherever it is copied)."""
+    """``train_config.json``: the configuration less the per-invocation flags, ``output_dir`` "." (the run's own)."""
     out = {k: v for k, v in to_jsonable(cfg).items() if k not in ("resume", "overwrite")}
     out["output_dir"] = RUN_DIRECTORY
     return out
