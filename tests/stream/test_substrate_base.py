@@ -32,7 +32,7 @@ def test_a_substrate_writes_the_protocol_less_what_the_base_provides_and_names_i
 
 def test_the_recipe_lists_the_members_a_substrate_writes_and_those_the_base_provides():
     doc = DOC.read_text()
-    recipe = doc[doc.index("### Adding a substrate"):doc.index("## The imitation substrate")]
+    recipe = " ".join(doc[doc.index("### Adding a substrate"):doc.index("## The imitation substrate")].split())
     writes = recipe[recipe.index("**The members the substrate writes itself**"):
                     recipe.index("**What `SubstrateBase` provides**")]
     provides = recipe[recipe.index("**What `SubstrateBase` provides**"):recipe.index("Every file read back")]
