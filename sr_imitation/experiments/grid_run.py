@@ -70,7 +70,7 @@ def _arm_kill_hook(out: Path) -> None:
     threading.Thread(target=watch, daemon=True).start()
 
 
-def _task(module: str, variant: str, run: Any, log_file: str, threads: int) -> dict[str, Any]:
+def run_task(module: str, variant: str, run: Any, log_file: str, threads: int) -> dict[str, Any]:
     """The body of one run's Ray task (a fresh worker process): threads, offscreen rendering, a log file, the run."""
     setup_offscreen_rendering()
     import torch

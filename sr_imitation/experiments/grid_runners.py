@@ -14,7 +14,7 @@ from pathlib import Path
 from typing import Any, NamedTuple
 
 from sr_imitation.experiments.archive import RunKey
-from sr_imitation.experiments.grid_run import KILL_HOOK_ENV, _task, completed_phases, run_name, run_one
+from sr_imitation.experiments.grid_run import KILL_HOOK_ENV, completed_phases, run_name, run_one, run_task
 from sr_imitation.progress import PROGRESS_ENV
 
 logger = logging.getLogger(__name__)
@@ -62,7 +62,7 @@ def run_loop(cfg: Any, substrate: Any, plan: Mapping[RunKey, Any], todo: list[Ru
 
 
 def _threads(run: Any, opts: RayOptions) -> int:
-    """A run's torch threads: its ``torch_threads`` (pinned by :func:`_pin_threads`), else its cores."""
+    """A run's torch threads: its ``torch_threads`` (pinned by the grid before it plans), else its cores."""
     return int(getattr(run, "torch_threads", None) or max(1, int(opts.num_cpus)))
 
 
@@ -96,7 +96,7 @@ def run_ray(cfg: Any, substrate: Any, plan: Mapping[RunKey, Any], todo: list[Run
         res = ray.cluster_resources()
         logger.info("Ray: %g CPUs, %g GPUs, %.1f GiB memory", res.get("CPU", 0), res.get("GPU", 0),
                     res.get("memory", 0) / 2**30)
-        task = ray.remote(max_calls=1)(_task)  # a fresh worker process per run
+        task = ray.remote(max_calls=1)(run_task)  # a fresh worker process per run
         logs = Path(cfg.output_root) / "logs"
         logs.mkdir(parents=True, exist_ok=True)
         module = type(substrate).__module__  # its GRID, imported by the worker
@@ -164,7 +164,7 @@ POLL_S = 5.0
 
 
 def _process_main(module: str, variant: str, run: Any, log_file: str, threads: int) -> None:
-    """The body of one run's process (``--runner=processes``): :func:`_task` with everything the process writes
+    """The body of one run's process (``--runner=processes``): :func:`run_task` with everything the process writes
     (log lines, progress as log lines, warnings, a traceback) in the run's log, not on the driver's console where two
     runs would interleave; an error exits with status 1."""
     os.environ[PROGRESS_ENV] = "log"
@@ -176,8 +176,8 @@ def _process_main(module: str, variant: str, run: Any, log_file: str, threads: i
             os.dup2(log.fileno(), stream.fileno())
     logging.getLogger().handlers.clear()  # a console handler an import installed writes to the log now: no copies
     try:
-        _task(module, variant, run, log_file, threads)
-    except BaseException:  # noqa: BLE001 - logged by _task; the driver reads the exit status
+        run_task(module, variant, run, log_file, threads)
+    except BaseException:  # noqa: BLE001 - logged by run_task; the driver reads the exit status
         sys.exit(1)
 
 
