@@ -1,7 +1,7 @@
 """The package's walls: no import cycles, not even through imports inside functions or under
 ``TYPE_CHECKING``, and no upward imports between the layers (io, progress < core < infra < stream < substrates <
 drivers). Every substrate folder (``sr_imitation/substrates/<name>/``) is a layer of its own with the same allowed
-imports, and none imports another."""
+imports, and none imports another. No module of the package is over :data:`MAX_LINES` lines."""
 
 from __future__ import annotations
 
@@ -196,3 +196,14 @@ def test_every_substrate_folder_is_a_layer_of_its_own_that_imports_no_other():
     assert upward_imports(graph) == [("sr_imitation.cli", "sr_imitation.substrates.sac.cli"),
                                      ("sr_imitation.stream.run", "sr_imitation.substrates.act.config"),
                                      ("sr_imitation.substrates.act.cli", "sr_imitation.substrates.sac.config")]
+
+
+MAX_LINES = 600
+"""The most lines a module of the package may have (our choice: a file longer than this does several jobs; split it
+by job, each file with a one-sentence docstring)."""
+
+
+def test_no_module_of_the_package_is_over_max_lines():
+    long = {str(p.relative_to(ROOT)): n for p in sorted(ROOT.rglob("*.py"))
+            if (n := len(p.read_text().splitlines())) > MAX_LINES}
+    assert long == {}

@@ -4,7 +4,8 @@ The engine (:mod:`sr_imitation.stream.engine`) runs Algorithm 1 and owns the ord
 call of :func:`~sr_imitation.core.sleep.sleep_consolidate` is :meth:`SleepProblem.consolidate` (the engine's sleep
 and ``sr-sleep`` both go through it). A substrate owns everything that depends on the
 policy: how a wake trains, what a memory holds, how the policy is evaluated, seeded and saved. Two implement it:
-the ACT imitation substrate (:class:`sr_imitation.substrates.act.substrate.ACTSubstrate`) and the SAC substrate.
+the ACT imitation substrate (:class:`sr_imitation.substrates.act.substrate.ACTSubstrate`) and the SAC substrate, both
+on :class:`~sr_imitation.stream.substrate_base.SubstrateBase` (the checkpoint and file half, written once).
 
 Phases are named ``wake``, ``memory``, ``wake.eval``, ``sleep`` and ``sleep.eval``; ``k`` is the 0-based stage
 index (skill ``skills[k]``).
@@ -25,6 +26,7 @@ from sr_imitation.core.memory import Memory
 from sr_imitation.core.sleep import SleepConfig, SleepResult, sleep_consolidate
 from sr_imitation.infra.runlog import RunLog
 from sr_imitation.stream.capabilities import missing_members
+from sr_imitation.stream.substrate_base import missing_base_members
 
 PHASES: tuple[str, ...] = ("wake", "memory", "wake.eval", "sleep", "sleep.eval")
 """Every phase of a stage, in the engine's order (a stage without sleep has the first three)."""
@@ -263,9 +265,11 @@ def check_substrate(substrate: object) -> None:
     """Refuse, in one line and before anything is written, an object that is not a :class:`Substrate`: every
     protocol member it lacks is named, then every member of the wrong kind (:data:`DECLARED_TYPES`, a method that is
     not callable or does not take the protocol's arguments), a ``seed_scheme`` outside :data:`SEED_SCHEMES` and
-    ``wake_hooks`` outside :data:`WAKE_HOOKS`. Raises :class:`SubstrateProtocolError`."""
+    ``wake_hooks`` outside :data:`WAKE_HOOKS`. A :class:`~sr_imitation.stream.substrate_base.SubstrateBase` lacking a
+    member of :class:`~sr_imitation.stream.substrate_base.CheckpointedPolicy` has it named with the others. Raises
+    :class:`SubstrateProtocolError`."""
     kind = type(substrate).__name__
-    missing = missing_members(substrate, Substrate)
+    missing = sorted(missing_members(substrate, Substrate) + missing_base_members(substrate))
     if missing:
         raise SubstrateProtocolError(f"{kind} is not a Substrate (sr_imitation.stream.substrate): it lacks "
                                      f"{', '.join(missing)}")

@@ -116,8 +116,9 @@ def test_the_toy_substrate_gets_every_method_it_provides_for_and_only_those():
 
 
 def _lacking(member: str) -> ToySubstrate:
-    """A toy substrate without ``member`` (neither in its class nor on the instance)."""
-    namespace = {k: v for k, v in vars(ToySubstrate).items() if k not in (member, "__dict__", "__weakref__")}
+    """A toy substrate without ``member`` (neither in its class, its base's members included, nor on the instance)."""
+    namespace = {k: v for cls in reversed(ToySubstrate.__mro__[:-1]) for k, v in vars(cls).items()
+                 if k not in (member, "__dict__", "__weakref__")}
     substrate = type("ToySubstrate", (), namespace)(Path("unused"), ["a", "b"])
     if member in vars(substrate):
         delattr(substrate, member)

@@ -1,23 +1,15 @@
 """A toy substrate: the engine's test bed and the complete example of docs/ARCHITECTURE.md's "Adding a substrate".
 
-A 2-layer MLP regresses a fixed random linear map per skill. Wake = SGD on the skill's map plus distillation from the
-given memories, with the method's wake hooks (:class:`WakeHooks`); memory = the core's
-:class:`OutputDistillationMemory` on stored inputs; evaluation = fraction of test inputs within a tolerance;
-checkpoints = checked safetensors. Torch only, a few milliseconds per phase.
-
-The file holds all a substrate is: the :class:`~sr_imitation.stream.substrate.Substrate` protocol
-(:class:`ToySubstrate`, every member), a few capabilities beyond it (:mod:`sr_imitation.stream.capabilities`:
-``LikelihoodPolicy``, ``GaussianActor``, ``StoredTransitions``, ``ResettableNetworks``), its run configuration
-(:class:`ToyConfig`, a :class:`~sr_imitation.stream.config.RunConfig`), the settings fingerprint and stored config of
-a run, and the two functions ``sr-train`` calls (:func:`parse`, :func:`main`). A folder ``sr_imitation/substrates/toy/``
-whose ``__init__.py`` registers ``module = "tests.stream.toy"`` (the recipe's code block; tests/stream/test_recipes.py
-writes it) makes it ``sr-train --substrate=toy``.
+A 2-layer MLP regresses a fixed random linear map per skill (torch only, milliseconds per phase). The file holds all
+a substrate is: :class:`ToySubstrate` (the protocol's policy half on ``SubstrateBase``, which writes the checkpoints
+and files, and a few capabilities), its run configuration (:class:`ToyConfig`), its fingerprint and stored config, and
+the two functions ``sr-train`` calls (:func:`parse`, :func:`main`). A folder ``sr_imitation/substrates/toy/`` whose
+``__init__.py`` registers ``module = "tests.stream.toy"`` (the recipe's code block) makes it ``--substrate=toy``.
 """
 
 from __future__ import annotations
 
 import dataclasses
-import shutil
 import sys
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -26,7 +18,7 @@ from typing import Any, ClassVar
 
 import torch
 
-from sr_imitation.core.memory import Memory, OutputDistillationMemory, load_memory
+from sr_imitation.core.memory import Memory, OutputDistillationMemory
 from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra.cli_errors import split_config_path
 from sr_imitation.infra.cli_parsing import parse_command
@@ -37,21 +29,22 @@ from sr_imitation.infra.fingerprint import (
     settings_fingerprint,
     to_jsonable,
 )
-from sr_imitation.infra.runlog import RunLog
-from sr_imitation.io import load_checked_safetensors, save_checked_safetensors, write_checked_json
+from sr_imitation.io import write_checked_json
 from sr_imitation.stream import MethodSettings, SleepProblem, method_class, method_config
 from sr_imitation.stream.config import RunConfig, StreamSettings, StreamSleepConfig, check_shared_settings
 from sr_imitation.stream.methods.base import WakeHooks
 from sr_imitation.stream.run import StreamRun
+from sr_imitation.stream.substrate_base import SubstrateBase
 
 
-class ToySubstrate:
+class ToySubstrate(SubstrateBase):
     """The :class:`~sr_imitation.stream.substrate.Substrate` protocol on a toy regression (module docstring)."""
 
     name: ClassVar[str] = "toy"
     seed_scheme: ClassVar[str] = "decimal"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
-    extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.extend_from")
+    policy_files: ClassVar[str] = "{phase}.{name}"  # stage0/wake.safetensors, stage0/wake.wake_history.json, ...
+    checkpoint_file: ClassVar[str] = "safetensors"
 
     def __init__(self, out: Path, skills: Sequence[str], seed: int = 0, sleep: bool = True, wake_steps: int = 30,
                  sleep_iterations: int = 15, distill_weight: float = 0.5, anchor_after_final: bool = False,
@@ -60,7 +53,6 @@ class ToySubstrate:
         self.wake_steps, self.gamma = wake_steps, distill_weight
         self.sleep_config = sleep_config or SleepConfig(max_iterations=sleep_iterations, batch_size=16, lr=1e-2,
                                                         early_stop_window=5, anchor_after_final=anchor_after_final)
-        self.run_log: RunLog | None = None  # set by the engine before the first phase
         self.calls: list[tuple[str, int]] = []
 
     @classmethod
@@ -72,9 +64,6 @@ class ToySubstrate:
     # -- what continual methods read, set-up and seeding ---------------------------------------------------------
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.sleep, distill_weight=lambda k: self.gamma)
-
-    def memory_skill(self, k: int) -> str:
-        return self.skills[k]
 
     def setup(self) -> None:
         g = torch.Generator().manual_seed(1000 + self.seed)
@@ -122,15 +111,8 @@ class ToySubstrate:
     def make_memory(self, k: int) -> Memory:
         self.calls.append(("memory", k))
         memory = OutputDistillationMemory.from_snapshot(self.skills[k], self.policy_fn, {"x": torch.randn(64, 4)})
-        memory.save(self.out / "memories" / f"{k}.safetensors")
+        memory.save(self.memory_path(k))
         return memory
-
-    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
-        memory.save(self.out / "memories" / f"{k}.{name}.safetensors")
-
-    def load_memory(self, k: int, name: str = "memory") -> Memory:
-        path = self.out / "memories" / (f"{k}.safetensors" if name == "memory" else f"{k}.{name}.safetensors")
-        return load_memory(path, skill=self.skills[k])
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         return [k] if sleeps else list(range(k + 1))
@@ -155,36 +137,9 @@ class ToySubstrate:
 
         return SleepProblem(list(self.policy.parameters()), self.policy_fn, config, diagnostics=losses)
 
-    # -- checkpoints ----------------------------------------------------------------------------------------
-    def _path(self, k: int, phase: str) -> Path:
-        return self.out / f"stage{k}" / f"{phase}.safetensors"
-
-    def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
-        save_checked_safetensors(self._path(k, phase), dict(self.policy.state_dict()), {"stage": k, "phase": phase})
-        for name, obj in files.items():
-            write_checked_json(self.out / f"stage{k}" / f"{phase}.{name}", obj)
-
-    def policy_file(self, k: int, phase: str, name: str) -> Path:
-        return self.out / f"stage{k}" / f"{phase}.{name}"
-
-    def load_policy(self, k: int, phase: str) -> None:
-        tensors, _ = load_checked_safetensors(self._path(k, phase))
-        self.policy.load_state_dict(tensors)
-
-    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
-        tensors, _ = load_checked_safetensors(self._path(k, phase))
-        return [tensors[n] for n, _ in self.policy.named_parameters()]
-
-    # -- extending a finished stream, the report ------------------------------------------------------------
-    def source_skills(self, settings: dict[str, Any]) -> list[str]:
-        return list(settings["stream.skills"])
-
-    def import_stages(self, source: Path, n: int) -> None:
-        for k in range(n):
-            shutil.copytree(source / f"stage{k}", self.out / f"stage{k}")
-            (self.out / "memories").mkdir(exist_ok=True)
-            if (source / "memories" / f"{k}.safetensors").exists():
-                shutil.copy2(source / "memories" / f"{k}.safetensors", self.out / "memories" / f"{k}.safetensors")
+    # -- checkpoints (SubstrateBase saves and loads them), the report -------------------------------------
+    def checkpoint_module(self) -> torch.nn.Module:
+        return self.policy
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:
@@ -194,7 +149,7 @@ class ToySubstrate:
                 "final_phases": list(final_phases), "memories": [m.skill for m in memories]}
 
     # -- capabilities beyond the protocol (sr_imitation.stream.capabilities) ---------------------------------
-    def policy_parameters(self) -> list[torch.Tensor]:  # LikelihoodPolicy
+    def policy_parameters(self) -> list[torch.Tensor]:  # LikelihoodPolicy, SubstrateBase's theta
         return list(self.policy.parameters())
 
     def state_sample(self, k: int, n: int | None = None) -> torch.Tensor:  # LikelihoodPolicy
@@ -216,15 +171,12 @@ class ToySubstrate:
         x = torch.randn(64, 4, generator=torch.Generator().manual_seed(400 + k))
         return {"obs": x, "y": x @ self.maps[k]}
 
-    def reset_networks(self, k: int) -> None:  # ResettableNetworks
+    def reset_networks(self, k: int) -> None:  # ResettableNetworks (with SubstrateBase.load_actor)
         saved = torch.random.get_rng_state()
         torch.manual_seed(500 + k)
         fresh = torch.nn.Sequential(torch.nn.Linear(4, 16), torch.nn.Tanh(), torch.nn.Linear(16, 2))
         torch.random.set_rng_state(saved)
         self.policy.load_state_dict(fresh.state_dict())
-
-    def load_actor(self, k: int, phase: str) -> None:  # ResettableNetworks
-        self.load_policy(k, phase)
 
 
 # -- the run configuration and sr-train's two functions --------------------------------------------------------
@@ -272,15 +224,13 @@ RESUME_ALLOW_LIST = ("output_dir", "resume", "overwrite", "progress", "wandb")
 
 
 def fingerprint(cfg: ToyConfig) -> SettingsFingerprint:
-    """What a resume must keep: every setting but :data:`RESUME_ALLOW_LIST`, plus the method's own settings with
-    their defaults (``method_config``)."""
+    """What a resume must keep: every setting but :data:`RESUME_ALLOW_LIST`, and the method's (``method_config``)."""
     return settings_fingerprint(cfg, RESUME_ALLOW_LIST,
                                 {"method_config": method_config(cfg.method, cfg.method_options)})
 
 
 def stored_config(cfg: ToyConfig) -> dict[str, Any]:
-    """``train_config.json``: the configuration ``--config_path`` reads back, without the per-invocation flags and
-    with ``output_dir`` "." (the run's own directory, wherever it is copied)."""
+    """``train_config.json``: the configuration less the per-invocation flags, ``output_dir`` "." (the run's own)."""
     out = {k: v for k, v in to_jsonable(cfg).items() if k not in ("resume", "overwrite")}
     out["output_dir"] = RUN_DIRECTORY
     return out

@@ -23,7 +23,6 @@ from __future__ import annotations
 import dataclasses
 import logging
 import random
-import shutil
 import time
 from collections.abc import Mapping, Sequence
 from pathlib import Path
@@ -41,7 +40,6 @@ from sr_imitation.core.sleep import SleepConfig
 from sr_imitation.infra import distributed
 from sr_imitation.infra.threads import set_torch_threads
 from sr_imitation.io import (
-    CorruptFileError,
     atomic_write_json,
     load_checkpoint_weights,
     read_checked_json,
@@ -53,6 +51,7 @@ from sr_imitation.io import (
 from sr_imitation.stream.methods.base import ContinualMethod, WakeHooks
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem, phase_seed, seed_sequence
+from sr_imitation.stream.substrate_base import SubstrateBase, load_weights
 from sr_imitation.substrates.act.config import SUBSTRATE, TrainStreamConfig, stored_config_dict
 from sr_imitation.substrates.act.data import (
     load_metadata,
@@ -137,14 +136,18 @@ TRAIN_CONFIG_FILE = RUN_CONFIG_FILE
 layout), where ``--config_path=<run>/last/pretrained_model/train_config.json --resume=true`` resumes the run."""
 
 
-class ACTSubstrate:
-    """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment)."""
+class ACTSubstrate(SubstrateBase):
+    """ACT-SR on the needle stream (LeRobot datasets, MuJoCo needle environment); the memories' files and the run it
+    extends as :class:`SubstrateBase` does them, the checkpoints in LeRobot's layout."""
 
     name: ClassVar[str] = SUBSTRATE
     seed_scheme: ClassVar[str] = "decimal"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})  # hooked_update
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.skills", "stream.dataset_paths", "stream.repo_ids",
                                                  "stream.extend_from", *PER_SKILL_EVAL_KEYS)
+    checkpoint_file: ClassVar[str] = "pretrained_model/model.safetensors"
+    memory_files: ClassVar[str] = "memories/skill_{n}_{skill}{suffix}.safetensors"
+    run_files: ClassVar[tuple[str, ...]] = (STATS_FILE,)  # the stream's fixed statistics (the shared first skill's)
 
     def __init__(self, cfg: TrainStreamConfig, make_env: EnvFactory | None = None) -> None:
         self.cfg = cfg
@@ -153,7 +156,6 @@ class ACTSubstrate:
         self.skills = list(cfg.stream.skills)
         self._make_env = make_env
         self._data: Any = None
-        self.run_log: Any = None  # set by the engine: wake epochs are logged there
         self.train_config: dict[str, Any] | None = None
         """The run's stored config, written beside each checkpoint as LeRobot does (set by ``ACTTrainer``)."""
         if cfg.stream.stats == "seen" and cfg.method not in SEEN_METHODS:
@@ -305,12 +307,14 @@ class ACTSubstrate:
         """The folder of stage ``index`` (its checkpoints, evaluations and videos)."""
         return stage_name(index, self.skills[index])
 
-    def checkpoint_dir(self, index: int, phase: str) -> Path:
-        return self.out / self.stage_dir_name(index) / phase
+    def stage_dir(self, k: int) -> Path:
+        return self.out / self.stage_dir_name(k)
 
-    def memory_path(self, index: int, name: str = "memory") -> Path:
-        suffix = "" if name == "memory" else f".{name}"
-        return self.out / "memories" / f"{stage_name(index, self.skills[index])}{suffix}.safetensors"
+    def checkpoint_dir(self, index: int, phase: str) -> Path:
+        return self.stage_dir(index) / phase
+
+    def checkpoint_module(self) -> torch.nn.Module:
+        return self.policy
 
     def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
         """Write ``pretrained_model/`` (LeRobot layout) and ``files`` (JSON) to a staging dir, then rename."""
@@ -322,25 +326,28 @@ class ACTSubstrate:
             for name, obj in files.items():
                 atomic_write_json(tmp / name, obj)
 
-    def policy_file(self, k: int, phase: str, name: str) -> Path:
-        return self.checkpoint_dir(k, phase) / name
-
-    def _checked_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
+    def checkpoint_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
         """The checkpoint's weights after checking every file of it against its ``checksums.json``."""
-        directory = self.checkpoint_dir(k, phase)
-        path = directory / "pretrained_model" / "model.safetensors"
+        path = self.checkpoint_path(k, phase)
         if not path.is_file():
             raise FileNotFoundError(f"{path}: checkpoint recorded in progress.json is missing")
-        return load_checkpoint_weights(directory)
+        return load_checkpoint_weights(self.checkpoint_dir(k, phase))
+
+    def _state_in_use(self, k: int, phase: str) -> dict[str, torch.Tensor]:
+        """:meth:`checkpoint_state`, under ``--stream.stats=seen`` re-expressed into the statistics in use."""
+        state = self.checkpoint_state(k, phase)
+        if self.cfg.stream.stats == "seen" and k != self._stats_stage:
+            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std,
+                                         self.cfg.stream.reexpress_inputs)
+        return state
 
     def load_policy(self, k: int, phase: str) -> None:
-        path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"
-        state = self._checked_state(k, phase)
-        missing, unexpected = self.policy.load_state_dict(state, strict=False)
-        if missing or unexpected:
-            raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
-                                         f"unexpected {unexpected[:5]})")
+        super().load_policy(k, phase)
         self._policy_stage = k  # its weights are in stage k's statistics (seen)
+
+    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
+        state = self._state_in_use(k, phase)  # in the statistics in use
+        return [state[n] for n in self.parameter_names()]
 
     def reset_networks(self, k: int) -> None:
         """A freshly initialized policy (every weight, the training-only VAE encoder too) for skill k (Reset &
@@ -358,15 +365,7 @@ class ACTSubstrate:
         """Only the policy's weights of the checkpoint after ``phase`` of stage k (Reset & Distill's shared policy),
         checked against its checksums; under ``--stream.stats=seen`` re-expressed into the statistics in use (as
         :meth:`parameters_at` does), so the processors and memories of the current stage stay as they are."""
-        path = self.checkpoint_dir(k, phase) / "pretrained_model" / "model.safetensors"
-        state = self._checked_state(k, phase)
-        if self.cfg.stream.stats == "seen" and k != self._stats_stage:
-            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std,
-                                         self.cfg.stream.reexpress_inputs)
-        missing, unexpected = self.policy.load_state_dict(state, strict=False)
-        if missing or unexpected:
-            raise CorruptFileError(path, f"weights do not match the policy (missing {missing[:5]}, "
-                                         f"unexpected {unexpected[:5]})")
+        load_weights(self.policy, self._state_in_use(k, phase), self.checkpoint_path(k, phase))
         self._policy_stage = self._stats_stage
 
     # -- what continual methods ask of the policy -------------------------------------------------------------
@@ -393,9 +392,6 @@ class ACTSubstrate:
 
     def policy_parameters(self) -> list[torch.nn.Parameter]:
         return self.trainable()
-
-    def memory_skill(self, k: int) -> str:
-        return self.skills[k]
 
     def state_sample(self, k: int, n: int | None = None) -> list[dict[str, torch.Tensor]]:
         """``n`` (default 2000) preprocessed single-frame batches of skill k's demonstrations, drawn uniformly
@@ -438,13 +434,6 @@ class ACTSubstrate:
     def trainable(self) -> list[torch.nn.Parameter]:
         """theta of the sleep: the deployed policy's parameters (ACT's training-only VAE encoder excluded)."""
         return [p for _, p in self.policy.deployed_named_parameters()]
-
-    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
-        state = self._checked_state(k, phase)
-        if self.cfg.stream.stats == "seen" and k != self._stats_stage:  # in the statistics in use
-            state = reexpress_state_dict(state, self.stage_stats(k), self.stats, self.cfg.stream.stats_min_std,
-                                         self.cfg.stream.reexpress_inputs)
-        return deployed_parameters(self.policy, state)
 
     # -- phases --------------------------------------------------------------------------------------------
     def _skill_data(self, index: int) -> Any:
@@ -497,11 +486,8 @@ class ACTSubstrate:
         memory.save(self.memory_path(k))
         return self._remember(memory, k)
 
-    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
-        memory.save(self.memory_path(k, name))
-
     def load_memory(self, k: int, name: str = "memory") -> Memory:
-        return self._remember(load_memory(self.memory_path(k, name), skill=self.skills[k]), k)
+        return self._remember(super().load_memory(k, name), k)
 
     def wake_eval_skills(self, k: int, sleeps: bool) -> list[int]:
         return list(range(k + 1))  # every learned skill: the after-wake success matrix is reported too
@@ -599,17 +585,6 @@ class ACTSubstrate:
                 raise ValueError(f"{key}: the run being extended evaluated its skills with {stored}, this stream's "
                                  f"first {n} entries are {current}")
         return skills
-
-    def import_stages(self, source: Path, n: int) -> None:
-        """Stages 1..n of a finished run: their checkpoint/evaluation directories, memories and the stream's fixed
-        statistics (those of the shared first skill). Videos stay in the source run."""
-        for k in range(n):
-            name = stage_name(k, self.skills[k])
-            shutil.copytree(source / name, self.out / name)
-            if (source / "memories" / f"{name}.safetensors").is_file():
-                (self.out / "memories").mkdir(exist_ok=True)
-                shutil.copy2(source / "memories" / f"{name}.safetensors", self.out / "memories" / f"{name}.safetensors")
-        shutil.copy2(source / "stream_stats.safetensors", self.out / "stream_stats.safetensors")
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:

@@ -33,19 +33,14 @@ import numpy as np
 import torch
 
 from sr_imitation.core.excitability import activity_recording_off, update_excitability
-from sr_imitation.core.memory import Memory, load_memory
+from sr_imitation.core.memory import Memory
 from sr_imitation.core.metrics import policy_motion
 from sr_imitation.envs.metaworld.tasks import STREAMS, SkillEnv, canonical_skill
 from sr_imitation.envs.metaworld.video import rendering_unavailable
-from sr_imitation.infra.runlog import RunLog
 from sr_imitation.infra.threads import set_torch_threads
-from sr_imitation.io import (
-    CorruptFileError,
-    load_checked_safetensors,
-    save_checked_safetensors,
-    write_checked_json,
-)
+from sr_imitation.io import load_checked_safetensors, save_checked_safetensors
 from sr_imitation.stream.substrate import MethodSettings, SleepProblem, seed_sequence
+from sr_imitation.stream.substrate_base import SubstrateBase
 from sr_imitation.substrates.sac.config import RLTrainConfig
 from sr_imitation.substrates.sac.critic_memory import CriticMemory
 from sr_imitation.substrates.sac.evaluate import SPI_FEATURES, evaluate_policy, evaluation_configurations
@@ -65,15 +60,16 @@ CHECKPOINT_VERSION = 3
 the wake snapshot inside; 1: per-stage evaluation draws)."""
 
 
-
-
-class SACSubstrate:
-    """SAC with an excitability-gated actor on a Meta-World stream."""
+class SACSubstrate(SubstrateBase):
+    """SAC with an excitability-gated actor on a Meta-World stream (checkpoints and files: :class:`SubstrateBase`)."""
 
     name: ClassVar[str] = SUBSTRATE
     seed_scheme: ClassVar[str] = "seed_sequence"
     wake_hooks: ClassVar[frozenset[str]] = frozenset({"wake_batch", "wake_loss", "adjust_gradients"})
     extension_keys: ClassVar[tuple[str, ...]] = ("stream.name", "stream.skills", "stream.extend_from")
+    stage_folder: ClassVar[str] = "stages/{n:02d}_{skill}"
+    checkpoint_file: ClassVar[str] = "agent.safetensors"
+    memory_files: ClassVar[str] = "stages/{n:02d}_{skill}/{name}.safetensors"
 
     def __init__(self, cfg: RLTrainConfig) -> None:
         self.cfg = cfg
@@ -82,7 +78,6 @@ class SACSubstrate:
         self._eval_envs: dict[str, SkillEnv] = {}
         self._videos = cfg.eval.videos_per_skill > 0
         self._memories: dict[int, CriticMemory] = {}
-        self.run_log: RunLog | None = None  # set by the engine
 
     def method_settings(self) -> MethodSettings:
         return MethodSettings(sleep=self.cfg.sleep.enabled, distill_weight=None,
@@ -106,53 +101,18 @@ class SACSubstrate:
         torch.manual_seed(seed % (2**63))
         np.random.seed(seed % (2**32))
 
-    # -- files ----------------------------------------------------------------------------------------------
-    def stage_dir(self, k: int) -> Path:
-        return self.out / "stages" / f"{k + 1:02d}_{canonical_skill(self.skills[k])}"
-
+    # -- files (SubstrateBase writes and reads them) -------------------------------------------------------------
     def video_dir(self, k: int) -> Path:
         """Videos of the evaluation after stage ``k`` (every learned skill), named like the stage directory."""
         return self.out / "videos" / f"stage_{k + 1:02d}_{canonical_skill(self.skills[k])}"
 
-    def _header(self, k: int, phase: str) -> dict[str, Any]:
+    def checkpoint_header(self, k: int, phase: str) -> dict[str, Any]:
         return {"format": CHECKPOINT_FORMAT, "format_version": CHECKPOINT_VERSION, "stage": k, "phase": phase,
                 "skill": self.skills[k], "seed": self.cfg.seed}
 
-    def _checkpoint(self, k: int, phase: str) -> Path:
-        return self.stage_dir(k) / phase / "agent.safetensors"
-
-    def save_policy(self, k: int, phase: str, files: dict[str, Any]) -> None:
-        # 0-d tensors (log alpha, normalizer count) are stored as shape (1,): the core digest needs >= 1 dim
-        tensors = {name: t.reshape(-1) if t.ndim == 0 else t for name, t in self.agent.state_dict().items()}
-        save_checked_safetensors(self._checkpoint(k, phase), tensors, self._header(k, phase))
-        for name, obj in files.items():
-            write_checked_json(self.stage_dir(k) / phase / name, obj)
-
-    def policy_file(self, k: int, phase: str, name: str) -> Path:
-        return self.stage_dir(k) / phase / name
-
-    def _load_state(self, k: int, phase: str) -> dict[str, torch.Tensor]:
-        path = self._checkpoint(k, phase)
-        tensors, header = load_checked_safetensors(path)
-        want = self._header(k, phase)
-        got = {key: header.get(key) for key in want}
-        if got != want:
-            raise CorruptFileError(path, f"checkpoint header {got} does not match the expected {want}")
-        shapes = {n: t.shape for n, t in self.agent.state_dict().items()}
-        return {n: t.reshape(shapes[n]) if n in shapes and t.numel() == shapes[n].numel() else t
-                for n, t in tensors.items()}
-
-    def load_policy(self, k: int, phase: str) -> None:
-        try:
-            self.agent.load_state_dict(self._load_state(k, phase), strict=True)
-        except RuntimeError as exc:
-            raise CorruptFileError(self._checkpoint(k, phase), f"agent weights do not fit this configuration: "
-                                                               f"{exc}") from exc
-
-    def parameters_at(self, k: int, phase: str) -> list[torch.Tensor]:
-        state = self._load_state(k, phase)
-        by_id = {id(p): f"actor.{n}" for n, p in self.agent.actor.named_parameters()}
-        return [state[by_id[id(p)]] for p in self.agent.actor_parameters()]
+    def checkpoint_module(self) -> torch.nn.Module:
+        """The whole agent: actor, critics, temperature, normalizer (a checkpoint resumes SAC, not only the actor)."""
+        return self.agent
 
     # -- phases -----------------------------------------------------------------------------------------------
     def wake(self, k: int, memories: Sequence[Memory], distill_weight: float, method: Any = None
@@ -172,15 +132,16 @@ class SACSubstrate:
         if snapshot is not None:
             snapshot(k, self.agent.normalizer)  # before the wake checkpoint, which keeps it
         # what the memory phase may need once the replay buffer is gone (kept for a resume; not a memory itself)
-        memory.save(self.stage_dir(k) / "memory.safetensors")  # SR's M_k comes from the wake's replay buffer
+        memory.save(self.memory_path(k))  # SR's M_k comes from the wake's replay buffer
         if wake.state_sample is not None:
             save_checked_safetensors(self.stage_dir(k) / "state_sample.safetensors",
                                      {"state": wake.state_sample},
-                                     {**self._header(k, "wake"), "format": "sr_imitation.rl.state_sample"})
+                                     {**self.checkpoint_header(k, "wake"), "format": "sr_imitation.rl.state_sample"})
         if wake.transition_sample is not None:
             save_checked_safetensors(self.stage_dir(k) / "transition_sample.safetensors",
                                      wake.transition_sample,
-                                     {**self._header(k, "wake"), "format": "sr_imitation.rl.transition_sample"})
+                                     {**self.checkpoint_header(k, "wake"),
+                                      "format": "sr_imitation.rl.transition_sample"})
         self._memories[k] = memory
         # the phase's whole time: a wake resumed from its snapshot adds the time it had run before (our choice, as
         # the ACT wake does; runs written before 2026-11-28 count from the resume: reporting.summary.phase_seconds)
@@ -190,18 +151,12 @@ class SACSubstrate:
         memory = self._memories.pop(k, None)
         return memory if memory is not None else self.load_memory(k)
 
-    def save_memory(self, k: int, memory: Memory, name: str = "memory") -> None:
-        memory.save(self.stage_dir(k) / f"{name}.safetensors")
-
-    def load_memory(self, k: int, name: str = "memory") -> Memory:
-        return load_memory(self.stage_dir(k) / f"{name}.safetensors", skill=canonical_skill(self.skills[k]))
-
     # -- what continual methods ask of the policy ---------------------------------------------------------------
     def memory_states(self, k: int) -> torch.Tensor:
         """The raw late-wake states of SR's memory M_k (``memory.buffer_size`` of them; DER stores these too)."""
         memory = self._memories.get(k)
         if memory is None:
-            memory = CriticMemory.load(self.stage_dir(k) / "memory.safetensors", skill=self.memory_skill(k))
+            memory = CriticMemory.load(self.memory_path(k), skill=self.memory_skill(k))
         return memory.tensors["state"]
 
     def state_sample(self, k: int, n: int | None = None) -> torch.Tensor:
@@ -247,7 +202,7 @@ class SACSubstrate:
 
     def load_actor(self, k: int, phase: str) -> None:
         """Only the actor of the checkpoint after ``phase`` of stage k (Reset & Distill's shared actor)."""
-        state = self._load_state(k, phase)
+        state = self.checkpoint_state(k, phase)
         self.agent.actor.load_state_dict({n.removeprefix("actor."): t for n, t in state.items()
                                           if n.startswith("actor.")})
 
@@ -270,7 +225,8 @@ class SACSubstrate:
         return torch.cat([mean, log_std], dim=-1)
 
     def policy_parameters(self) -> list[torch.Tensor]:
-        """theta: the actor's trainable parameters (what the sleep and the methods' penalties act on)."""
+        """theta: the actor's trainable parameters (what the sleep and the methods' penalties act on; what
+        ``parameters_at`` reads from a checkpoint)."""
         return list(self.agent.actor_parameters())
 
     def log_likelihood(self, states: torch.Tensor, generator: torch.Generator) -> torch.Tensor:
@@ -293,7 +249,7 @@ class SACSubstrate:
         if stage_eval:
             traj = {f"traj.{canonical_skill(s)}": torch.as_tensor(x) for s, x in trajectories.items()}
             save_checked_safetensors(self.stage_dir(k) / "trajectories.safetensors", traj,
-                                     {**self._header(k, phase), "format": "sr_imitation.rl.traj",
+                                     {**self.checkpoint_header(k, phase), "format": "sr_imitation.rl.traj",
                                       "spi_features": list(SPI_FEATURES)})
         logger.info("stage %d %s: success %s", k + 1, phase, [round(r["success_rate"], 3) for r in rows])
         return {"rows": rows, "stage_evaluation": stage_eval}
@@ -360,11 +316,6 @@ class SACSubstrate:
     def source_skills(self, settings: dict[str, Any]) -> list[str]:
         skills = settings.get("stream.skills")
         return list(skills) if skills not in (None, {}) else list(STREAMS[settings["stream.name"]])
-
-    def import_stages(self, source: Path, n: int) -> None:
-        """Stages 1..n of a finished run (checkpoints, memories, trajectories); videos stay in the source run."""
-        for k in range(n):
-            shutil.copytree(source / self.stage_dir(k).relative_to(self.out), self.stage_dir(k))
 
     def report(self, progress: dict[str, Any], memories: Sequence[Memory], final_phases: Sequence[str]
                ) -> dict[str, Any]:
