@@ -196,3 +196,12 @@ def test_every_substrate_folder_is_a_layer_of_its_own_that_imports_no_other():
     assert upward_imports(graph) == [("sr_imitation.cli", "sr_imitation.substrates.sac.cli"),
                                      ("sr_imitation.stream.run", "sr_imitation.substrates.act.config"),
                                      ("sr_imitation.substrates.act.cli", "sr_imitation.substrates.sac.config")]
+
+
+def test_nothing_installed_imports_the_repository_s_experiments_folder():
+    """``experiments/`` (one protocol's analyses, run as ``python -m experiments.<name>`` from the repository root)
+    is not installed, so no module of the package, nor of a plugin, may import it."""
+    files = [*sorted(ROOT.rglob("*.py")), *sorted(PLUGINS.glob("*/*/*.py"))]
+    importing = sorted(str(path) for path in files for name in _imported_names(path)
+                       if name == "experiments" or name.startswith("experiments."))
+    assert importing == []
