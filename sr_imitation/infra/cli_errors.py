@@ -167,13 +167,20 @@ def _decoding_key(exc: BaseException | None) -> str | None:
 
 
 def split_config_path(args: Sequence[str]) -> tuple[str | None, list[str]]:
-    """Remove ``--config_path=<file>`` from ``args``; returns (path or None, rest)."""
+    """Remove ``--config_path=<file>`` (or ``--config_path <file>``) from ``args``; returns (path or None, rest)."""
     path, rest = None, []
-    for arg in args:
+    args = list(args)
+    i = 0
+    while i < len(args):
+        arg = args[i]
         if arg.startswith("--config_path="):
             path = arg.split("=", 1)[1]
+        elif arg == "--config_path" and i + 1 < len(args):
+            path = args[i + 1]
+            i += 1
         else:
             rest.append(arg)
+        i += 1
     return path, rest
 
 

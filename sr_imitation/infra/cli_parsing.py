@@ -115,7 +115,7 @@ class SettingsParser(ArgumentParser):
         over the settings, the whole decoded into the config class."""
         values = vars(parsed_args)
         if values.pop(draccus_utils.CONFIG_ARG, None) is not None:
-            raise UsageError("--config_path: the command read its config file already; give it once")
+            raise UsageError("--config_path is given twice; give it once")
         for key, raw in values.items():
             value = cfgparsing.parse_string(raw)
             if isinstance(value, str) and value.startswith("include"):

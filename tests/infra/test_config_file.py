@@ -106,3 +106,17 @@ def test_the_scope_hands_on_the_reading_and_nothing_after_it(tmp_path):
         assert config_file(first) is first and config_file(None) is None
     assert config_file(path).settings == {"seed": 2}
     assert ConfigFile(path, {"train": {"seed": 1}, "record": {}}).run_settings == {"seed": 1}
+
+
+def test_draccus_is_handed_the_settings_and_the_flags_override_them(tmp_path, opened):
+    from sr_imitation.infra.cli_errors import split_config_path
+    from sr_imitation.infra.cli_parsing import merged, parse_command
+    from sr_imitation.substrates.sac.config import RLTrainConfig
+
+    path = tmp_path / "c.json"
+    path.write_text(json.dumps({"seed": 4, "sleep": {"lr": 0.5, "max_iterations": 7}}))
+    assert split_config_path(["--config_path", str(path), "--seed=1"]) == (str(path), ["--seed=1"])
+    cfg = parse_command(RLTrainConfig, ["--config_path", str(path), "--sleep.lr=0.25"], prog="x")
+    assert (cfg.seed, cfg.sleep.lr, cfg.sleep.max_iterations) == (4, 0.25, 7)
+    assert opened.count(path.resolve()) == 1
+    assert merged({"a": {"b": 1, "c": 2}, "d": 3}, {"a": {"b": 5}, "e": 6}) == {"a": {"b": 5, "c": 2}, "d": 3, "e": 6}
