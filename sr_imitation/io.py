@@ -8,8 +8,8 @@ And every such file is checksummed over header and data: safetensors files carry
 of their header (:func:`save_checked_safetensors`), JSON records a sha256 entry over all their other entries
 (:func:`write_checked_json`), third-party checkpoint directories a sealed ``checksums.json``
 (:func:`write_manifest`). The exceptions are files written for people or other programs to read and never read
-back as state: reports, plots, videos and logs. A run's ``train_config.json`` is sealed too (draccus reads it with the
-seal left out: :func:`read_config_json`); configs a person writes are not.
+back as state: reports, plots, videos and logs. A run's ``train_config.json`` is sealed too (read with the seal
+left out: :func:`read_config_json`, :func:`unsealed`); configs a person writes are not.
 
 The lowest layer of the package (``tests/test_architecture.py``): it imports nothing of ``sr_imitation``, and the
 core's memories, the run infrastructure (:mod:`sr_imitation.infra`) and everything above are saved through it.
@@ -131,22 +131,28 @@ def read_checked_json(path: str | os.PathLike[str]) -> dict[str, Any]:
     if JSON_CHECKSUM not in data:
         raise CorruptFileError(path, f"has no {JSON_CHECKSUM} entry (written by a version before checksums, or "
                                      "edited by hand)")
-    body = {k: v for k, v in data.items() if k != JSON_CHECKSUM}
-    if header_digest(body) != data[JSON_CHECKSUM]:
-        raise CorruptFileError(path, f"contents do not match its {JSON_CHECKSUM} (corrupted or edited)")
-    return body
+    return unsealed(path, data)[0]
 
 
 def read_config_json(path: str | os.PathLike[str]) -> tuple[dict[str, Any], bool]:
     """A config file's JSON object and whether it was sealed: a run's ``train_config.json`` carries a ``sha256``
     entry (:func:`write_checked_json`), checked here and left out of the object returned; a config a person wrote
     has none. ``CorruptFileError`` naming the file if it is not a JSON object or does not match its seal."""
-    data = read_json(path)
+    return unsealed(path, read_json(path))
+
+
+def unsealed(path: str | os.PathLike[str], data: Any) -> tuple[dict[str, Any], bool]:
+    """A config file's parsed JSON without its ``sha256`` entry, and whether it had one (a run's sealed
+    ``train_config.json``); ``CorruptFileError`` naming ``path`` if ``data`` is not a JSON object or does not match
+    its seal."""
     if not isinstance(data, dict):
         raise CorruptFileError(path, "not a JSON object")
     if JSON_CHECKSUM not in data:
         return data, False
-    return read_checked_json(path), True
+    body = {k: v for k, v in data.items() if k != JSON_CHECKSUM}
+    if header_digest(body) != data[JSON_CHECKSUM]:
+        raise CorruptFileError(path, f"contents do not match its {JSON_CHECKSUM} (corrupted or edited)")
+    return body, True
 
 
 def read_json(path: str | os.PathLike[str]) -> Any:

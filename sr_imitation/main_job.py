@@ -16,11 +16,12 @@ import os
 import sys
 from pathlib import Path
 
-from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
+from sr_imitation.infra.config_file import ConfigFile, split_config
 from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.recorders.needle import ensure_recorded
-from sr_imitation.stream.methods import replaced_setting_refusal
+from sr_imitation.stream.methods import replaced_key_refusal, replaced_setting_refusal
 from sr_imitation.substrates.act.cli import parse_config, parse_preset
 from sr_imitation.substrates.act.config import MainJobConfig
 from sr_imitation.substrates.act.trainer import train_stream
@@ -30,7 +31,7 @@ logger = logging.getLogger(__name__)
 __all__ = ["MainJobConfig", "main", "preset_with_datasets", "run_main_job", "write_expert_video"]
 
 
-def preset_with_datasets(preset: Path, train_flags: list[str]) -> MainJobConfig:
+def preset_with_datasets(preset: Path | ConfigFile, train_flags: list[str]) -> MainJobConfig:
     """An sr-main preset with ``sr-train`` flags applied to its train section (``--seed=1``), its datasets recorded
     if missing and checked if present (the experiment drivers' start); with ``--stream.dataset_root`` the stream reads
     the user's own datasets there and nothing is recorded (each run checks them before its first gradient)."""
@@ -80,9 +81,12 @@ def write_expert_video(cfg: MainJobConfig, folder: Path) -> Path:
 def main(args: list[str] | None = None) -> None:
     setup_offscreen_rendering()
     setup_logging()
-    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = parse_config(MainJobConfig, config_path, rest, prog="sr-main")
+    config, rest = split_config(list(sys.argv[1:] if args is None else args))
+    cfg = parse_config(MainJobConfig, config, rest, prog="sr-main")
     refusal = replaced_setting_refusal(cfg.train.method, rest, prefix="train.")  # the rule of sr-train's flags
+    train = None if config is None or config.sealed else config.settings.get("train")
+    if refusal is None and isinstance(train, dict) and train.get("method") == cfg.train.method:  # and of its file
+        refusal = replaced_key_refusal(cfg.train.method, train, str(config.path), prefix="train.")
     if refusal is not None:
         raise ValueError(refusal)
     results = run_main_job(cfg)

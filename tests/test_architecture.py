@@ -207,3 +207,12 @@ def test_no_module_of_the_package_is_over_max_lines():
     long = {str(p.relative_to(ROOT)): n for p in sorted(ROOT.rglob("*.py"))
             if (n := len(p.read_text().splitlines())) > MAX_LINES}
     assert long == {}
+
+
+def test_nothing_installed_imports_the_repository_s_experiments_folder():
+    """``experiments/`` (one protocol's analyses, run as ``python -m experiments.<name>`` from the repository root)
+    is not installed, so no module of the package, nor of a plugin, may import it."""
+    files = [*sorted(ROOT.rglob("*.py")), *sorted(PLUGINS.glob("*/*/*.py"))]
+    importing = sorted(str(path) for path in files for name in _imported_names(path)
+                       if name == "experiments" or name.startswith("experiments."))
+    assert importing == []

@@ -177,18 +177,18 @@ def test_every_python_m_command_answers_user_errors_in_one_line():
     """Each module run as ``python -m`` (the README's experiment commands) goes through ``run_cli``, in its
     ``__main__`` block or in the function that block calls: ``needle_compare``, ``mt5_compare`` and ``sleep_replay``
     printed a draccus traceback for a bad ``--extra`` value. Benchmarks (developer tools) and modules another command
-    calls (the Meta-World recorder, under ``sr-record``) are left out; ``recompute_bwt`` answers through argparse,
-    as does the grid's benchmark (``experiments/grid_benchmark.py``, a benchmark that lives beside the runner it
-    times)."""
+    calls (the Meta-World recorder, under ``sr-record``) are left out; ``recompute_bwt`` (the repository's
+    ``experiments/``, beside the package's) answers through argparse, as does the grid's benchmark
+    (``experiments/grid_benchmark.py``, a benchmark that lives beside the runner it times)."""
     import ast
 
-    root = Path(__file__).resolve().parents[1] / "sr_imitation"
-    exempt = {"recorders/metaworld.py", "experiments/recompute_bwt.py",
-              "experiments/grid_benchmark.py"}
+    repo = Path(__file__).resolve().parents[1]
+    exempt = {"sr_imitation/recorders/metaworld.py", "experiments/recompute_bwt.py",
+              "sr_imitation/experiments/grid_benchmark.py"}
     unwired = []
-    for path in sorted(root.rglob("*.py")):
-        rel = path.relative_to(root).as_posix()
-        if rel.startswith("benchmarks/") or rel in exempt:
+    for path in sorted([*(repo / "sr_imitation").rglob("*.py"), *(repo / "experiments").rglob("*.py")]):
+        rel = path.relative_to(repo).as_posix()
+        if rel.startswith("sr_imitation/benchmarks/") or rel in exempt:
             continue
         tree = ast.parse(path.read_text())
         blocks = [node for node in tree.body if isinstance(node, ast.If) and "__main__" in ast.unparse(node.test)]
@@ -221,10 +221,11 @@ def test_every_command_parses_through_parse_command():
 
 
 @pytest.mark.parametrize("module", [
-    "experiments.needle_compare", "experiments.mt5_compare", "experiments.grid", "experiments.calibration",
-    "experiments.memory_budget", "experiments.skill_probe", "experiments.sleep_replay", "experiments.hypotheses",
-    "experiments.main_compare",
-    "benchmarks.needle_expert", "benchmarks.demo_endings", "benchmarks.needle_env", "envs.needle.chained",
+    "sr_imitation.experiments.needle_compare", "sr_imitation.experiments.mt5_compare", "sr_imitation.experiments.grid",
+    "sr_imitation.experiments.sleep_replay", "sr_imitation.experiments.hypotheses",
+    "sr_imitation.experiments.main_compare", "experiments.calibration", "experiments.memory_budget",
+    "experiments.skill_probe", "sr_imitation.benchmarks.needle_expert", "sr_imitation.benchmarks.demo_endings",
+    "sr_imitation.benchmarks.needle_env", "sr_imitation.envs.needle.chained",
 ])
 def test_a_mistyped_flag_of_an_experiment_command_is_one_line_naming_the_command(module, capsys):
     """Run in-process as its ``__main__`` block runs it: ``--seedz`` is refused before anything is read or written,
@@ -232,8 +233,8 @@ def test_a_mistyped_flag_of_an_experiment_command_is_one_line_naming_the_command
     ``sr-grid``)."""
     import importlib
 
-    mod = importlib.import_module(f"sr_imitation.{module}")
-    prog = "sr-grid" if module == "experiments.grid" else f"python -m sr_imitation.{module}"
+    mod = importlib.import_module(module)
+    prog = "sr-grid" if module == "sr_imitation.experiments.grid" else f"python -m {module}"
     assert getattr(mod, "PROG", "sr-grid") == prog
     with pytest.raises(SystemExit) as exc:
         run_cli(prog, mod.main, ["--seedz=1"])

@@ -154,7 +154,7 @@ def _signed(values: list[float]) -> str:
 
 
 def test_the_memory_budget_table_recomputes():
-    from sr_imitation.experiments.memory_budget import BudgetConfig, collect
+    from experiments.memory_budget import BudgetConfig, collect
 
     folders = {8: "needle_cpu_m8_compare", 16: "needle_cpu_m16_compare", 64: "needle_cpu_m64_compare",
                256: "needle_cpu_m256_compare", 1024: "needle_cpu_v2_compare"}
@@ -1233,7 +1233,7 @@ def _seeds(step: str, variant: str, metric: str) -> str:
 def test_each_calibration_step_s_reading_recomputes_from_its_raw_runs(step, readings):
     """Each archived step's ``calibration/calibration.json`` equals the reading recomputed now from the step's raw
     runs, and the record quotes its numbers as they recompute (rounded as written there), in each reading's block."""
-    from sr_imitation.experiments.calibration import CalibrationConfig, read_calibration
+    from experiments.calibration import CalibrationConfig, read_calibration
 
     archive = DOCS / "results" / step
     stored = json.loads((archive / "calibration" / "calibration.json").read_text())

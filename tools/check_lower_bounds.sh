@@ -81,7 +81,7 @@ PY
 # Every installed distribution's requirements still hold (the lock's packages accept the lower bounds).
 "$py" -I -m pip check
 
-tests=(${SR_LB_TESTS:-tests/test_checked_files.py tests/test_progress.py tests/test_memory_budget.py tests/reporting
+tests=(${SR_LB_TESTS:-tests/test_checked_files.py tests/test_progress.py tests/experiments/test_memory_budget.py tests/reporting
        tests/stream tests/envs tests/experiments/test_grid.py::test_a_grid_on_ray_gives_the_loops_results})
 export OMP_NUM_THREADS="${OMP_NUM_THREADS:-1}" MKL_NUM_THREADS="${MKL_NUM_THREADS:-1}"
 export HF_HUB_OFFLINE=1 HF_DATASETS_OFFLINE=1 HF_HOME="$tmp/hf" MESA_SHADER_CACHE_DIR="$tmp/mesa"

@@ -44,7 +44,6 @@ from __future__ import annotations
 
 import copy
 import dataclasses
-import json
 import logging
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -54,6 +53,7 @@ from sr_imitation.experiments.archive import RunKey
 from sr_imitation.experiments.grid import GridConfig, is_train_config, run_grid, run_name
 from sr_imitation.experiments.grid import main as grid_main
 from sr_imitation.infra.cli_errors import run_cli
+from sr_imitation.infra.config_file import read_config_file
 from sr_imitation.main_job import MainJobConfig, preset_with_datasets
 from sr_imitation.reporting.summary import load_groups, write_summary
 from sr_imitation.reporting.summary import summarize as summary_of
@@ -155,9 +155,10 @@ def base_config(preset: Path, flags: list[str]) -> TrainStreamConfig:
     """The ``sr-train`` config every run starts from: an ``sr-main`` preset's train section (its datasets recorded if
     missing, checked if present) or an ACT-SR ``sr-train`` config as ``sr-train --config_path`` reads it (your own
     datasets: each run checks them before its first gradient); ``flags`` (``--extra``) applied to it."""
-    if is_train_config(json.loads(Path(preset).read_text())):
-        return parse_train_config(str(preset), list(flags))
-    return preset_with_datasets(preset, flags).train
+    config = read_config_file(preset)
+    if is_train_config(config.settings):
+        return parse_train_config(config, list(flags))
+    return preset_with_datasets(config, flags).train
 
 
 def run_config(cfg: GridConfig, base: MainJobConfig | TrainStreamConfig, variant: str, seed: int) -> TrainStreamConfig:

@@ -166,32 +166,21 @@ def _decoding_key(exc: BaseException | None) -> str | None:
     return key
 
 
-def check_config_file(config_path: str | None) -> object:
-    """The JSON of a ``--config_path`` file (``None`` without one); a missing file or invalid JSON is one line naming
-    the file (draccus names neither file nor key)."""
-    if config_path is None:
-        return None
-    import json  # noqa: PLC0415
-
-    try:
-        with open(config_path, encoding="utf-8") as f:  # noqa: PTH123
-            text = f.read()
-    except OSError as exc:
-        raise FileNotFoundError(f"{config_path}: cannot read the config file ({exc.strerror or exc})") from None
-    try:
-        return json.loads(text)
-    except json.JSONDecodeError as exc:
-        raise ValueError(f"{config_path}: not valid JSON ({exc})") from None
-
-
 def split_config_path(args: Sequence[str]) -> tuple[str | None, list[str]]:
-    """Remove ``--config_path=<file>`` from ``args``; returns (path or None, rest)."""
+    """Remove ``--config_path=<file>`` (or ``--config_path <file>``) from ``args``; returns (path or None, rest)."""
     path, rest = None, []
-    for arg in args:
+    args = list(args)
+    i = 0
+    while i < len(args):
+        arg = args[i]
         if arg.startswith("--config_path="):
             path = arg.split("=", 1)[1]
+        elif arg == "--config_path" and i + 1 < len(args):
+            path = args[i + 1]
+            i += 1
         else:
             rest.append(arg)
+        i += 1
     return path, rest
 
 

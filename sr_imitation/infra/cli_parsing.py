@@ -24,30 +24,32 @@
 from __future__ import annotations
 
 import ast
-import contextlib
+import copy
 import dataclasses
 import difflib
 import functools
 import inspect
-import json
 import logging
 import re
 import sys
-import tempfile
 import textwrap
 import types
 import typing
-from collections.abc import Iterator, Mapping, Sequence
+from argparse import Namespace
+from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any, NoReturn, TypeVar
 
 import draccus
+from draccus import cfgparsing
+from draccus import utils as draccus_utils
 from draccus.argparsing import ArgumentParser
+from draccus.parsers.decoding import decode
 from draccus.wrappers import docstring as draccus_docstring
 
-from sr_imitation.infra.cli_errors import UsageError
+from sr_imitation.infra.cli_errors import UsageError, split_config_path
+from sr_imitation.infra.config_file import ConfigFile, config_file
 from sr_imitation.infra.value_types import check_settings, flag_problem
-from sr_imitation.io import read_config_json
 
 logger = logging.getLogger(__name__)
 
@@ -98,13 +100,49 @@ def _raise_usage_error(message: str) -> NoReturn:
     raise UsageError(message)
 
 
-def command_parser(cls: type, *, prog: str, config_path: str | Path | None = None,
+class SettingsParser(ArgumentParser):
+    """draccus' parser given a config file's settings as parsed (:mod:`sr_imitation.infra.config_file`), where
+    draccus' own takes a path and opens the file itself; the command line's flags override them as they would
+    draccus' file."""
+
+    def __init__(self, *args: Any, settings: Mapping[str, Any] | None = None, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.settings = settings
+
+    def _postprocessing(self, parsed_args: Namespace) -> Any:
+        """draccus' (0.11) ``ArgumentParser._postprocessing`` with :attr:`settings` in place of its config file:
+        each flag's value read as YAML (``include <file>`` as that file's settings), the dotted flags nested and merged
+        over the settings, the whole decoded into the config class."""
+        values = vars(parsed_args)
+        if values.pop(draccus_utils.CONFIG_ARG, None) is not None:
+            raise UsageError("--config_path is given twice; give it once")
+        for key, raw in values.items():
+            value = cfgparsing.parse_string(raw)
+            if isinstance(value, str) and value.startswith("include"):
+                with open(value[len("include "):], encoding="utf-8") as f:  # noqa: PTH123 (draccus' own keyword)
+                    value = cfgparsing.load_config(f)
+            values[key] = value
+        flags = draccus_utils.deflatten(values, sep=".")
+        return decode(self.config_class, merged(copy.deepcopy(dict(self.settings or {})), flags))  # decode consumes it
+
+
+def merged(settings: Mapping[str, Any], flags: Mapping[str, Any]) -> dict[str, Any]:
+    """``settings`` with ``flags`` (nested the same way) over them: a section both have is merged key by key, any
+    other value of ``flags`` replaces the setting's (draccus' merge of a file and the flags)."""
+    out = dict(settings)
+    for key, value in flags.items():
+        below = out.get(key)
+        out[key] = merged(below, value) if isinstance(below, Mapping) and isinstance(value, Mapping) else value
+    return out
+
+
+def command_parser(cls: type, *, prog: str, settings: Mapping[str, Any] | None = None,
                    field_help: Mapping[str, str] = INHERITED_FIELD_HELP) -> ArgumentParser:
-    """draccus' parser of ``cls`` for the command ``prog``, with the help of every flag filled in (module docstring)
-    and argparse's usage errors raised as :class:`UsageError`. A config holding an ACT-SR policy must be built inside
+    """draccus' parser of ``cls`` for the command ``prog`` (``settings``: a config file's, which the flags override),
+    with the help of every flag filled in (module docstring) and argparse's usage errors raised as
+    :class:`UsageError`. A config holding an ACT-SR policy must be built inside
     :func:`sr_imitation.substrates.act.cli.act_sr_choices_only`."""
-    parser = ArgumentParser(cls, config_path=None if config_path is None else str(config_path), prog=prog,
-                            allow_abbrev=False)
+    parser = SettingsParser(cls, settings=settings, prog=prog, allow_abbrev=False)
     parser.parser.error = _raise_usage_error  # type: ignore[method-assign]
     fill_help(parser, cls, field_help)
     return parser
@@ -191,9 +229,10 @@ def check_flags_known(args: Sequence[str], known: Sequence[str]) -> None:
         raise UsageError(f"unknown flag {name}{hint}")
 
 
-def parse_command[T](cls: type[T], args: Sequence[str] | None, *, prog: str, config_path: str | Path | None = None,
-                  prefix: str = "", names: Mapping[str, str] | None = None,
-                  notes: Mapping[str, str] | None = None, help_values: tuple[str, Mapping] | None = None) -> T:
+def parse_command[T](cls: type[T], args: Sequence[str] | None, *, prog: str,
+                  config_path: str | Path | ConfigFile | None = None, prefix: str = "",
+                  names: Mapping[str, str] | None = None, notes: Mapping[str, str] | None = None,
+                  help_values: tuple[str, Mapping] | None = None) -> T:
     """``draccus.parse`` of ``cls`` for the command ``prog`` (module docstring): ``--help`` prints every flag's
     meaning and exits 0, with the values of the ``--config_path`` file as the defaults it shows (or of
     ``help_values``: (where they come from, the settings), e.g. a preset's ``train`` section); flags of ``names`` are
@@ -201,33 +240,38 @@ def parse_command[T](cls: type[T], args: Sequence[str] | None, *, prog: str, con
     any other argparse error is a :class:`UsageError` too, with the sentence ``notes`` holds for its flag appended
     (``--policy.type``: what the command trains).
 
-    ``args`` None: ``sys.argv[1:]``. ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix``
-    names (``--seed=1`` is ``--train.seed=1``); errors name the flags as given."""
+    ``args`` None: ``sys.argv[1:]``. ``config_path``: the config file, read or to read
+    (:func:`~sr_imitation.infra.config_file.config_file`); without it, a ``--config_path`` of ``args``. draccus gets
+    its settings, not its path. ``prefix`` (``"train."``) parses ``args`` as flags of the section ``prefix`` names
+    (``--seed=1`` is ``--train.seed=1``); errors name the flags as given."""
     args = list(sys.argv[1:] if args is None else args)
-    with readable_config(config_path) as (readable, settings):
-        parser = command_parser(cls, prog=prog, config_path=readable)
-        if wants_help(args):
-            if help_values is None and settings is not None:
-                help_values = (str(config_path), settings)
-            if help_values is not None:
-                show_values_as_defaults(parser, *help_values)
-            parser.parse_args(["--help"])  # prints the help and exits 0
-        known = option_names(parser, prefix)
-        args = apply_flag_names(args, known, names or {}, prog)
-        check_flags_known(args, known)
-        check_flag_types(cls, args, prefix)
-        if settings is not None:
-            check_settings(cls, settings, str(config_path))
-        full = [f"--{prefix}{a[2:]}" if prefix and a.startswith("--") and a != "--" else a for a in args]
-        full = keep_text_verbatim(cls, full)
-        try:
-            return parser.parse_args(full)
-        except UsageError as exc:
-            message = str(exc).replace(f"--{prefix}", "--") if prefix else str(exc)
-            for flag, note in (notes or {}).items():
-                if message.startswith(f"argument {flag}:"):
-                    message = f"{message}; {note}"
-            raise UsageError(message) from None
+    if config_path is None:
+        config_path, args = split_config_path(args)
+    config = config_file(config_path)
+    settings = None if config is None else config.settings
+    parser = command_parser(cls, prog=prog, settings=settings)
+    if wants_help(args):
+        if help_values is None and config is not None:
+            help_values = (str(config.path), config.settings)
+        if help_values is not None:
+            show_values_as_defaults(parser, *help_values)
+        parser.parse_args(["--help"])  # prints the help and exits 0
+    known = option_names(parser, prefix)
+    args = apply_flag_names(args, known, names or {}, prog)
+    check_flags_known(args, known)
+    check_flag_types(cls, args, prefix)
+    if config is not None:
+        check_settings(cls, config.settings, str(config.path))
+    full = [f"--{prefix}{a[2:]}" if prefix and a.startswith("--") and a != "--" else a for a in args]
+    full = keep_text_verbatim(cls, full)
+    try:
+        return parser.parse_args(full)
+    except UsageError as exc:
+        message = str(exc).replace(f"--{prefix}", "--") if prefix else str(exc)
+        for flag, note in (notes or {}).items():
+            if message.startswith(f"argument {flag}:"):
+                message = f"{message}; {note}"
+        raise UsageError(message) from None
 
 
 def check_flag_types(cls: type, args: Sequence[str], prefix: str = "") -> None:
@@ -276,7 +320,7 @@ def keep_text_verbatim(cls: type, args: Sequence[str]) -> list[str]:
 def show_values_as_defaults(parser: ArgumentParser, source: str, values: Mapping) -> int:
     """Make ``parser``'s help show, as each flag's default, the value ``values`` (a config file's nested settings)
     gives it, and say so under the usage line; returns how many flags took a value. Only for ``--help``: the parse
-    itself reads the file through draccus."""
+    itself hands draccus the settings (:class:`SettingsParser`)."""
     count = 0
     for action in parser.parser._actions:
         node: Any = values
@@ -292,25 +336,6 @@ def show_values_as_defaults(parser: ArgumentParser, source: str, values: Mapping
 
 
 _ABSENT = object()
-
-
-@contextlib.contextmanager
-def readable_config(config_path: str | Path | None) -> Iterator[tuple[str | Path | None, dict[str, Any] | None]]:
-    """The ``--config_path`` file as draccus can read it, and its settings (``None`` without a readable file): a run's
-    sealed ``train_config.json`` is checked against its seal (:func:`~sr_imitation.io.read_config_json`: one line
-    naming the file if it was edited or damaged) and handed over as a copy without the seal, in a temporary folder
-    removed afterwards; any other file as it is (a missing or unreadable one is reported by the caller or draccus)."""
-    if config_path is None or not Path(config_path).is_file():
-        yield config_path, None
-        return
-    config, sealed = read_config_json(config_path)
-    if not sealed:
-        yield config_path, config
-        return
-    with tempfile.TemporaryDirectory(prefix="sr-config-") as folder:
-        copy = Path(folder) / Path(config_path).name
-        copy.write_text(json.dumps(config, indent=2, sort_keys=True))
-        yield copy, config
 
 
 # --- help ------------------------------------------------------------------------------------------------------------

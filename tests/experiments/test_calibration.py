@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import pytest
 
-from sr_imitation.experiments.calibration import CalibrationConfig, main, read_calibration
+from experiments.calibration import CalibrationConfig, main, read_calibration
 from sr_imitation.io import write_checked_json
 from tests.reporting.test_results import _results
 

@@ -163,3 +163,45 @@ def test_sr_main_refuses_the_same_flags_under_its_train_section(tmp_path, capsys
     assert line == ["sr-main: error: --train.sleep.lr: reset_distill sets it with its own option 'lr' (default "
                     "0.0003); use --train.method_options={lr: 0.001} (--debug shows the traceback)"], line
     assert not any(tmp_path.iterdir())
+
+
+def test_a_file_written_for_the_method_that_sets_a_setting_it_replaces_is_refused_naming_the_file_and_option(
+        tmp_path, sr_train, capsys):
+    """The flags' rule for a config file a person wrote for the method (its ``method`` key): the key is refused in
+    one line naming the file and the method option to set instead, before any folder is written. A preset that names
+    another method (or none) is every method's and a run's own ``train_config.json`` holds every setting: both run
+    (the test above)."""
+    out = tmp_path / "run"
+    mine = tmp_path / "mine.json"
+    mine.write_text(json.dumps({"substrate": "toy", "method": "reset_distill", "sleep": {"max_iterations": 9}}))
+    line = _one_line(sr_train, [f"--config_path={mine}", f"--output_dir={out}"], capsys)
+    assert line.startswith(f"sr-train: error: {mine}: sleep.max_iterations: reset_distill sets it with its own "
+                           "option 'iterations' (default 2000); set \"method_options\": {\"iterations\": 9} "
+                           "instead"), line
+    mine.write_text(json.dumps({"substrate": "toy", "method": "reset_distill", "sleep": {"anchor_strength": 1.0}}))
+    line = _one_line(sr_train, [f"--config_path={mine}", "--method=reset_distill", f"--output_dir={out}"], capsys)
+    assert line.startswith(f"sr-train: error: {mine}: sleep.anchor_strength: reset_distill fixes it at 0.0 "
+                           "whatever the file says; leave it out"), line
+    assert not out.exists()
+    shared = tmp_path / "shared.json"  # written for SR: every method may run it, the method's option wins
+    shared.write_text(json.dumps({"substrate": "toy", "method": "sr", "sleep": {"max_iterations": 9}}))
+    from sr_imitation import cli
+
+    assert cli.parse_args([f"--config_path={shared}", "--method=reset_distill"]).method == "reset_distill"
+
+
+def test_sr_main_refuses_a_preset_written_for_the_method_that_sets_what_it_replaces(tmp_path, capsys):
+    from sr_imitation.main_job import main
+
+    preset = json.loads((Path(__file__).resolve().parents[2] / "configs" / "needle_cpu.json").read_text())
+    preset["train"]["method"] = "reset_distill"
+    path = tmp_path / "preset.json"
+    path.write_text(json.dumps(preset))
+    with pytest.raises(SystemExit):
+        run_cli("sr-main", main, [f"--config_path={path}", f"--train.output_dir={tmp_path / 'run'}",
+                                  f"--record.root={tmp_path / 'datasets'}"])
+    line = [x for x in capsys.readouterr().err.splitlines() if x.startswith("sr-main: error:")]
+    assert line == [f"sr-main: error: {path}: train.sleep.max_iterations: reset_distill sets it with its own option "
+                    "'iterations' (default 2000); set \"train.method_options\": {\"iterations\": 1000} instead "
+                    "(--debug shows the traceback)"], line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["preset.json"]

@@ -15,10 +15,11 @@ from sr_imitation.stream.methods.registry import (
     method_config,
     methods_for,
     register_method,
+    replaced_key_refusal,
     replaced_setting_refusal,
 )
 
 import_method_files(__name__, __path__, skip=("base", "registry"))  # each file registers its methods
 
 __all__ = ["METHODS", "ContinualMethod", "WakeStep", "check_method", "make_method", "method_class", "method_config",
-           "methods_for", "register_method", "replaced_setting_refusal"]
+           "methods_for", "register_method", "replaced_key_refusal", "replaced_setting_refusal"]

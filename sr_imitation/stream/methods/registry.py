@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 import importlib
+import json
 import pkgutil
 from collections.abc import Iterable, Mapping, Sequence
 from typing import Any, TypeVar
@@ -132,8 +133,7 @@ def replaced_setting_refusal(name: str, args: Sequence[str], prefix: str = "") -
 
     Args:
         name: the run's method (``--method``, else its config file's).
-        args: the command line's flags (a config file's values are not the user's flag for this method: presets
-            are shared by every method).
+        args: the command line's flags (a config file's values: :func:`replaced_key_refusal`).
         prefix: where the run's settings sit on this command line (``train.`` for ``sr-main``).
 
     Returns:
@@ -151,3 +151,45 @@ def replaced_setting_refusal(name: str, args: Sequence[str], prefix: str = "") -
         if take_flag(list(args), f"--{prefix}{setting}")[1] is not None:
             return f"--{prefix}{setting}: {name} fixes it at {value!r} whatever the flag says; leave the flag out"
     return None
+
+
+def replaced_key_refusal(name: str, settings: Mapping[str, Any], source: str, prefix: str = "") -> str | None:
+    """:func:`replaced_setting_refusal` for a config file's keys: why a file written for method ``name`` may not set
+    a shared setting the method replaces, in one line naming the file, the key and the method option to set instead;
+    ``None`` when it sets none. Call it only for a file a person wrote that names ``name`` as its method: a preset
+    that names another method (or none) is shared by every method, and a run's own ``train_config.json`` holds
+    every setting.
+
+    Args:
+        name: the run's method (the file's).
+        settings: the run's settings in the file (an ``sr-main`` preset's ``train`` section).
+        source: the file, as errors name it.
+        prefix: where the run's settings sit in the file (``train.`` for an ``sr-main`` preset).
+
+    Returns:
+        The refusal, or ``None``.
+    """
+    cls = METHODS.get(name)
+    if cls is None:
+        return None
+    for setting, option in cls.own_settings.items():
+        given = _nested(settings, setting)
+        if given is not _ABSENT:
+            return (f"{source}: {prefix}{setting}: {name} sets it with its own option {option!r} (default "
+                    f"{getattr(cls.config, option)}); set \"{prefix}method_options\": "
+                    f"{{\"{option}\": {json.dumps(given)}}} instead")
+    for setting, value in cls.fixed_settings.items():
+        if _nested(settings, setting) is not _ABSENT:
+            return f"{source}: {prefix}{setting}: {name} fixes it at {value!r} whatever the file says; leave it out"
+    return None
+
+
+_ABSENT = object()
+
+
+def _nested(settings: Mapping[str, Any], dotted: str) -> Any:
+    """The value at ``dotted`` (``sleep.max_iterations``) in nested ``settings``, or :data:`_ABSENT`."""
+    node: Any = settings
+    for part in dotted.split("."):
+        node = node.get(part, _ABSENT) if isinstance(node, Mapping) else _ABSENT
+    return node

@@ -16,7 +16,6 @@ import json
 import logging
 import os
 import sys
-import tempfile
 from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,8 +25,9 @@ from lerobot.configs.policies import PreTrainedConfig
 
 import lerobot_policy_act_sr  # noqa: F401  (registers act_sr with LeRobot's config registry)
 from sr_imitation.envs.needle.skills import SKILL_NAMES as SURGICAI_SKILLS
-from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command, take_flag, wants_help
+from sr_imitation.infra.config_file import ConfigFile, config_file, split_config
 from sr_imitation.infra.fingerprint import RUN_DIRECTORY, output_dir_for
 from sr_imitation.infra.folder_lock import hold_folder, remove_leftovers, remove_staging_beside
 from sr_imitation.io import read_checked_json, read_config_json, verify_checkpoint, write_checked_json
@@ -60,12 +60,12 @@ def act_sr_choices_only() -> Iterator[None]:
 T = TypeVar("T")
 
 
-def parse_config[T](cls: type[T], config_path: str | os.PathLike[str] | None, args: list[str], *,
+def parse_config[T](cls: type[T], config_path: str | os.PathLike[str] | ConfigFile | None, args: list[str], *,
                  prog: str = "sr-train", prefix: str = "", names: dict[str, str] | None = None,
                  notes: dict[str, str] | None = None, help_values: tuple[str, dict] | None = None) -> T:
     """``draccus.parse`` of a config holding an ACT-SR policy (see :func:`act_sr_choices_only`), with the teaching
-    command line of :func:`~sr_imitation.infra.cli_parsing.parse_command` (``prefix``, ``names``, ``notes``,
-    ``help_values`` there)."""
+    command line of :func:`~sr_imitation.infra.cli_parsing.parse_command` (``config_path``: the config file, read or
+    to read; ``prefix``, ``names``, ``notes``, ``help_values`` there)."""
     with act_sr_choices_only():
         return parse_command(cls, args, prog=prog, config_path=config_path, prefix=prefix, names=names, notes=notes,
                              help_values=help_values)
@@ -76,31 +76,36 @@ def _setup_logging() -> None:
     setup_logging()
 
 
-def parse_train_config(config_path: str | None, args: list[str]) -> TrainStreamConfig:
-    """The ``sr-train`` config of a command line. ``--config_path`` may name a run's ``train_config.json`` (its
-    ``output_dir`` "." is the run directory, wherever it was copied) or an ``sr-main`` preset such as
-    ``configs/needle_cpu.json``, whose ``train`` section is used with the datasets at ``record.root`` (flags then
-    address that section as usual: ``--seed=1``). The ACT-SR policy's names of shared settings
-    (``--policy.sleep`` for ``--sleep.enabled``, ``--policy.sleep_memory_size`` for ``--memory.buffer_size``) are
-    folded into them (:func:`~sr_imitation.stream.config.fold_alias_flags`)."""
-    data = {} if config_path is None else _read_json(config_path)
-    preset = _is_main_job_preset(data)
+def parse_train_config(config_path: str | os.PathLike[str] | ConfigFile | None, args: list[str]
+                       ) -> TrainStreamConfig:
+    """The ``sr-train`` config of a command line. ``--config_path`` (read or to read:
+    :func:`~sr_imitation.infra.config_file.config_file`) may name a run's ``train_config.json`` (its ``output_dir``
+    "." is the run directory, wherever it was copied) or an ``sr-main`` preset such as ``configs/needle_cpu.json``,
+    whose ``train`` section is used with the datasets at ``record.root`` (flags then address that section as usual:
+    ``--seed=1``). The ACT-SR policy's names of shared settings (``--policy.sleep`` for ``--sleep.enabled``,
+    ``--policy.sleep_memory_size`` for ``--memory.buffer_size``) are folded into them
+    (:func:`~sr_imitation.stream.config.fold_alias_flags`)."""
+    config = config_file(config_path)
+    data = {} if config is None else config.settings
+    preset = config is not None and config.is_main_job_preset
     if preset and wants_help(args):
         parse_config(TrainStreamConfig, None, ["--help"],  # the flags that address the preset's train section; exits
-                     help_values=(f"{config_path}'s train section", data["train"]))
-    args = fold_alias_flags(args, data.get("train") if preset else data, str(config_path))
-    args = implied_policy_type(data.get("train") if preset else data, legacy_flags(data, args))
+                     help_values=(f"{config.path}'s train section", data["train"]))
+    run_settings = {} if config is None else config.run_settings
+    args = fold_alias_flags(args, run_settings, str(None if config is None else config.path))
+    args = implied_policy_type(run_settings, legacy_flags(data, args))
     lerobot = {"names": LEROBOT_TRAIN_FLAGS, "notes": LEROBOT_TRAIN_NOTES}
     if preset:
-        cfg = parse_preset(config_path, args, **lerobot)[0].train
+        cfg = parse_preset(config, args, **lerobot)[0].train
         cfg.output_dir = Path(cfg.output_dir)
         return cfg
-    cfg = parse_config(TrainStreamConfig, config_path, args, **lerobot)
-    cfg.output_dir = output_dir_for(config_path, args, cfg.output_dir)
+    cfg = parse_config(TrainStreamConfig, config, args, **lerobot)
+    cfg.output_dir = output_dir_for(None if config is None else config.path, args, cfg.output_dir)
     return cfg
 
 
-def parse_preset(config_path: str | Path, args: list[str], **names: Any) -> tuple[MainJobConfig, bool]:
+def parse_preset(config_path: str | os.PathLike[str] | ConfigFile, args: list[str], **names: Any
+                 ) -> tuple[MainJobConfig, bool]:
     """An ``sr-main`` preset with ``sr-train`` flags applied to its train section (``--seed=1``), and whether the
     stream reads datasets of the user's own: ``--stream.dataset_root`` names where they are, instead of the preset's
     ``record.root`` (where the preset records them; never dropped silently)."""
@@ -142,22 +147,8 @@ def implied_policy_type(data: object, args: list[str]) -> list[str]:
 
 def parse_train_args(args: list[str]) -> TrainStreamConfig:
     """:func:`parse_train_config` of a whole command line (``--config_path`` included)."""
-    config_path, rest = split_config_path(list(args))
-    return parse_train_config(config_path, rest)
-
-
-def _read_json(config_path: str) -> dict:
-    """A config file's JSON object; ``{}`` if it is unreadable or not an object (draccus reports it)."""
-    try:
-        data = json.loads(Path(config_path).read_text())
-    except (OSError, json.JSONDecodeError):
-        return {}
-    return data if isinstance(data, dict) else {}
-
-
-def _is_main_job_preset(data: dict) -> bool:
-    """Whether a config file's JSON is an ``sr-main`` preset (``record`` and ``train`` sections)."""
-    return "train" in data and "record" in data
+    config, rest = split_config(list(args))
+    return parse_train_config(config, rest)
 
 
 def train_main(args: list[str] | None = None) -> None:
@@ -222,30 +213,24 @@ class EvalCommandConfig:
         self.eval.check_skills(self.skills)
 
 
-@contextlib.contextmanager
-def checkpoint_defaults(args: list[str]) -> Iterator[Path | None]:
-    """A config file for :class:`EvalCommandConfig` holding the skills and ``eval`` settings of the run that wrote the
-    ``--policy.path`` checkpoint (its ``train_config.json``, checked against its seal), or None for a checkpoint
-    without one (stock ``lerobot-train`` writes LeRobot's own, which has no stream). Settings this version does not
-    know are left out; the file lives in a temporary folder while the command line is parsed."""
+def checkpoint_defaults(args: list[str]) -> ConfigFile | None:
+    """The settings for :class:`EvalCommandConfig` that the run which wrote the ``--policy.path`` checkpoint gives:
+    its skills and ``eval`` settings (from its ``train_config.json``, checked against its seal), or None for a
+    checkpoint without one (stock ``lerobot-train`` writes LeRobot's own, which has no stream). Settings this
+    version does not know are left out."""
     _, given = take_flag(list(args), "--policy.path")
     stored = None if given is None else Path(given) / "train_config.json"
     if stored is None or not stored.is_file():
-        yield None
-        return
+        return None
     config, _ = read_config_json(stored)
     stream, evaluation = config.get("stream"), config.get("eval")
     if not isinstance(stream, dict) or not isinstance(evaluation, dict) or "skills" not in stream:
-        yield None
-        return
+        return None
     known = {f.name for f in dataclasses.fields(EvalConfig)}
     defaults = {"skills": list(stream["skills"]), "eval": {k: v for k, v in evaluation.items() if k in known}}
     logger.info("sr-eval: skills %s and evaluation settings (env %s) from %s; flags override them",
                 defaults["skills"], defaults["eval"].get("env"), stored)
-    with tempfile.TemporaryDirectory(prefix="sr-eval-") as folder:
-        path = Path(folder) / "checkpoint_eval.json"
-        path.write_text(json.dumps(defaults))
-        yield path
+    return ConfigFile(stored, defaults, sealed=True)
 
 
 def check_eval_output(cfg: EvalCommandConfig) -> set[Path]:
@@ -275,9 +260,9 @@ def eval_main(args: list[str] | None = None) -> None:
     """``sr-eval``: evaluate any ACT-SR (or ACT) checkpoint on a set of skills (needle skills by default, or the
     environments ``--eval.env`` names), with videos."""
     _setup_logging()
-    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    with checkpoint_defaults(rest) if config_path is None else contextlib.nullcontext(config_path) as defaults:
-        cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=defaults, names=LEROBOT_EVAL_FLAGS)
+    config, rest = split_config(list(sys.argv[1:] if args is None else args))
+    defaults = checkpoint_defaults(rest) if config is None else config
+    cfg = parse_command(EvalCommandConfig, rest, prog="sr-eval", config_path=defaults, names=LEROBOT_EVAL_FLAGS)
     with hold_folder(cfg.output_dir, "sr-eval"):  # the only writer of output_dir, before it is looked at
         remove_leftovers(cfg.output_dir, Path(cfg.output_dir) / "videos", PARTIAL_VIDEO, "sr-eval")
         evaluate_checkpoint(cfg)
@@ -326,8 +311,8 @@ def sleep_main(args: list[str] | None = None) -> dict:
     )
 
     _setup_logging()
-    config_path, rest = split_config_path(list(sys.argv[1:] if args is None else args))
-    cfg = parse_command(OfflineSleepConfig, rest, prog="sr-sleep", config_path=config_path)
+    config, rest = split_config(list(sys.argv[1:] if args is None else args))
+    cfg = parse_command(OfflineSleepConfig, rest, prog="sr-sleep", config_path=config)
     with hold_folder(cfg.output_dir, "sr-sleep"):  # the only writer of output_dir, before it is looked at
         remove_staging_beside(cfg.output_dir, "sr-sleep")  # a killed earlier sr-sleep's .<output_dir>.XXXXXXXX
         record = run_offline_sleep(cfg)

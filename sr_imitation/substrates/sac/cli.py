@@ -19,8 +19,9 @@ import json
 import logging
 import sys
 
-from sr_imitation.infra.cli_errors import run_cli, setup_logging, split_config_path
+from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.config_file import split_config
 from sr_imitation.infra.fingerprint import output_dir_for
 from sr_imitation.infra.folder_lock import hold_folder
 from sr_imitation.stream.config import fold_alias_flags
@@ -44,10 +45,10 @@ def train(cfg: RLTrainConfig) -> dict:
 def parse(args: list[str]) -> RLTrainConfig:
     """The config ``args`` describe; a run's own ``train_config.json`` (older runs: ``config.json``) stores
     output_dir "." (the run directory itself), resolved to the file's directory unless ``--output_dir`` is given."""
-    config_path, rest = split_config_path(args)
+    config, rest = split_config(args)
     rest = fold_alias_flags(rest)  # the flags only: a config file has no policy section here
-    cfg = parse_command(RLTrainConfig, rest, prog="sr-train", config_path=config_path)
-    cfg.output_dir = output_dir_for(config_path, rest, cfg.output_dir)
+    cfg = parse_command(RLTrainConfig, rest, prog="sr-train", config_path=config)
+    cfg.output_dir = output_dir_for(None if config is None else config.path, rest, cfg.output_dir)
     return cfg
 
 

@@ -8,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from sr_imitation.experiments import skill_probe
-from sr_imitation.experiments.skill_probe import ProbeConfig, final_errors, run
+from experiments import skill_probe
+from experiments.skill_probe import ProbeConfig, final_errors, run
 from sr_imitation.substrates.act.data import load_stats
 from sr_imitation.substrates.act.trainer import stored_config_dict
 from tests.substrates.act.conftest import SKILLS

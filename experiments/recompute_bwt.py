@@ -1,7 +1,7 @@
 """Recompute ``bwt`` and ``bwt_wake`` of finished runs from their raw ``results.json`` files.
 
-    python -m sr_imitation.experiments.recompute_bwt --runs=docs/results/needle_cpu_compare
-    python -m sr_imitation.experiments.recompute_bwt --runs=docs/results/needle_cpu_main \\
+    python -m experiments.recompute_bwt --runs=docs/results/needle_cpu_compare
+    python -m experiments.recompute_bwt --runs=docs/results/needle_cpu_main \\
         --runs=docs/results/needle_cpu_seed1000 --runs=docs/results/sac_mt5_cpu --output=outputs/bwt.md
 
 ``--runs`` is a run directory (it holds ``results.json``) or a folder of them (``<variant>_seed<N>`` as

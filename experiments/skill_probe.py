@@ -1,7 +1,7 @@
 """Probe of the base learner: one skill's wake from scratch, evaluated right after it (what the stream's
 after-own-wake row measures, without the stream around it), under chosen normalization statistics.
 
-    python -m sr_imitation.experiments.skill_probe --preset=configs/needle_cpu.json \\
+    python -m experiments.skill_probe --preset=configs/needle_cpu.json \\
         --skills=[place,insert,regrasp] --stats=[own,first,union] --seeds=[0] --output_root=outputs/skill_probe \\
         --extra=[--wake.max_epochs=20,--wake.min_epochs=20]
 
@@ -43,7 +43,7 @@ from sr_imitation.substrates.act.substrate import ACTSubstrate
 from sr_imitation.substrates.act.trainer import TrainStreamConfig
 
 logger = logging.getLogger(__name__)
-PROG = "python -m sr_imitation.experiments.skill_probe"
+PROG = "python -m experiments.skill_probe"
 """The command as a user types it (usage errors and ``--help`` name it)."""
 
 STATS = ("own", "first", "union")

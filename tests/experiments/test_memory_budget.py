@@ -7,7 +7,7 @@ import json
 
 import pytest
 
-from sr_imitation.experiments.memory_budget import main
+from experiments.memory_budget import main
 from sr_imitation.io import write_checked_json
 from tests.reporting.test_results import _results
 

@@ -1,6 +1,6 @@
 """A stream's calibration criteria, read from the archived calibration runs (the protocol in docs/RESULTS.md).
 
-    python -m sr_imitation.experiments.calibration --archive=docs/results/metaworld_mt5_imitation_calibration \\
+    python -m experiments.calibration --archive=docs/results/metaworld_mt5_imitation_calibration \\
         --seeds=[100,101,102] --output=docs/results/metaworld_mt5_imitation_calibration/calibration
 
 Each criterion is read on the mean over the calibration seeds (each seed's value its mean over the evaluation units):
@@ -33,7 +33,7 @@ from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
 
 logger = logging.getLogger(__name__)
-PROG = "python -m sr_imitation.experiments.calibration"
+PROG = "python -m experiments.calibration"
 """The command as a user types it (usage errors and ``--help`` name it)."""
 
 

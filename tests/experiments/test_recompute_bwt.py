@@ -7,9 +7,9 @@ from pathlib import Path
 
 import pytest
 
-from sr_imitation.experiments.recompute_bwt import find_runs, main, recompute_run, summarize_runs
+from experiments.recompute_bwt import find_runs, main, recompute_run, summarize_runs
 
-RESULTS = Path(__file__).resolve().parents[1] / "docs" / "results"
+RESULTS = Path(__file__).resolve().parents[2] / "docs" / "results"
 
 
 def test_needle_compare_both_references_and_paired_difference(tmp_path, capsys):

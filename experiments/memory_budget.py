@@ -1,6 +1,6 @@
 """The memory-budget curve: final AFSR and BWT_wake against stored frames per skill.
 
-    python -m sr_imitation.experiments.memory_budget \\
+    python -m experiments.memory_budget \\
         --points=[8=docs/results/needle_cpu_m8_compare,16=docs/results/needle_cpu_m16_compare,...] \\
         --variants=[sr,wake_only,replay] --output=docs/results/memory_budget
 
@@ -26,7 +26,7 @@ from sr_imitation.io import atomic_write_bytes, write_checked_json
 from sr_imitation.reporting.summary import mean_sem_dict
 
 logger = logging.getLogger(__name__)
-PROG = "python -m sr_imitation.experiments.memory_budget"
+PROG = "python -m experiments.memory_budget"
 """The command as a user types it (usage errors and ``--help`` name it)."""
 
 PANELS = (("afsr", "final AFSR"), ("bwt_wake", "final BWT_wake"))
