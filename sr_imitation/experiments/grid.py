@@ -60,6 +60,8 @@ from sr_imitation.experiments.grid_runners import LOCAL_RAY_SYSTEM_CONFIG as LOC
 from sr_imitation.experiments.grid_runners import RUNNERS, RayOptions
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
+from sr_imitation.infra.config_file import read_config_file
+from sr_imitation.io import CorruptFileError
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.progress import format_duration
 from sr_imitation.reporting.results import final_headline
@@ -159,9 +161,9 @@ def substrate_of_preset(preset: Path) -> str:
     """``sac`` for a SAC config (its ``substrate`` key), ``act`` for an sr-main preset (``record`` and ``train``) or an
     ACT-SR sr-train config (:func:`is_train_config`); ``ValueError`` naming the file otherwise."""
     try:
-        data = json.loads(Path(preset).read_text())
-    except (OSError, json.JSONDecodeError) as exc:
-        raise ValueError(f"preset: cannot read {preset} ({exc})") from None
+        data = read_config_file(preset).settings
+    except (OSError, ValueError, CorruptFileError) as exc:
+        raise ValueError(f"preset: {exc}") from None
     if isinstance(data, dict) and data.get("substrate") == "sac":
         return "sac"
     if isinstance(data, dict) and isinstance(data.get("train"), dict) and "record" in data:

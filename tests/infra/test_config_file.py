@@ -71,6 +71,9 @@ def test_one_function_reads_config_files():
     for rel in cli_modules:
         text = (REPO / rel).read_text()
         assert "json.load" not in text and "read_text(" not in text, rel
+    grid = (REPO / "sr_imitation/experiments/grid.py").read_text()  # sr-grid's --preset: the same reader
+    preset_reader = grid.split("def substrate_of_preset", 1)[1].split("\ndef ", 1)[0]
+    assert "read_config_file(preset)" in preset_reader and "json.load" not in preset_reader
 
 
 def test_the_reader_names_the_file_in_one_line(tmp_path):
