@@ -117,7 +117,7 @@ def test_a_killed_worker_is_retried_and_the_run_resumes_to_the_same_results(pres
     local_ray()  # started first: the setting reaches the run's worker through the task's environment
     monkeypatch.setenv(KILL_HOOK_ENV, f"sr_seed0:1.wake:{marker}")  # the first attempt dies after stage 1's wake
     out = tmp_path / "ray"
-    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
+    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments"):
         run_grid(GridConfig(preset=preset, variants=["sr"], seeds=[0], output_root=out))
     assert marker.is_file()  # the worker did die
     finished = [r.message for r in caplog.records if r.message.startswith("finished sr seed 0")]
@@ -143,7 +143,7 @@ def test_runs_in_the_archive_are_not_submitted_and_a_grid_on_ray_gives_the_loops
     assert not (tmp_path / "other").exists()
     local_ray()
     out = tmp_path / "ray"
-    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments.grid"):
+    with caplog.at_level(logging.INFO, logger="sr_imitation.experiments"):
         summary = run_grid(GridConfig(preset=preset, variants=VARIANTS, seeds=[0], output_root=out, archive=archive))
     assert [r.message for r in caplog.records if r.message.startswith("submitted")] == [
         f"submitted wake_only seed 0 -> {out / 'wake_only_seed0'}"]
