@@ -1544,3 +1544,27 @@ def test_step_b_s_cpu_types_are_stated_where_its_numbers_are():
     means = {v: _mean_se([read_checked_json(step_b / f"{v}_seed{s}" / "results.json")["metrics"]["afsr"]["final"]
                           for s in (100, 101, 102)]) for v in ("sr_b1", "sr_c_b1")}
     _states("step-b-complete", means["sr_c_b1"], means["sr_b1"])
+
+
+def test_the_stream_orders_interim_entry_recomputes():
+    """The stream-order record's interim entry (needle reverse, seeds 0-2): every seed's final AFSR, the means +- SE,
+    the interaction against R1 and the last-sleep changes, from the archived runs and re-sleeps."""
+    from experiments.stream_orders import interaction
+    from sr_imitation.reporting.last_sleep import last_sleep_row, resleep_row
+
+    reverse, forward = DOCS / "results" / "order_needle_m16_reverse", DOCS / "results" / "lerobot06_needle_m16"
+    rev = {v: {s: x for s, x in archived_values(reverse, v, "afsr").items() if s <= 2}
+           for v in ("sr", "wake_only", "replay", "sr_no_anchor")}
+    fwd = {v: archived_values(forward, v, "afsr") for v in ("sr", "wake_only")}
+    numbers = [" / ".join(f"{rev[v][s]:.3f}" for s in sorted(rev[v])) for v in ("sr", "wake_only", "replay")]
+    numbers += [" / ".join(f"{rev['sr_no_anchor'][s]:.3f}" for s in (0, 1)), _mean_se(list(rev["wake_only"].values())),
+                _mean_se(list(rev["sr"].values())), f"{rev['wake_only'][2] - rev['sr'][2]:.3f}"]
+    inter = interaction(fwd, rev)
+    assert inter["seeds"] == [0, 1, 2]
+    numbers.append(f"{inter['mean']:.3f} +- {inter['sem']:.3f}")
+    for rows in ([last_sleep_row(reverse / f"sr_seed{s}") for s in range(3)],
+                 [resleep_row(reverse / f"sr_seed{s}_final_sleep_anchor_off") for s in range(3)],
+                 [last_sleep_row(forward / f"sr_seed{s}") for s in range(5)]):
+        assert all(r["newest_change"] == 0 and r["newest_after_sleep"] == 1.0 for r in rows[:3])
+        numbers.append(_signed([r["older_mean_change"] for r in rows]))
+    _states("orders-interim-1", *numbers)
