@@ -275,3 +275,48 @@ def test_protocol_w_s_pending_runs_name_the_cpu_types_their_pairs_were_made_on()
         assert line.split()[1] == "@94cdc5a", line.split()[0]  # W's pre-registered code
     assert not [ln for ln in (TOOLS / "queue_pending.txt").read_text().splitlines() if "sac_gate_plain_wake" in ln
                 and not ln.startswith("#")]
+
+
+def test_archiving_every_finished_run_commits_each_once_and_drops_its_pending_line(tmp_path):
+    """queue_archive_done.sh in a throwaway clone: of three taken lines, the one that ended rc=0 with its folder
+    archived is committed (its queue lines only) and leaves the pending file; a failed run and a finished run whose
+    folder is missing stay pending; a second call commits nothing."""
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
+
+    git("init", "-q")
+    git("config", "user.email", "t@t"), git("config", "user.name", "t")
+    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    for name in ("queue_archive.sh", "queue_archive_done.sh"):
+        (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
+    archive = tmp_path / "docs" / "arch"
+    for run in ("sr_seed1", "sr_seed2"):
+        (archive / run).mkdir(parents=True)
+        (archive / run / "results.json").write_text("{}")
+    (archive / "queue_log.txt").write_text("# header\n")
+    lines = {s: f"o_sr_{s} @abc1234 -m x --variants=[sr] --seeds=[{s}] --archive={archive}" for s in (1, 2, 3)}
+    lines[11] = f"o_sr_11 @abc1234 -m x --variants=[sr] --seeds=[11] --archive={archive}"
+    pending = tmp_path / "tools" / "experiments" / "queue_pending.txt"
+    pending.write_text("# header\n" + "\n".join(lines.values()) + "\n")
+    (tmp_path / "outputs").mkdir()
+    (tmp_path / "outputs" / "queue.txt.taken").write_text("\n".join(lines[s] for s in (1, 2, 3)) + "\n")
+    (tmp_path / "outputs" / "queue.txt.done").write_text(
+        "T0 start o_sr_1 on AMD EPYC, family 26 model 2, AVX-512, libraries capped at AVX2 (tools/x)\n"
+        "T0 start o_sr_2 on AMD EPYC\nT0 start o_sr_3 on AMD EPYC\nT0 start o_sr_11 on AMD EPYC\n"
+        "T1 o_sr_1 rc=0\nT1 o_sr_2 rc=1\nT2 o_sr_3 rc=0\nT3 o_sr_11 rc=0\n")
+    git("add", "tools", "outputs"), git("commit", "-q", "-m", "start")
+    script = tmp_path / "tools" / "experiments" / "queue_archive_done.sh"
+    first = subprocess.run(["bash", str(script)], capture_output=True, text=True, check=True)
+    assert "docs/arch/sr_seed3 has no results.json" in first.stderr  # o_sr_3 finished, its folder is missing
+    log = git("log", "--format=%s").splitlines()
+    assert log[:2] == ["queue: archived runs leave queue_pending (o_sr_1)",
+                       "archive: arch, sr seed 1 (abc1234; AMD EPYC, family 26 model 2, AVX-512, libraries capped at "
+                       "AVX2)"]
+    assert sorted(git("show", "--name-only", "--format=", "HEAD~1").split()) == [
+        "docs/arch/queue_log.txt", "docs/arch/sr_seed1/results.json"]
+    assert (archive / "queue_log.txt").read_text().splitlines() == [  # o_sr_11's lines are not o_sr_1's
+        "# header", "T0 start o_sr_1 on AMD EPYC, family 26 model 2, AVX-512, libraries capped at AVX2 (tools/x)",
+        "T1 o_sr_1 rc=0"]
+    assert [ln.split()[0] for ln in pending.read_text().splitlines()[1:]] == ["o_sr_2", "o_sr_3", "o_sr_11"]
+    again = subprocess.run(["bash", str(script)], capture_output=True, text=True, check=True)
+    assert git("log", "--format=%s").splitlines() == log and "sr_seed1" not in again.stdout
