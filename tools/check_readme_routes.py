@@ -13,7 +13,8 @@ What it does, in order (every step logged with its wall time; exit 0 only if eve
    (``$HF_LEROBOT_HOME/user/pick``, ``user/place_cup``, ``data/pick``, ``data/place_cup``), and a package ``my_pkg``
    on PYTHONPATH that registers ``Pick-v0`` / ``PlaceCup-v0`` (the needle's approach and place) as a user's would.
 4. The own-skills commands: the two ``sr-train`` lines of the block after "Your own skills.", then the
-   ``sr-grid`` / ``hypotheses`` block after "Does sleep help on your skills?" with ``my_skills.json`` = the gym run's ``train_config.json``
+   ``sr-grid`` / ``hypotheses`` block after "Does sleep help on your skills?" (docs/COMMANDS.md) with
+   ``my_skills.json`` = the gym run's ``train_config.json``
    (the README's own suggestion: "a finished run's train_config.json"). These are the README's commands with one
    change, said here and in the log: each ``sr-train`` line gets :data:`BUDGET` appended (the paper's wake budget,
    100 epochs of LeRobot's 40M-parameter ACT, is hours a skill on a CPU); the grid inherits it through the config.
@@ -160,7 +161,8 @@ def main() -> None:
     (work / "user_pkgs" / "my_pkg" / "__init__.py").write_text(MY_PKG)
 
     (own_train,) = bash_blocks_after(readme, "**Your own skills.**", 1)
-    (grid,) = bash_blocks_after(readme, "**Does sleep help on your skills?**", 1)
+    commands_page = (clone / "docs" / "COMMANDS.md").read_text()  # README links there for the grid and its test
+    (grid,) = bash_blocks_after(commands_page, "**Does sleep help on your skills?**", 1)
     for command in own_train:
         extra = BUDGET if "--eval.env=none" in command else f"{BUDGET} {EVAL_BUDGET}"
         run(f"{command} {extra}", "README's command + the CPU budget flags")
