@@ -15,7 +15,6 @@ Written: ``orders.json`` (checked), ``orders.md`` and ``orders.png`` in ``--outp
 
 from __future__ import annotations
 
-import io
 import logging
 import re
 from collections.abc import Mapping, Sequence
@@ -28,6 +27,7 @@ from sr_imitation.experiments.hypotheses import archived_values
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
+from sr_imitation.reporting.results import save_figure
 
 logger = logging.getLogger(__name__)
 PROG = "python -m experiments.stream_orders"
@@ -187,11 +187,7 @@ def plot(summary: Mapping[str, Mapping[str, Any]], path: Path) -> None:
         ax.set_ylabel("final AFSR")
         ax.set_title(stream)
         ax.legend(fontsize=8)
-    fig.tight_layout()
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    plt.close(fig)
-    atomic_write_bytes(path, buf.getvalue())
+    save_figure(fig, path)
 
 
 def run_orders(cfg: OrdersConfig) -> dict[str, Any]:

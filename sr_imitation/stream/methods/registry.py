@@ -11,7 +11,7 @@ import dataclasses
 import importlib
 import json
 import pkgutil
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from typing import Any, TypeVar
 
 from sr_imitation.infra.cli_parsing import take_flag
@@ -139,18 +139,14 @@ def replaced_setting_refusal(name: str, args: Sequence[str], prefix: str = "") -
     Returns:
         The refusal, or ``None``.
     """
-    cls = METHODS.get(name)
-    if cls is None:
+    found = _first_replaced(name, lambda setting: _flag_value(args, f"--{prefix}{setting}"))
+    if found is None:
         return None
-    for setting, option in cls.own_settings.items():
-        given = take_flag(list(args), f"--{prefix}{setting}")[1]
-        if given is not None:
-            return (f"--{prefix}{setting}: {name} sets it with its own option {option!r} (default "
-                    f"{getattr(cls.config, option)}); use --{prefix}method_options={{{option}: {given}}}")
-    for setting, value in cls.fixed_settings.items():
-        if take_flag(list(args), f"--{prefix}{setting}")[1] is not None:
-            return f"--{prefix}{setting}: {name} fixes it at {value!r} whatever the flag says; leave the flag out"
-    return None
+    cls, setting, option, value = found
+    if option is None:
+        return f"--{prefix}{setting}: {name} fixes it at {value!r} whatever the flag says; leave the flag out"
+    return (f"--{prefix}{setting}: {name} sets it with its own option {option!r} (default "
+            f"{getattr(cls.config, option)}); use --{prefix}method_options={{{option}: {value}}}")
 
 
 def replaced_key_refusal(name: str, settings: Mapping[str, Any], source: str, prefix: str = "") -> str | None:
@@ -169,22 +165,46 @@ def replaced_key_refusal(name: str, settings: Mapping[str, Any], source: str, pr
     Returns:
         The refusal, or ``None``.
     """
+    found = _first_replaced(name, lambda setting: _nested(settings, setting))
+    if found is None:
+        return None
+    cls, setting, option, value = found
+    if option is None:
+        return f"{source}: {prefix}{setting}: {name} fixes it at {value!r} whatever the file says; leave it out"
+    return (f"{source}: {prefix}{setting}: {name} sets it with its own option {option!r} (default "
+            f"{getattr(cls.config, option)}); set \"{prefix}method_options\": "
+            f"{{\"{option}\": {json.dumps(value)}}} instead")
+
+
+def _first_replaced(name: str, given: Callable[[str], Any]) -> tuple[type, str, str | None, Any] | None:
+    """The first shared setting method ``name`` replaces that ``given`` finds a value for (:data:`_ABSENT`: not
+    given).
+
+    Returns:
+        ``(the method's class, the setting, the method option that sets it or None where the method fixes it, the
+        value given, or for a fixed setting the value the method fixes)``; ``None`` when none is given or ``name`` is
+        not a registered method.
+    """
     cls = METHODS.get(name)
     if cls is None:
         return None
     for setting, option in cls.own_settings.items():
-        given = _nested(settings, setting)
-        if given is not _ABSENT:
-            return (f"{source}: {prefix}{setting}: {name} sets it with its own option {option!r} (default "
-                    f"{getattr(cls.config, option)}); set \"{prefix}method_options\": "
-                    f"{{\"{option}\": {json.dumps(given)}}} instead")
-    for setting, value in cls.fixed_settings.items():
-        if _nested(settings, setting) is not _ABSENT:
-            return f"{source}: {prefix}{setting}: {name} fixes it at {value!r} whatever the file says; leave it out"
+        value = given(setting)
+        if value is not _ABSENT:
+            return cls, setting, option, value
+    for setting, fixed in cls.fixed_settings.items():
+        if given(setting) is not _ABSENT:
+            return cls, setting, None, fixed
     return None
 
 
 _ABSENT = object()
+
+
+def _flag_value(args: Sequence[str], flag: str) -> Any:
+    """The value ``flag`` has on the command line ``args``, or :data:`_ABSENT`."""
+    value = take_flag(list(args), flag)[1]
+    return _ABSENT if value is None else value
 
 
 def _nested(settings: Mapping[str, Any], dotted: str) -> Any:
