@@ -1568,3 +1568,27 @@ def test_the_stream_orders_interim_entry_recomputes():
         assert all(r["newest_change"] == 0 and r["newest_after_sleep"] == 1.0 for r in rows[:3])
         numbers.append(_signed([r["older_mean_change"] for r in rows]))
     _states("orders-interim-1", *numbers)
+
+
+def test_the_stream_orders_o1_entry_recomputes():
+    """The stream-order record's O1 entry (needle reverse, seeds 0-4): every seed's final AFSR, both means, O1's
+    difference, t, p and sign-flip p, the interaction against R1, and the trigger's two readings."""
+    from experiments.stream_orders import interaction
+    from sr_imitation.experiments.hypotheses import format_p
+    from sr_imitation.reporting.last_sleep import last_sleep_row
+
+    reverse, forward = DOCS / "results" / "order_needle_m16_reverse", DOCS / "results" / "lerobot06_needle_m16"
+    (o1,) = run_tests(HypothesesConfig(archive=reverse, tests=["O1=sr>wake_only@0-4"]))
+    sr, wake = o1["a_values"], o1["b_values"]
+    fwd = {v: archived_values(forward, v, "afsr") for v in ("sr", "wake_only")}
+    inter = interaction(fwd, {"sr": dict(enumerate(sr)), "wake_only": dict(enumerate(wake))})
+    assert o1["seeds"] == [0, 1, 2, 3, 4] and inter["seeds"] == [0, 1, 2, 3, 4]
+    assert np.mean(sr) >= np.mean(wake)  # the trigger's first reading: SR's mean is not below wake-only's
+    rows = [last_sleep_row(reverse / f"sr_seed{s}") for s in range(5)]
+    assert all(r["newest_after_wake"] == r["newest_after_sleep"] == 1.0 for r in rows)
+    _states("orders-needle-o1", " / ".join(f"{v:.3f}" for v in sr), " / ".join(f"{v:.3f}" for v in wake),
+            _mean_se(sr), _mean_se(wake), f"{o1['mean']:+.3f} +- {o1['sem']:.3f}", f"t = {o1['t']:.2f}",
+            f"p = {format_p(o1['p'])}", f"p = {format_p(o1['sign_flip_p'])}",
+            f"{inter['mean']:+.3f} +- {inter['sem']:.3f}", f"{np.mean(wake):.3f}",
+            f"{np.mean(list(fwd['wake_only'].values())):.3f}", f"{np.mean(sr):.3f}",
+            f"{np.mean(list(fwd['sr'].values())):.3f}")
