@@ -1592,3 +1592,18 @@ def test_the_stream_orders_o1_entry_recomputes():
             f"{inter['mean']:+.3f} +- {inter['sem']:.3f}", f"{np.mean(wake):.3f}",
             f"{np.mean(list(fwd['wake_only'].values())):.3f}", f"{np.mean(sr):.3f}",
             f"{np.mean(list(fwd['sr'].values())):.3f}")
+
+
+def test_the_stream_orders_o2_entry_recomputes():
+    """The stream-order record's O2 entry (needle reverse, seeds 0-4): replay's final AFSR per seed and its mean, O2's
+    difference, t, p and sign-flip p."""
+    from sr_imitation.experiments.hypotheses import format_p
+
+    reverse = DOCS / "results" / "order_needle_m16_reverse"
+    (o2,) = run_tests(HypothesesConfig(archive=reverse, tests=["O2=sr!=replay@0-4"]))
+    replay = o2["b_values"]
+    assert o2["seeds"] == [0, 1, 2, 3, 4] and o2["alternative"] == "two-sided"
+    assert all(a > b for a, b in zip(o2["a_values"], replay, strict=True))  # "SR ahead on all five seeds"
+    _states("orders-needle-o2", " / ".join(f"{v:.3f}" for v in replay), _mean_se(replay),
+            f"{o2['mean']:+.3f} +- {o2['sem']:.3f}", f"t = {o2['t']:.2f}", f"p = {format_p(o2['p'])}",
+            f"p = {format_p(o2['sign_flip_p'])}")
