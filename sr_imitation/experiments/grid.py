@@ -161,14 +161,12 @@ def substrate_of_preset(preset: Path) -> str:
     """``sac`` for a SAC config (its ``substrate`` key), ``act`` for an sr-main preset (``record`` and ``train``) or an
     ACT-SR sr-train config (:func:`is_train_config`); ``ValueError`` naming the file otherwise."""
     try:
-        data = read_config_file(preset).settings
+        config = read_config_file(preset)  # a JSON object, or one line naming the file
     except (OSError, ValueError, CorruptFileError) as exc:
         raise ValueError(f"preset: {exc}") from None
-    if isinstance(data, dict) and data.get("substrate") == "sac":
+    if config.settings.get("substrate") == "sac":
         return "sac"
-    if isinstance(data, dict) and isinstance(data.get("train"), dict) and "record" in data:
-        return "act"
-    if is_train_config(data):
+    if (config.is_main_job_preset and isinstance(config.settings["train"], dict)) or is_train_config(config.settings):
         return "act"
     raise ValueError(f"preset: {preset} is neither an sr-main preset (record and train sections: the needle grid), "
                      "an ACT-SR sr-train config (policy and stream sections: your datasets) nor a SAC config "

@@ -30,6 +30,7 @@ from sr_imitation.io import (
 )
 from sr_imitation.lerobot_compat import is_torch_device_available
 from sr_imitation.stream.rundir import RUN_CONFIG_FILE, OverwriteRefusedError, check_run_config, few_names
+from sr_imitation.stream.substrate_base import load_weights
 from sr_imitation.substrates.act.evaluate import resolve_eval_env
 from sr_imitation.substrates.act.normalization import (
     Stats,
@@ -115,10 +116,7 @@ def load_policy(path: Path, device: str | None) -> LoadedPolicy:
         config.device = device
     state = _load_state(path)
     policy = ACTSRPolicy(config)
-    missing, unexpected = policy.load_state_dict(state, strict=False)
-    if missing or unexpected:
-        raise CorruptFileError(path / "model.safetensors", f"weights do not match its config.json (missing "
-                                                           f"{missing[:3]}, unexpected {unexpected[:3]})")
+    load_weights(policy, state, path / "model.safetensors")
     policy.to(config.device).eval()
     try:
         pre, post = make_pre_post_processors(config, pretrained_path=str(path),
