@@ -69,3 +69,20 @@ def test_an_anchor_off_re_sleep_beside_a_run_gets_its_own_row(tmp_path):
     assert rows[1]["older_mean_change"] == pytest.approx((0.1 - 0.1) / 4) and rows[1]["loss_before"] == 4e-3
     text = (tmp_path / "out" / "last_sleep.md").read_text()
     assert "Over 1 anchor-off re-sleeps: the newest skill changed -0.100" in text
+
+
+@pytest.mark.parametrize("archive", ["lerobot06_needle_m16", "order_needle_m16_reverse"])
+def test_an_archived_last_sleep_table_is_what_its_runs_say(archive):
+    """Every archived last-sleep table (issue 89 item 3) recomputes from the raw files beside it: the runs' results.json
+    and the anchor-off re-sleeps' sleep.json, row by row, with the markdown table that shows them."""
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, render_markdown, resleep_row
+
+    folder = ARCHIVE.parent / archive
+    stored = read_checked_json(folder / "last_sleep" / "last_sleep.json")["rows"]
+    rows = [resleep_row(folder / Path(r["run"]).name) if r["run"].endswith(ANCHOR_OFF)
+            else last_sleep_row(folder / Path(r["run"]).name) for r in stored]
+    names = [n for s in range(5) for n in (f"sr_seed{s}", f"sr_seed{s}{ANCHOR_OFF}")]
+    assert [Path(r["run"]).name for r in stored] == names
+    for row, old in zip(rows, stored, strict=True):
+        assert {k: v for k, v in row.items() if k != "run"} == {k: v for k, v in old.items() if k != "run"}
+    assert (folder / "last_sleep" / "last_sleep.md").read_text() == render_markdown(stored)
