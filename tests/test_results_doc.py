@@ -1607,3 +1607,55 @@ def test_the_stream_orders_o2_entry_recomputes():
     _states("orders-needle-o2", " / ".join(f"{v:.3f}" for v in replay), _mean_se(replay),
             f"{o2['mean']:+.3f} +- {o2['sem']:.3f}", f"t = {o2['t']:.2f}", f"p = {format_p(o2['p'])}",
             f"p = {format_p(o2['sign_flip_p'])}")
+
+
+def test_the_stream_orders_needle_complete_entry_recomputes():
+    """The stream-order record's needle entry (both orders, seeds 0-4): the forward sr_no_anchor runs, the anchor's
+    share per order, the last sleep with and without the anchor, and the archived order table it quotes."""
+    from experiments.stream_orders import paired
+    from sr_imitation.reporting.last_sleep import last_sleep_row, resleep_row
+
+    results = DOCS / "results"
+    fwd_runs, rev = results / "lerobot06_needle_m16", results / "order_needle_m16_reverse"
+    no_anchor = {"forward": archived_values(results / "order_needle_m16_forward", "sr_no_anchor", "afsr"),
+                 "reverse": archived_values(rev, "sr_no_anchor", "afsr")}
+    sr = {"forward": archived_values(fwd_runs, "sr", "afsr"), "reverse": archived_values(rev, "sr", "afsr")}
+    assert all(sorted(v) == [0, 1, 2, 3, 4] for v in (*no_anchor.values(), *sr.values()))
+    numbers = [" / ".join(f"{no_anchor['forward'][s]:.3f}" for s in range(5)),
+               _mean_se([*no_anchor["forward"].values()]), _mean_se([*no_anchor["reverse"].values()])]
+    for order in ("forward", "reverse"):
+        share = paired(sr[order], no_anchor[order])
+        numbers.append(f"{share['mean']:+.3f} +- {share['sem']:.3f}")
+    assert sum(sr["forward"][s] > no_anchor["forward"][s] for s in range(5)) == 4
+    on_off = []
+    for folder in (fwd_runs, rev):
+        on = [last_sleep_row(folder / f"sr_seed{s}") for s in range(5)]
+        off = [resleep_row(folder / f"sr_seed{s}_final_sleep_anchor_off") for s in range(5)]
+        assert all(r["newest_after_wake"] == r["newest_after_sleep"] == 1.0 for r in on + off)  # "all ten ... ten"
+        numbers += [_signed([r["older_mean_change"] for r in on]), _signed([r["older_mean_change"] for r in off])]
+        diff = [a["older_mean_change"] - b["older_mean_change"] for a, b in zip(on, off, strict=True)]
+        assert sum(d > 0 for d in diff) == 4
+        on_off.append(_signed(diff))
+    _states("orders-needle-complete", *numbers, *on_off)
+    table = (results / "stream_orders" / "orders.md").read_text()
+    assert "forward: ranking sr > sr_no_anchor > wake_only > replay" in table
+    assert "reverse: ranking sr > wake_only > sr_no_anchor > replay" in table
+
+
+def test_the_evidence_page_s_stream_order_paragraph_recomputes():
+    """EVIDENCE's reverse-order paragraph (and README's needle row, which quotes it): both means, O1's and O2's
+    differences and p-values, replay's mean, from the archived reverse-order runs."""
+    from sr_imitation.experiments.hypotheses import format_p
+
+    reverse = DOCS / "results" / "order_needle_m16_reverse"
+    o1, o2 = run_tests(HypothesesConfig(archive=reverse, tests=["O1=sr>wake_only@0-4", "O2=sr!=replay@0-4"]))
+    assert o1["seeds"] == o2["seeds"] == [0, 1, 2, 3, 4]
+    assert all(a > b for a, b in zip(o2["a_values"], o2["b_values"], strict=True))
+    _states("ev-stream-orders", _mean_se(o1["a_values"]), _mean_se(o1["b_values"]),
+            f"{o1['mean']:+.3f} +- {o1['sem']:.3f}", f"p = {o1['p']:.2f}", f"p = {o1['sign_flip_p']:.2f}",
+            f"by {o1['mean']:.3f}", _mean_se(o2["b_values"]), f"{o2['mean']:+.3f} +- {o2['sem']:.3f}",
+            f"p = {format_p(o2['p'])}")
+    readme = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1]
+    (row,) = [line for line in readme.splitlines() if line.startswith("| [needle, 16 stored frames]")]
+    assert f"SR {_mean_se(o1['a_values'])} and wake-only {_mean_se(o1['b_values'])}" in row
+    assert f"(p = {o1['p']:.2f})" in row
