@@ -86,3 +86,10 @@ def test_an_archived_last_sleep_table_is_what_its_runs_say(archive):
     for row, old in zip(rows, stored, strict=True):
         assert {k: v for k, v in row.items() if k != "run"} == {k: v for k, v in old.items() if k != "run"}
     assert (folder / "last_sleep" / "last_sleep.md").read_text() == render_markdown(stored)
+
+
+def test_one_run_s_summary_gives_no_standard_error(tmp_path):
+    """With one run the mean has no SE: the summary says so instead of printing nan."""
+    text = (write_report([ARCHIVE / "sr_seed0"], tmp_path), (tmp_path / "last_sleep.md").read_text())[1]
+    assert "nan" not in text and "Over 1 runs: the newest skill changed +0.000 across" in text
+    assert "(one run: no SE)" in text

@@ -104,11 +104,17 @@ def render_markdown(rows: Sequence[dict[str, Any]]) -> str:
     for what, group in (("runs", [r for r in rows if not r["run"].endswith(ANCHOR_OFF)]),
                         ("anchor-off re-sleeps", [r for r in rows if r["run"].endswith(ANCHOR_OFF)])):
         if group:
-            newest, n_sem = mean_sem([r["newest_change"] for r in group])
-            older, o_sem = mean_sem([r["older_mean_change"] for r in group])
-            lines += ["", f"Over {len(group)} {what}: the newest skill changed {newest:+.3f} +- {n_sem:.3f} across the "
-                          f"final sleep, the older skills {older:+.3f} +- {o_sem:.3f} on average (mean +- SE)."]
+            newest = _pm([r["newest_change"] for r in group])
+            older = _pm([r["older_mean_change"] for r in group])
+            lines += ["", f"Over {len(group)} {what}: the newest skill changed {newest} across the final sleep, the "
+                          f"older skills {older} on average ({'mean +- SE' if len(group) > 1 else 'one run: no SE'})."]
     return "\n".join(lines) + "\n"
+
+
+def _pm(values: Sequence[float]) -> str:
+    """``+0.092 +- 0.025``; a single value without its (undefined) SE."""
+    mean, sem = mean_sem(values)
+    return f"{mean:+.3f}" if len(values) < 2 else f"{mean:+.3f} +- {sem:.3f}"
 
 
 def write_figure(rows: Sequence[dict[str, Any]], path: Path) -> None:
