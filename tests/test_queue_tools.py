@@ -320,3 +320,55 @@ def test_archiving_every_finished_run_commits_each_once_and_drops_its_pending_li
     assert [ln.split()[0] for ln in pending.read_text().splitlines()[1:]] == ["o_sr_2", "o_sr_3", "o_sr_11"]
     again = subprocess.run(["bash", str(script)], capture_output=True, text=True, check=True)
     assert git("log", "--format=%s").splitlines() == log and "sr_seed1" not in again.stdout
+
+
+def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_skips_what_it_cannot(tmp_path):
+    """resleep_archived.sh in a throwaway clone (a stand-in for sr-sleep): of four archived SR runs, the committed one
+    whose outputs exist is re-slept from those outputs and its record committed without the checkpoint; an uncommitted
+    one, one whose outputs are gone and one whose re-sleep fails leave nothing; a second call commits nothing."""
+    def git(*args):
+        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
+
+    git("init", "-q")
+    git("config", "user.email", "t@t"), git("config", "user.name", "t")
+    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    script = tmp_path / "tools" / "experiments" / "resleep_archived.sh"
+    script.write_text((TOOLS / "resleep_archived.sh").read_text())
+    archive, other = tmp_path / "docs" / "arch", tmp_path / "docs" / "arch2"
+    for run in ("sr_seed1", "sr_seed2", "sr_seed3", "sr_seed4", "wake_only_seed1"):
+        (archive / run).mkdir(parents=True)
+        (archive / run / "results.json").write_text("{}")
+    lines = [f"o_sr_{s} @abc -m x --variants=[sr] --seeds=[{s}] --output_root={tmp_path}/outputs/o/sr_{s} "
+             f"--archive={archive}" for s in (1, 2, 4)]
+    lines.insert(0, f"p_sr_1 @abc -m x --variants=[sr] --seeds=[1] --output_root={tmp_path}/outputs/p/sr_1 "
+                    f"--archive={other}")  # another archive's seed 1: not this run's outputs
+    (tmp_path / "outputs").mkdir()
+    (tmp_path / "outputs" / "queue.txt.taken").write_text("\n".join(lines) + "\n")
+    for s in (1, 3, 4):
+        (tmp_path / "outputs" / "o" / f"sr_{s}" / f"sr_seed{s}" / "memories").mkdir(parents=True)
+    (tmp_path / "outputs" / "p" / "sr_1" / "sr_seed1" / "memories").mkdir(parents=True)
+    git("add", "tools", "docs/arch/sr_seed1", "docs/arch/sr_seed2", "docs/arch/sr_seed4")
+    git("commit", "-q", "-m", "start")
+    stand_in = tmp_path / "fake_sleep.sh"
+    stand_in.write_text('case "$1" in *seed4*) mkdir -p "$2"; echo half > "$2/sleep.md"; exit 1;; esac\n'
+                        'mkdir -p "$2/pretrained_model"; echo "$1" > "$2/sleep.json"; echo t > "$2/sleep.md"\n'
+                        'echo c > "$2/checksums.json"\n')
+    env = {**os.environ, "SR_RESLEEP": f"bash {stand_in}"}
+    first = subprocess.run(["bash", str(script), "docs/arch/"], capture_output=True, text=True, check=True, env=env,
+                           cwd=tmp_path)
+    kept = archive / "sr_seed1_final_sleep_anchor_off"
+    assert (kept / "sleep.json").read_text().strip() == f"{tmp_path}/outputs/o/sr_1/sr_seed1"
+    assert sorted(p.name for p in kept.iterdir()) == ["sleep.json", "sleep.md"]
+    assert git("log", "--format=%s").splitlines()[0] == (
+        "archive: arch, sr seed 1's final stage re-slept with the anchor off (sr-sleep --sleep.anchor_strength=0)")
+    assert sorted(git("show", "--name-only", "--format=", "HEAD").split()) == [
+        "docs/arch/sr_seed1_final_sleep_anchor_off/sleep.json", "docs/arch/sr_seed1_final_sleep_anchor_off/sleep.md"]
+    assert "docs/arch/sr_seed2: its outputs" in first.stderr and "are gone" in first.stderr
+    assert "docs/arch/sr_seed3: not committed yet" in first.stderr
+    assert "docs/arch/sr_seed4: the re-sleep failed" in first.stderr
+    assert not (archive / "sr_seed4_final_sleep_anchor_off").exists()
+    assert not (archive / "sr_seed2_final_sleep_anchor_off").exists()
+    log = git("log", "--format=%s")
+    subprocess.run(["bash", str(script), "docs/arch"], capture_output=True, text=True, check=True, env=env,
+                   cwd=tmp_path)
+    assert git("log", "--format=%s") == log

@@ -6,7 +6,7 @@
 # its start line; then every archived line leaves tools/experiments/queue_pending.txt (one commit). A run whose
 # archived folder is missing, or whose line names no archive, is named and left alone. Never during a full test run
 # (tests/infra/test_provenance.py fails when HEAD moves under it). SR runs of a protocol that re-sleeps them still need
-# tools/experiments/resleep_anchor_off.sh while their outputs exist (the pending file's header says which).
+# tools/experiments/resleep_archived.sh while their outputs exist (the pending file's header says which).
 #
 #   bash tools/experiments/queue_archive_done.sh
 set -euo pipefail
