@@ -8,8 +8,8 @@ before and after it, the anchor's weight and where the sleep stopped. Success va
 (the run's ``success_matrix`` and ``extra.success_matrix_after_wake``). Where the run's final stage was re-slept with
 the anchor off (``sr-sleep`` output beside the run as ``<run>_final_sleep_anchor_off/``,
 ``tools/experiments/resleep_anchor_off.sh``), a second row reports that sleep the same way. Written as
-``last_sleep.json`` (sealed), ``last_sleep.md`` and ``last_sleep.png`` (per row: the newest skill's change against the
-older skills' mean change).
+``last_sleep.json`` (sealed), ``last_sleep.md`` and ``last_sleep.png`` (the older skills' and the newest skill's change,
+with the anchor and without it, paired by run).
 """
 
 from __future__ import annotations
@@ -118,21 +118,37 @@ def _pm(values: Sequence[float]) -> str:
 
 
 def write_figure(rows: Sequence[dict[str, Any]], path: Path) -> None:
-    """Per run, the newest skill's change against the older skills' mean change across the final sleep."""
+    """Two panels, the older skills' mean change and the newest skill's change across the final sleep: per run a point
+    with the anchor (the run's own sleep) and, where it was re-slept, one without it, joined by a line; a bar at each
+    group's mean."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(5, 4))
-    ax.axhline(0, color="grey", lw=0.8)
-    ax.axvline(0, color="grey", lw=0.8)
-    for r in rows:
-        ax.scatter(r["older_mean_change"], r["newest_change"], color="tab:blue")
-        ax.annotate(Path(r["run"]).name, (r["older_mean_change"], r["newest_change"]), fontsize=7)
-    ax.set_xlabel("older skills' mean change across the final sleep")
-    ax.set_ylabel("newest skill's change across the final sleep")
-    ax.set_title("What the last sleep did")
+    runs = [r for r in rows if not r["run"].endswith(ANCHOR_OFF)]
+    off = {r["run"][: -len(ANCHOR_OFF)]: r for r in rows if r["run"].endswith(ANCHOR_OFF)}
+    fig, axes = plt.subplots(1, 2, figsize=(8, 3.6), sharey=True)
+    for ax, key, title in zip(axes, ("older_mean_change", "newest_change"),
+                              ("older skills' mean change", "newest skill's change"), strict=True):
+        ax.axhline(0, color="grey", lw=0.8)
+        groups = {"with the anchor": [r[key] for r in runs],
+                  "anchor off": [off[r["run"]][key] for r in runs if r["run"] in off]}
+        for x, values in enumerate(groups.values()):
+            if values:
+                ax.bar(x, sum(values) / len(values), width=0.6, alpha=0.35, color=("tab:blue", "tab:orange")[x])
+        for r in runs:
+            if r["run"] in off:
+                ax.plot([0, 1], [r[key], off[r["run"]][key]], color="grey", lw=0.8, marker="o", ms=4)
+            else:
+                ax.plot([0], [r[key]], color="grey", marker="o", ms=4)
+        ax.set_xticks([0, 1], list(groups))
+        ax.set_title(title, fontsize=10)
+    values = [r[k] for r in rows for k in ("older_mean_change", "newest_change")] + [0.0]
+    pad = 0.1 * (max(values) - min(values)) or 0.05
+    axes[0].set_ylim(min(values) - pad, max(values) + pad)  # a change of 0 stays inside the frame
+    axes[0].set_ylabel("success change across the final sleep")
+    fig.suptitle(f"What the last sleep did ({len(runs)} runs; a line joins a run and its re-sleep)", fontsize=10)
     buf = io.BytesIO()
     fig.tight_layout()
     fig.savefig(buf, format="png", dpi=120)
