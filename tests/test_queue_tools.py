@@ -28,15 +28,22 @@ def test_the_snapshot_keeps_unfinished_taken_lines_first_then_the_queue(tmp_path
     assert queue.read_text().startswith("c -m x")  # the queue itself is left as it was
 
 
-def test_archiving_a_run_commits_it_with_the_queue_s_record_of_it(tmp_path):
-    """queue_archive.sh in a throwaway clone: the run folder and queue_log.txt (header kept, the .done file's lines
-    of the prefix merged, sorted, unique) in one commit of exactly those paths; a run not archived is one line."""
+def _throwaway_repo(root):
+    """A git repository at ``root`` with an empty tools/experiments/ (the scripts under test are copied in); returns
+    ``git(*args)`` -> its stdout."""
     def git(*args):
-        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
+        return subprocess.run(["git", "-C", str(root), *args], capture_output=True, text=True, check=True).stdout
 
     git("init", "-q")
     git("config", "user.email", "t@t"), git("config", "user.name", "t")
-    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    (root / "tools" / "experiments").mkdir(parents=True)
+    return git
+
+
+def test_archiving_a_run_commits_it_with_the_queue_s_record_of_it(tmp_path):
+    """queue_archive.sh in a throwaway clone: the run folder and queue_log.txt (header kept, the .done file's lines
+    of the prefix merged, sorted, unique) in one commit of exactly those paths; a run not archived is one line."""
+    git = _throwaway_repo(tmp_path)
     script = tmp_path / "tools" / "experiments" / "queue_archive.sh"
     script.write_text((TOOLS / "queue_archive.sh").read_text())
     archive = tmp_path / "docs" / "arch"
@@ -281,12 +288,7 @@ def test_archiving_every_finished_run_commits_each_once_and_drops_its_pending_li
     """queue_archive_done.sh in a throwaway clone: of three taken lines, the one that ended rc=0 with its folder
     archived is committed (its queue lines only) and leaves the pending file; a failed run and a finished run whose
     folder is missing stay pending; a second call commits nothing."""
-    def git(*args):
-        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
-
-    git("init", "-q")
-    git("config", "user.email", "t@t"), git("config", "user.name", "t")
-    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    git = _throwaway_repo(tmp_path)
     for name in ("queue_archive.sh", "queue_archive_done.sh"):
         (tmp_path / "tools" / "experiments" / name).write_text((TOOLS / name).read_text())
     archive = tmp_path / "docs" / "arch"
@@ -326,12 +328,7 @@ def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_ski
     """resleep_archived.sh in a throwaway clone (a stand-in for sr-sleep): of four archived SR runs, the committed one
     whose outputs exist is re-slept from those outputs and its record committed without the checkpoint; an uncommitted
     one, one whose outputs are gone and one whose re-sleep fails leave nothing; a second call commits nothing."""
-    def git(*args):
-        return subprocess.run(["git", "-C", str(tmp_path), *args], capture_output=True, text=True, check=True).stdout
-
-    git("init", "-q")
-    git("config", "user.email", "t@t"), git("config", "user.name", "t")
-    (tmp_path / "tools" / "experiments").mkdir(parents=True)
+    git = _throwaway_repo(tmp_path)
     script = tmp_path / "tools" / "experiments" / "resleep_archived.sh"
     script.write_text((TOOLS / "resleep_archived.sh").read_text())
     archive, other = tmp_path / "docs" / "arch", tmp_path / "docs" / "arch2"
