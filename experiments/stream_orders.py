@@ -8,8 +8,10 @@ Each ``<stream>/<order>=<archive>[+<archive>...]`` names the archives whose fini
 read and checked by :func:`sr_imitation.reporting.results.load_results`) make that stream in that order. Per stream:
 every method's final AFSR (mean +- SE over its seeds) in each order and its rank there; whether the ranking held (the
 methods present in both orders sorted alike by mean); the interaction (SR - wake-only in one order) - (SR - wake-only
-in the first order named), paired by training seed; and SR - sr_no_anchor per order, paired by seed (the anchor's
-share). Descriptive only: the protocol's tests (O1-O3) are :mod:`sr_imitation.experiments.hypotheses`'.
+in the first order named), paired by training seed; SR - sr_no_anchor per order, paired by seed (the anchor's
+share); and per order what the SR runs' final sleep did (:mod:`sr_imitation.reporting.last_sleep`): the newest skill's
+change, the older skills' mean change with the anchor and, where re-slept, without it. Descriptive only: the
+protocol's tests (O1-O3) are :mod:`sr_imitation.experiments.hypotheses`'.
 Written: ``orders.json`` (checked), ``orders.md`` and ``orders.png`` in ``--output``.
 """
 
@@ -27,6 +29,7 @@ from sr_imitation.experiments.hypotheses import archived_values
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
+from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
 from sr_imitation.reporting.results import save_figure
 
 logger = logging.getLogger(__name__)
@@ -101,15 +104,38 @@ def interaction(ref: Mapping[str, Mapping[int, float]], new: Mapping[str, Mappin
     return {"seeds": seeds, "diffs": diffs, "mean": mean, "sem": sem}
 
 
+def last_sleep(archives: Sequence[Path]) -> dict[str, Any] | None:
+    """What the final sleep of every archived SR run did (``None`` when the order has no SR run): per seed the newest
+    skill's and the older skills' mean change across it, and the same for the anchor-off re-sleeps beside the runs."""
+    runs = {seed: Path(archive) / f"sr_seed{seed}" for archive in archives
+            for seed in archived_values(archive, "sr", "afsr")}
+    if not runs:
+        return None
+    rows = {seed: last_sleep_row(run) for seed, run in sorted(runs.items())}
+    off = {seed: resleep_row(run.with_name(run.name + ANCHOR_OFF)) for seed, run in sorted(runs.items())
+           if (run.with_name(run.name + ANCHOR_OFF) / "sleep.json").is_file()}
+
+    def stat(table: Mapping[int, Mapping[str, Any]], key: str) -> dict[str, Any] | None:
+        return paired({s: r[key] for s, r in table.items()}, dict.fromkeys(table, 0.0))
+
+    return {"newest": rows[min(rows)]["newest"], "newest_change": stat(rows, "newest_change"),
+            "older_change": stat(rows, "older_mean_change"), "newest_change_anchor_off": stat(off, "newest_change"),
+            "older_change_anchor_off": stat(off, "older_mean_change"),
+            "older_with_minus_without": paired({s: rows[s]["older_mean_change"] for s in off},
+                                               {s: r["older_mean_change"] for s, r in off.items()})}
+
+
 def ranking(values: Mapping[str, Mapping[int, float]]) -> list[str]:
     """Methods by mean final AFSR, best first (ties kept in :data:`METHODS` order)."""
     means = {m: sum(v.values()) / len(v) for m, v in values.items()}
     return sorted(means, key=lambda m: (-means[m], METHODS.index(m)))
 
 
-def summarize_stream(orders: Mapping[str, Mapping[str, Mapping[int, float]]]) -> dict[str, Any]:
+def summarize_stream(orders: Mapping[str, Mapping[str, Mapping[int, float]]],
+                     sleeps: Mapping[str, dict[str, Any] | None] | None = None) -> dict[str, Any]:
     """One stream's table: per order every method's mean +- SE and rank, whether the ranking held against the first
-    order, the interaction against the first order, and SR - sr_no_anchor per order."""
+    order, the interaction against the first order, SR - sr_no_anchor per order and (``sleeps``, by order) what the
+    last sleep did."""
     names = list(orders)
     ref = orders[names[0]]
     out: dict[str, Any] = {"reference": names[0], "orders": {}}
@@ -123,7 +149,8 @@ def summarize_stream(orders: Mapping[str, Mapping[str, Mapping[int, float]]]) ->
                           "sem": sem, "rank": order_rank.index(m) + 1}
         common = [m for m in ranking(ref) if m in vals]
         entry = {"methods": methods, "ranking": order_rank,
-                 "anchor": paired(vals.get("sr", {}), vals.get("sr_no_anchor", {}))}
+                 "anchor": paired(vals.get("sr", {}), vals.get("sr_no_anchor", {})),
+                 "last_sleep": (sleeps or {}).get(name)}
         if name != names[0]:
             entry["ranking_held"] = [m for m in order_rank if m in common] == common
             entry["ranking_compared"] = common
@@ -154,6 +181,13 @@ def render(summary: Mapping[str, Mapping[str, Any]]) -> str:
         for o in orders:
             e = s["orders"][o]
             lines.append(f"- {o}: ranking {' > '.join(e['ranking'])}; SR - sr_no_anchor {_pm(e['anchor'])}")
+            if e.get("last_sleep"):
+                ls = e["last_sleep"]
+                lines.append(f"  - the last sleep of its SR runs: the newest skill ({ls['newest']}) "
+                             f"{_pm(ls['newest_change'])}, the older skills {_pm(ls['older_change'])}; re-slept with "
+                             f"the anchor off: newest {_pm(ls['newest_change_anchor_off'])}, older "
+                             f"{_pm(ls['older_change_anchor_off'])}; older with - without the anchor "
+                             f"{_pm(ls['older_with_minus_without'])}")
             if o != s["reference"]:
                 held = "held" if e["ranking_held"] else "changed"
                 lines.append(f"  - against {s['reference']}: the ranking of {', '.join(e['ranking_compared'])} "
@@ -192,7 +226,8 @@ def plot(summary: Mapping[str, Mapping[str, Any]], path: Path) -> None:
 
 def run_orders(cfg: OrdersConfig) -> dict[str, Any]:
     streams = parse_orders(cfg.orders)
-    return {stream: summarize_stream({o: order_values(a) for o, a in orders.items()})
+    return {stream: summarize_stream({o: order_values(a) for o, a in orders.items()},
+                                     {o: last_sleep(a) for o, a in orders.items()})
             for stream, orders in streams.items()}
 
 

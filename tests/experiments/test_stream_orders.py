@@ -12,6 +12,7 @@ from experiments.stream_orders import OrdersConfig, interaction, main, paired, r
 from sr_imitation.experiments.hypotheses import archived_values
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.io import read_checked_json
+from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
 
 ROOT = Path(__file__).resolve().parents[2]
 R1 = ROOT / "docs/results/lerobot06_needle_m16"
@@ -61,6 +62,22 @@ def test_the_archived_needle_runs_as_both_orders(tmp_path):
     assert rev["interaction_sr_wake_only"]["diffs"] == [0.0] * 5
     assert "sr > wake_only > replay" in (tmp_path / "orders.md").read_text()
     assert (tmp_path / "orders.png").read_bytes()[:4] == b"\x89PNG"
+    sleep = fwd["last_sleep"]  # the last sleep per order, from the runs and their anchor-off re-sleeps
+    on = [last_sleep_row(R1 / f"sr_seed{s}")["older_mean_change"] for s in range(5)]
+    off = [resleep_row(R1 / f"sr_seed{s}{ANCHOR_OFF}")["older_mean_change"] for s in range(5)]
+    assert sleep["newest"] == "pullout" and sleep["newest_change"]["diffs"] == [0.0] * 5
+    assert sleep["older_change"]["diffs"] == pytest.approx(on) and sleep["older_change_anchor_off"]["diffs"] == off
+    assert sleep["older_with_minus_without"]["diffs"] == pytest.approx([a - b for a, b in zip(on, off, strict=True)])
+    assert rev["last_sleep"] == sleep and "the last sleep of its SR runs: the newest skill (pullout)" in (
+        tmp_path / "orders.md").read_text()
+
+
+def test_an_order_without_sr_runs_has_no_last_sleep(tmp_path):
+    """An archive with no SR run (the forward sr_no_anchor runs alone) gives no last-sleep entry, not an error."""
+    forward = ROOT / "docs/results/order_needle_m16_forward"
+    out = run_orders(OrdersConfig(orders=[f"needle/forward={forward}"]))
+    assert out["needle"]["orders"]["forward"]["last_sleep"] is None
+    assert sorted(out["needle"]["orders"]["forward"]["methods"]) == ["sr_no_anchor"]
 
 
 def test_a_seed_archived_twice_and_a_bad_entry_are_refused(tmp_path, capsys):
