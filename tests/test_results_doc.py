@@ -1659,3 +1659,25 @@ def test_the_evidence_page_s_stream_order_paragraph_recomputes():
     (row,) = [line for line in readme.splitlines() if line.startswith("| [needle, 16 stored frames]")]
     assert f"SR {_mean_se(o1['a_values'])} and wake-only {_mean_se(o1['b_values'])}" in row
     assert f"(p = {o1['p']:.2f})" in row
+
+
+def test_the_stream_orders_mt5_seed0_entry_recomputes():
+    """The stream-order record's first MT5 entry (seed 0, both orders): the four final AFSRs, and the last sleep with
+    the anchor and re-slept without it in each order, from the archived runs and re-sleeps."""
+    from sr_imitation.reporting.last_sleep import last_sleep_row, resleep_row
+
+    numbers = []
+    for name in ("lerobot06_mt5_imitation", "order_mt5_imitation_reverse"):
+        archive = DOCS / "results" / name
+        numbers += [f"{archived_values(archive, v, 'afsr')[0]:.3f}" for v in ("sr", "wake_only")]
+    reverse, forward = (DOCS / "results" / n for n in ("order_mt5_imitation_reverse", "lerobot06_mt5_imitation"))
+    on, off = last_sleep_row(reverse / "sr_seed0"), resleep_row(reverse / "sr_seed0_final_sleep_anchor_off")
+    assert on["newest"] == off["newest"] == "reach-v3" and on["newest_after_wake"] == off["newest_after_wake"]
+    numbers += [f"{on['newest_after_wake']:.3f}", f"{on['newest_after_sleep']:.3f}", f"{on['newest_change']:+.3f}",
+                f"{on['older_mean_change']:+.3f}", f"{off['newest_after_sleep']:.3f}", f"{off['newest_change']:+.3f}",
+                f"{off['older_mean_change']:+.3f}"]
+    on, off = last_sleep_row(forward / "sr_seed0"), resleep_row(forward / "sr_seed0_final_sleep_anchor_off")
+    assert on["newest"] == "button-press-topdown-v3"
+    assert on["newest_after_wake"] == on["newest_after_sleep"] == off["newest_after_sleep"] == 1.0
+    numbers += [f"{on['older_mean_change']:+.3f}", f"{off['older_mean_change']:+.3f}"]
+    _states("orders-mt5-seed0", *numbers)
