@@ -1,14 +1,18 @@
 """The run queue's shell tools (tools/experiments): what a session leaves for the next one."""
 
+import json
 import os
 import subprocess
 import sys
 from datetime import UTC, datetime
 from pathlib import Path
 
+import pytest
+
 from tests.tool_loader import load_tool
 
-TOOLS = Path(__file__).resolve().parents[1] / "tools" / "experiments"
+ROOT = Path(__file__).resolve().parents[1]
+TOOLS = ROOT / "tools" / "experiments"
 
 
 def test_the_snapshot_keeps_unfinished_taken_lines_first_then_the_queue(tmp_path):
@@ -369,3 +373,25 @@ def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_ski
     subprocess.run(["bash", str(script), "docs/arch"], capture_output=True, text=True, check=True, env=env,
                    cwd=tmp_path)
     assert git("log", "--format=%s") == log
+
+
+@pytest.mark.parametrize("seed", [0, 3])
+def test_the_anchor_off_re_sleep_differs_from_the_run_s_final_sleep_only_in_the_anchor(seed, tmp_path):
+    """resleep_anchor_off.sh hands sr-sleep (a stand-in that prints its arguments) the run's newest wake, its five
+    memories in skill order, its sleep settings with the anchor off and the final sleep's own seed (seed x 1000 + 53,
+    the stream's phase seed), and the run's evaluation."""
+    run = ROOT / "docs" / "results" / "lerobot06_needle_m16" / f"sr_seed{seed}"
+    cfg = json.loads((run / "train_config.json").read_text())
+    stand_in = tmp_path / "sr-sleep"
+    stand_in.write_text('#!/usr/bin/env bash\nprintf "%s\\n" "$@"\n')
+    stand_in.chmod(0o755)
+    out = subprocess.run(["bash", str(TOOLS / "resleep_anchor_off.sh"), str(run), str(tmp_path / "o")],
+                         capture_output=True, text=True, check=True, env={**os.environ, "SR_SLEEP_BIN": str(stand_in)})
+    args = out.stdout.splitlines()
+    skills = cfg["stream"]["skills"]
+    assert args[0] == f"--policy.path={run}/skill_5_{skills[-1]}/wake/pretrained_model"
+    assert args[1] == "--memories=[" + ",".join(f"{run}/memories/skill_{i + 1}_{s}.safetensors"
+                                                 for i, s in enumerate(skills)) + "]"
+    assert f"--sleep.seed={seed * 1000 + 53}" in args and "--sleep.anchor_strength=0" in args
+    assert f"--sleep.lr={cfg['sleep']['lr']}" in args and f"--eval.episodes={cfg['eval']['episodes']}" in args
+    assert f"--eval.skills=[{','.join(skills)}]" in args and f"--output_dir={tmp_path / 'o'}" in args
