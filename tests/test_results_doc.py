@@ -1546,6 +1546,11 @@ def test_step_b_s_cpu_types_are_stated_where_its_numbers_are():
     _states("step-b-complete", means["sr_c_b1"], means["sr_b1"])
 
 
+
+SAMPLER0 = "_final_sleep_anchor_off_sampler0"
+"""The anchor-off re-sleeps made before 2026-12-07 16:00 UTC with sleep seed 0 instead of the run's final sleep's own
+(the entries written from them recompute from them; the stream-order record's 16:00 entry says why they were redone)."""
+
 def test_the_stream_orders_interim_entry_recomputes():
     """The stream-order record's interim entry (needle reverse, seeds 0-2): every seed's final AFSR, the means +- SE,
     the interaction against R1 and the last-sleep changes, from the archived runs and re-sleeps."""
@@ -1563,7 +1568,7 @@ def test_the_stream_orders_interim_entry_recomputes():
     assert inter["seeds"] == [0, 1, 2]
     numbers.append(f"{inter['mean']:.3f} +- {inter['sem']:.3f}")
     for rows in ([last_sleep_row(reverse / f"sr_seed{s}") for s in range(3)],
-                 [resleep_row(reverse / f"sr_seed{s}_final_sleep_anchor_off") for s in range(3)],
+                 [resleep_row(reverse / f"sr_seed{s}{SAMPLER0}") for s in range(3)],
                  [last_sleep_row(forward / f"sr_seed{s}") for s in range(5)]):
         assert all(r["newest_change"] == 0 and r["newest_after_sleep"] == 1.0 for r in rows[:3])
         numbers.append(_signed([r["older_mean_change"] for r in rows]))
@@ -1630,7 +1635,7 @@ def test_the_stream_orders_needle_complete_entry_recomputes():
     on_off = []
     for folder in (fwd_runs, rev):
         on = [last_sleep_row(folder / f"sr_seed{s}") for s in range(5)]
-        off = [resleep_row(folder / f"sr_seed{s}_final_sleep_anchor_off") for s in range(5)]
+        off = [resleep_row(folder / f"sr_seed{s}{SAMPLER0}") for s in range(5)]
         assert all(r["newest_after_wake"] == r["newest_after_sleep"] == 1.0 for r in on + off)  # "all ten ... ten"
         numbers += [_signed([r["older_mean_change"] for r in on]), _signed([r["older_mean_change"] for r in off])]
         diff = [a["older_mean_change"] - b["older_mean_change"] for a, b in zip(on, off, strict=True)]
@@ -1671,13 +1676,43 @@ def test_the_stream_orders_mt5_seed0_entry_recomputes():
         archive = DOCS / "results" / name
         numbers += [f"{archived_values(archive, v, 'afsr')[0]:.3f}" for v in ("sr", "wake_only")]
     reverse, forward = (DOCS / "results" / n for n in ("order_mt5_imitation_reverse", "lerobot06_mt5_imitation"))
-    on, off = last_sleep_row(reverse / "sr_seed0"), resleep_row(reverse / "sr_seed0_final_sleep_anchor_off")
+    on, off = last_sleep_row(reverse / "sr_seed0"), resleep_row(reverse / f"sr_seed0{SAMPLER0}")
     assert on["newest"] == off["newest"] == "reach-v3" and on["newest_after_wake"] == off["newest_after_wake"]
     numbers += [f"{on['newest_after_wake']:.3f}", f"{on['newest_after_sleep']:.3f}", f"{on['newest_change']:+.3f}",
                 f"{on['older_mean_change']:+.3f}", f"{off['newest_after_sleep']:.3f}", f"{off['newest_change']:+.3f}",
                 f"{off['older_mean_change']:+.3f}"]
-    on, off = last_sleep_row(forward / "sr_seed0"), resleep_row(forward / "sr_seed0_final_sleep_anchor_off")
+    on, off = last_sleep_row(forward / "sr_seed0"), resleep_row(forward / f"sr_seed0{SAMPLER0}")
     assert on["newest"] == "button-press-topdown-v3"
     assert on["newest_after_wake"] == on["newest_after_sleep"] == off["newest_after_sleep"] == 1.0
     numbers += [f"{on['older_mean_change']:+.3f}", f"{off['older_mean_change']:+.3f}"]
     _states("orders-mt5-seed0", *numbers)
+
+
+def test_the_stream_orders_re_sleep_seed_correction_recomputes():
+    """The correction entry: each new re-sleep starts from its run's own first batch (memory losses before the sleep
+    equal the run's; the earlier ones did not), how far the batch order moved the older skills' change, and the
+    corrected readings with and without the anchor, from both sets of re-sleeps."""
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+
+    numbers, moved = [], []
+    for name in ("lerobot06_needle_m16", "order_needle_m16_reverse"):
+        folder = DOCS / "results" / name
+        on = [last_sleep_row(folder / f"sr_seed{s}") for s in range(5)]
+        off = [resleep_row(folder / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+        old = [resleep_row(folder / f"sr_seed{s}{SAMPLER0}") for s in range(5)]
+        assert [r["loss_before"] for r in off] == [r["loss_before"] for r in on]  # the run's own first batch
+        assert all(a["loss_before"] != b["loss_before"] for a, b in zip(on, old, strict=True))
+        assert [r["newest_change"] for r in off] == [r["newest_change"] for r in old] == [0.0] * 5
+        moved.append([a["older_mean_change"] - b["older_mean_change"] for a, b in zip(off, old, strict=True)])
+        diff = [a["older_mean_change"] - b["older_mean_change"] for a, b in zip(on, off, strict=True)]
+        numbers += [_signed([r["older_mean_change"] for r in off]), _signed(diff)]
+        numbers.append(f"{_signed([r['older_mean_change'] for r in old]).split(' ')[0]}")
+    assert max(abs(x) for m in moved for x in m) == pytest.approx(0.025, abs=1e-3)
+    for name in ("lerobot06_mt5_imitation", "order_mt5_imitation_reverse"):
+        folder = DOCS / "results" / name
+        new, old = (read_checked_json(folder / f"sr_seed0{suffix}" / "sleep.json")["success"]
+                    for suffix in (ANCHOR_OFF, SAMPLER0))
+        assert new == old  # "every success value identical"
+    fwd, rev = numbers[:3], numbers[3:]
+    _states("orders-resleep-seed", _signed(moved[0]), _signed(moved[1]), fwd[0], fwd[2], rev[0], rev[2], fwd[1],
+            rev[1])
