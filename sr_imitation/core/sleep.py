@@ -82,6 +82,11 @@ class SleepConfig:
     """tau of the anchor gate (Eq. 2; MT5 150); null - always on (SurgicAI)."""
     anchor_after_final: bool = False
     """Apply the anchor in the sleep after the final skill (MT5 no, SurgicAI yes)."""
+    newest_guard: bool = False
+    """Stop the sleep at the end of the first early-stop window whose mean loss of the newest memory (the last one)
+    is at or above the mean, over the older memories, of their own window-mean losses, keeping the parameters at that
+    point: a sleep that stops before it spends the newest skill on the older ones (our choice, candidate C3 of the
+    final-sleep screening protocol in docs/RESULTS.md; off - the paper's sleep)."""
     max_nonfinite_steps: int = 10
     """Consecutive skipped (non-finite) steps before the sleep raises."""
     seed: int = 0
@@ -349,6 +354,16 @@ def _plateaued(history: Sequence[float], config: SleepConfig, scale: float | Non
     return change < config.early_stop_tol
 
 
+def _newest_guard_stops(losses: Sequence[Sequence[float]], config: SleepConfig) -> bool:
+    """The newest-skill guard (:attr:`SleepConfig.newest_guard`): at the end of each early-stop window, whether the
+    newest memory's window-mean loss has reached the mean of the older memories' window-mean losses."""
+    window = config.early_stop_window
+    if not config.newest_guard or len(losses) % window or len(losses[0]) < 2:
+        return False
+    means = np.mean(np.asarray(losses[-window:], dtype=np.float64), axis=0)
+    return bool(means[-1] >= means[:-1].mean())
+
+
 def memory_scale(memories: Sequence[Memory], policy: Any, seed: int) -> float:
     """The mean of the memories' own scales (:meth:`Memory.scale`) for ``policy`` now, drawn from ``seed``: what
     ``early_stop_scale=memory_scale`` measures the plateau rule against."""
@@ -377,7 +392,8 @@ def sleep_consolidate(
     (:func:`_memory_gradients`); (2) the Gram matrix and losses to the host (:func:`_to_host`); (3) a step with a
     non-finite loss or gradient is skipped (:func:`_nonfinite_memories`); (4) the bargaining weights from the Gram
     matrix (the aggregator, Eq. 1); (5) the update direction with the anchor (:func:`_update_direction`, Eq. 2);
-    (6) the Adam step, then the record; (7) the plateau check (:func:`_plateaued`).
+    (6) the Adam step, then the record; (7) the plateau check (:func:`_plateaued`); (8) with ``newest_guard``, the
+    newest-skill guard (:func:`_newest_guard_stops`).
 
     Args:
         params: the shared policy's trainable parameters theta (updated in place).
@@ -478,6 +494,9 @@ def sleep_consolidate(
             bar.set_postfix(obj=f"{objective:.4g}", worst=f"{max(losses):.4g}")
         if _plateaued(result.sleep_objective, config, scale):  # (7)
             result.stop_reason = "plateau"
+            break
+        if _newest_guard_stops(result.memory_losses, config):  # (8) off unless newest_guard
+            result.stop_reason = "newest_guard"
             break
     bar.close()
     if result.cosines_first_last:  # the last applied iteration's matrix, made once here rather than every iteration

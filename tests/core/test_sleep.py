@@ -291,3 +291,31 @@ def test_the_sleep_records_its_memories_cosines_first_and_last(stream):
     np.testing.assert_allclose(np.diag(last), 1.0, atol=1e-12)
     assert last[0, 1] == last[1, 0] and -1 <= last[0, 1] <= 1 and last[0, 1] != 0
     assert result.to_dict()["cosines_first_last"] == result.cosines_first_last
+
+
+def test_the_newest_guard_stops_at_the_first_window_where_the_newest_loss_reaches_the_older_ones(stream):
+    """C3 of the final-sleep screening: with ``newest_guard`` the sleep stops at the end of the first window whose
+    mean newest-memory loss is at or above the older memories' (computed here from the full sleep's record); up to
+    there it is the same sleep, bit for bit; without it nothing changes."""
+    net0, _, _, memories = stream
+    full_net, guarded_net = copy.deepcopy(net0), copy.deepcopy(net0)
+    cfg = _config(max_iterations=600)
+    full = sleep_consolidate(list(full_net.parameters()), _policy(full_net), memories, cfg, progress=False)
+    losses = np.asarray(full.memory_losses)
+    assert losses[0, 1] < losses[0, 0]  # the newest memory starts nearly met: its skill is the policy's own
+    windows = [losses[i:i + 50].mean(axis=0) for i in range(0, len(losses), 50)]
+    crossing = next(i for i, w in enumerate(windows) if w[1] >= w[0])  # two memories: the older mean is memory a's
+    guarded = sleep_consolidate(list(guarded_net.parameters()), _policy(guarded_net), memories,
+                                _config(max_iterations=600, newest_guard=True), progress=False)
+    assert guarded.stop_reason == "newest_guard" and guarded.stop_iteration == 50 * (crossing + 1) < 600
+    assert guarded.memory_losses == full.memory_losses[: guarded.stop_iteration]
+    assert full.stop_reason == "max_iterations"
+
+
+def test_the_newest_guard_needs_an_older_memory_to_compare_with(stream):
+    """One memory: nothing to compare, the guard never stops the sleep."""
+    net0, _, _, memories = stream
+    net = copy.deepcopy(net0)
+    result = sleep_consolidate(list(net.parameters()), _policy(net), memories[1:],
+                               _config(max_iterations=100, newest_guard=True), progress=False)
+    assert result.stop_reason == "max_iterations" and result.stop_iteration == 100

@@ -312,6 +312,7 @@ SETTINGS_ADDED: dict[str, Any] = {
     "stream.stats": "first",
     "stream.reexpress_inputs": True,
     "sleep.early_stop_scale": "window",  # added 2026-11-29
+    "sleep.newest_guard": False,  # added 2026-12-07 (the final-sleep screening's C3)
     "stack.lerobot": "0.4.4",  # added 2026-12-07: every run before then was made with LeRobot 0.4.4
 }
 """Fingerprinted settings added after runs were first fingerprinted, with the value every run that predates them had

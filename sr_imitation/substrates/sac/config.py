@@ -338,6 +338,7 @@ class RLTrainConfig(RunConfig):
 
 SETTINGS_ADDED: dict[str, Any] = {
     "sleep.early_stop_scale": "window",  # added 2026-11-29: every earlier run measured against the window
+    "sleep.newest_guard": False,  # added 2026-12-07: no earlier run had the newest-skill guard
 }
 """Settings added after SAC runs were first fingerprinted, with the value every run that predates them had: such a
 run resumes with that value and is refused with another (:attr:`SettingsFingerprint.added`)."""
