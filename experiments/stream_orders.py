@@ -29,7 +29,7 @@ from sr_imitation.experiments.hypotheses import archived_values
 from sr_imitation.infra.cli_errors import run_cli, setup_logging
 from sr_imitation.infra.cli_parsing import parse_command
 from sr_imitation.io import atomic_write_bytes, write_checked_json
-from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+from sr_imitation.reporting.last_sleep import anchor_off_row, last_sleep_row
 from sr_imitation.reporting.results import save_figure
 
 logger = logging.getLogger(__name__)
@@ -112,8 +112,7 @@ def last_sleep(archives: Sequence[Path]) -> dict[str, Any] | None:
     if not runs:
         return None
     rows = {seed: last_sleep_row(run) for seed, run in sorted(runs.items())}
-    off = {seed: resleep_row(run.with_name(run.name + ANCHOR_OFF)) for seed, run in sorted(runs.items())
-           if (run.with_name(run.name + ANCHOR_OFF) / "sleep.json").is_file()}
+    off = {seed: row for seed, run in sorted(runs.items()) if (row := anchor_off_row(run)) is not None}
 
     def stat(table: Mapping[int, Mapping[str, Any]], key: str) -> dict[str, Any] | None:
         return paired({s: r[key] for s, r in table.items()}, dict.fromkeys(table, 0.0))

@@ -91,6 +91,13 @@ def resleep_row(folder: Path) -> dict[str, Any]:
     return _row(str(folder), method, None, skills, woke, slept, sleep)
 
 
+def anchor_off_row(run: Path) -> dict[str, Any] | None:
+    """:func:`resleep_row` of the anchor-off re-sleep kept beside ``run`` (``<run>_final_sleep_anchor_off/``), or
+    ``None`` when the run was not re-slept."""
+    folder = Path(run).with_name(Path(run).name + ANCHOR_OFF)
+    return resleep_row(folder) if (folder / "sleep.json").is_file() else None
+
+
 def render_markdown(rows: Sequence[dict[str, Any]]) -> str:
     """One table row per run, then the mean +- SE of the newest and the older skills' changes."""
     lines = ["| run | newest | after its wake | after the final sleep | change | older skills' mean change | "
@@ -161,9 +168,9 @@ def write_report(runs: Sequence[Path], out: Path) -> list[dict[str, Any]]:
     rows = []
     for run in map(Path, runs):
         rows.append(last_sleep_row(run))
-        resleep = run.with_name(run.name + ANCHOR_OFF)
-        if (resleep / "sleep.json").is_file():
-            rows.append(resleep_row(resleep))
+        off = anchor_off_row(run)
+        if off is not None:
+            rows.append(off)
     out.mkdir(parents=True, exist_ok=True)
     write_checked_json(out / "last_sleep.json", {"rows": rows})
     atomic_write_bytes(out / "last_sleep.md", render_markdown(rows).encode())

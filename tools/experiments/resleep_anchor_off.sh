@@ -3,8 +3,9 @@
 # (sr-sleep, --sleep.anchor_strength=0, the run's other sleep settings and its final sleep's own seed, seed * 1000 +
 # 10 k + 3, so that only the anchor differs from the run's sleep), evaluating every skill before and after in the
 # run's own evaluation (episodes, seeds, steps, thresholds). Before 2026-12-07 16:00 UTC it passed the config's base
-# --sleep.seed (0) instead: the re-sleeps of that day kept as sr_seed<S>_final_sleep_anchor_off_sampler0/. Run it while the run folder exists (outputs/ is not kept
-# across machines); the output folder (sleep.json, sleep.md) goes to the run's archive.
+# --sleep.seed (0) instead: the re-sleeps of that day kept as sr_seed<S>_final_sleep_anchor_off_sampler0/. Run it
+# while the run folder exists (outputs/ is not kept across machines); the output folder (sleep.json, sleep.md) goes
+# to the run's archive.
 #
 #   bash tools/experiments/resleep_anchor_off.sh <run dir> <output dir>
 #   e.g. bash tools/experiments/resleep_anchor_off.sh outputs/lerobot06_needle_m16/sr_0/sr_seed0 \
