@@ -331,7 +331,8 @@ def test_archiving_every_finished_run_commits_each_once_and_drops_its_pending_li
 def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_skips_what_it_cannot(tmp_path):
     """resleep_archived.sh in a throwaway clone (a stand-in for sr-sleep): of four archived SR runs, the committed one
     whose outputs exist is re-slept from those outputs and its record committed without the checkpoint; an uncommitted
-    one, one whose outputs are gone and one whose re-sleep fails leave nothing; a second call commits nothing."""
+    one, one whose outputs are gone and one whose re-sleep fails leave nothing; a second call commits nothing; another
+    candidate is handed on and kept beside the first under its own name; an unknown one is refused."""
     git = _throwaway_repo(tmp_path)
     script = tmp_path / "tools" / "experiments" / "resleep_archived.sh"
     script.write_text((TOOLS / "resleep_archived.sh").read_text())
@@ -352,13 +353,13 @@ def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_ski
     git("commit", "-q", "-m", "start")
     stand_in = tmp_path / "fake_sleep.sh"
     stand_in.write_text('case "$1" in *seed4*) mkdir -p "$2"; echo half > "$2/sleep.md"; exit 1;; esac\n'
-                        'mkdir -p "$2/pretrained_model"; echo "$1" > "$2/sleep.json"; echo t > "$2/sleep.md"\n'
+                        'mkdir -p "$2/pretrained_model"; echo "$1 $3" > "$2/sleep.json"; echo t > "$2/sleep.md"\n'
                         'echo c > "$2/checksums.json"\n')
     env = {**os.environ, "SR_RESLEEP": f"bash {stand_in}"}
     first = subprocess.run(["bash", str(script), "docs/arch/"], capture_output=True, text=True, check=True, env=env,
                            cwd=tmp_path)
     kept = archive / "sr_seed1_final_sleep_anchor_off"
-    assert (kept / "sleep.json").read_text().strip() == f"{tmp_path}/outputs/o/sr_1/sr_seed1"
+    assert (kept / "sleep.json").read_text().strip() == f"{tmp_path}/outputs/o/sr_1/sr_seed1 anchor_off"
     assert sorted(p.name for p in kept.iterdir()) == ["sleep.json", "sleep.md"]
     assert git("log", "--format=%s").splitlines()[0] == (
         "archive: arch, sr seed 1's final stage re-slept with the anchor off (sr-sleep --sleep.anchor_strength=0)")
@@ -373,6 +374,50 @@ def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_ski
     subprocess.run(["bash", str(script), "docs/arch"], capture_output=True, text=True, check=True, env=env,
                    cwd=tmp_path)
     assert git("log", "--format=%s") == log
+    subprocess.run(["bash", str(script), "--candidate=guard", "docs/arch"], capture_output=True, text=True, check=True,
+                   env=env, cwd=tmp_path)
+    guard = archive / "sr_seed1_final_sleep_guard"
+    assert (guard / "sleep.json").read_text().strip() == f"{tmp_path}/outputs/o/sr_1/sr_seed1 guard"
+    assert (kept / "sleep.json").exists()
+    assert git("log", "--format=%s").splitlines()[0] == (
+        "archive: arch, sr seed 1's final stage re-slept with the newest-skill guard (sr-sleep --sleep.newest_guard=true)")
+    wrong = subprocess.run(["bash", str(script), "--candidate=gaurd", "docs/arch"], capture_output=True, text=True,
+                           env=env, cwd=tmp_path)
+    assert wrong.returncode == 2 and "--candidate=gaurd: give anchor_off, anchor_newest, guard or own" in wrong.stderr
+
+
+def _resleep_args(run: Path, candidate: str, tmp_path: Path) -> list[str]:
+    """resleep_final.sh's sr-sleep arguments for ``candidate`` (a stand-in sr-sleep prints them, one a line)."""
+    stand_in = tmp_path / "sr-sleep"
+    stand_in.write_text('#!/usr/bin/env bash\nprintf "%s\\n" "$@"\n')
+    stand_in.chmod(0o755)
+    out = subprocess.run(["bash", str(TOOLS / "resleep_final.sh"), str(run), str(tmp_path / "o"), candidate],
+                         capture_output=True, text=True, check=True, env={**os.environ, "SR_SLEEP_BIN": str(stand_in)})
+    return out.stdout.splitlines()
+
+
+def test_each_screening_candidate_re_sleeps_the_run_s_final_stage_changing_only_its_own_settings(tmp_path):
+    """resleep_final.sh (the final-sleep screening's C1-C3 and the run's own sleep repeated): every candidate starts
+    from the newest wake with the five memories, the run's sleep settings and the final sleep's own seed; the
+    candidates differ only in the anchor (off; the run's lambda toward the deployed newest wake; the run's lambda
+    toward stage 4's consolidated checkpoint) and the guard; an unknown candidate is refused before sr-sleep runs."""
+    run = ROOT / "docs" / "results" / "lerobot06_needle_m16" / "sr_seed2"
+    cfg = json.loads((run / "train_config.json").read_text())
+    skills, lam = cfg["stream"]["skills"], cfg["sleep"]["anchor_strength"]
+    assert lam > 0  # the run slept with an anchor, so C1 differs from the others
+    previous = f"--anchor.path={run}/skill_4_{skills[3]}/sleep/pretrained_model"
+    args = {c: _resleep_args(run, c, tmp_path) for c in ("anchor_off", "anchor_newest", "guard", "own")}
+    common = set.intersection(*(set(a) for a in args.values()))
+    assert f"--sleep.seed={2 * 1000 + 53}" in common and f"--sleep.batch_size={cfg['sleep']['batch_size']}" in common
+    assert f"--policy.path={run}/skill_5_{skills[-1]}/wake/pretrained_model" in common
+    assert {c: sorted(set(a) - common) for c, a in args.items()} == {
+        "anchor_off": ["--sleep.anchor_strength=0"],
+        "anchor_newest": ["--final_skill=true", f"--sleep.anchor_strength={lam}"],
+        "guard": [previous, "--final_skill=true", f"--sleep.anchor_strength={lam}", "--sleep.newest_guard=true"],
+        "own": [previous, "--final_skill=true", f"--sleep.anchor_strength={lam}"]}
+    wrong = subprocess.run(["bash", str(TOOLS / "resleep_final.sh"), str(run), str(tmp_path / "o"), "gaurd"],
+                           capture_output=True, text=True, env={**os.environ, "SR_SLEEP_BIN": "false"})
+    assert wrong.returncode != 0 and "candidate 'gaurd': give one of anchor_off, anchor_newest, guard, own" in wrong.stderr
 
 
 @pytest.mark.parametrize("seed", [0, 3])
