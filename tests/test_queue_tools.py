@@ -380,7 +380,8 @@ def test_re_sleeping_archived_sr_runs_keeps_the_record_commits_each_once_and_ski
     assert (guard / "sleep.json").read_text().strip() == f"{tmp_path}/outputs/o/sr_1/sr_seed1 guard"
     assert (kept / "sleep.json").exists()
     assert git("log", "--format=%s").splitlines()[0] == (
-        "archive: arch, sr seed 1's final stage re-slept with the newest-skill guard (sr-sleep --sleep.newest_guard=true)")
+        "archive: arch, sr seed 1's final stage re-slept with the newest-skill guard "
+        "(sr-sleep --sleep.newest_guard=true)")
     wrong = subprocess.run(["bash", str(script), "--candidate=gaurd", "docs/arch"], capture_output=True, text=True,
                            env=env, cwd=tmp_path)
     assert wrong.returncode == 2 and "--candidate=gaurd: give anchor_off, anchor_newest, guard or own" in wrong.stderr
@@ -417,7 +418,8 @@ def test_each_screening_candidate_re_sleeps_the_run_s_final_stage_changing_only_
         "own": [previous, "--final_skill=true", f"--sleep.anchor_strength={lam}"]}
     wrong = subprocess.run(["bash", str(TOOLS / "resleep_final.sh"), str(run), str(tmp_path / "o"), "gaurd"],
                            capture_output=True, text=True, env={**os.environ, "SR_SLEEP_BIN": "false"})
-    assert wrong.returncode != 0 and "candidate 'gaurd': give one of anchor_off, anchor_newest, guard, own" in wrong.stderr
+    assert wrong.returncode != 0
+    assert "candidate 'gaurd': give one of anchor_off, anchor_newest, guard, own" in wrong.stderr
 
 
 @pytest.mark.parametrize("seed", [0, 3])

@@ -34,7 +34,7 @@ from sr_imitation.io import read_checked_json, read_config_json, verify_checkpoi
 from sr_imitation.offscreen import setup_offscreen_rendering
 from sr_imitation.stream.config import LEROBOT_EVAL_FLAGS, LEROBOT_TRAIN_FLAGS, LEROBOT_TRAIN_NOTES, fold_alias_flags
 from sr_imitation.substrates.act.config import LEGACY_DEFAULTS, MainJobConfig
-from sr_imitation.substrates.act.evaluate import EvalConfig, evaluate_skills, make_env_factory
+from sr_imitation.substrates.act.evaluate import EvalConfig, episode_positions, evaluate_skills, make_env_factory
 from sr_imitation.substrates.act.trainer import TrainStreamConfig, train_stream
 from sr_imitation.video import PARTIAL_VIDEO
 
@@ -220,9 +220,9 @@ def checkpoint_defaults(args: list[str]) -> ConfigFile | None:
     version does not know are left out."""
     _, given = take_flag(list(args), "--policy.path")
     stored = None if given is None else Path(given) / "train_config.json"
-    if stored is None or not stored.is_file():
+    config = _stored_run_config(stored)
+    if config is None:
         return None
-    config, _ = read_config_json(stored)
     stream, evaluation = config.get("stream"), config.get("eval")
     if not isinstance(stream, dict) or not isinstance(evaluation, dict) or "skills" not in stream:
         return None
@@ -231,6 +231,19 @@ def checkpoint_defaults(args: list[str]) -> ConfigFile | None:
     logger.info("sr-eval: skills %s and evaluation settings (env %s) from %s; flags override them",
                 defaults["skills"], defaults["eval"].get("env"), stored)
     return ConfigFile(stored, defaults, sealed=True)
+
+
+def _stored_run_config(stored: Path | None) -> dict[str, Any] | None:
+    """A checkpoint's ``train_config.json`` (checked against its seal), or None where there is none."""
+    if stored is None or not stored.is_file():
+        return None
+    return read_config_json(stored)[0]
+
+
+def checkpoint_stream(path: Path) -> list[str] | None:
+    """The skill order of the run that wrote the checkpoint at ``path`` (its ``train_config.json``), or None."""
+    stream = (_stored_run_config(Path(path) / "train_config.json") or {}).get("stream")
+    return list(stream["skills"]) if isinstance(stream, dict) and "skills" in stream else None
 
 
 def check_eval_output(cfg: EvalCommandConfig) -> set[Path]:
@@ -288,10 +301,9 @@ def evaluate_checkpoint(cfg: EvalCommandConfig) -> None:
     if images:
         shape = policy_cfg.image_features[images[0]].shape
         size = (int(shape[1]), int(shape[2]))
-    results = evaluate_skills(policy, pre, post, cfg.skills, [SURGICAI_SKILLS.index(s) if s in SURGICAI_SKILLS
-                                                              else i for i, s in enumerate(cfg.skills)],
-                              make_env_factory(cfg.eval, cfg.skills, size), cfg.eval, cfg.output_dir / "videos",
-                              cfg.progress)
+    positions = episode_positions(cfg.skills, checkpoint_stream(path))  # the run's own episodes, in any order
+    results = evaluate_skills(policy, pre, post, cfg.skills, positions, make_env_factory(cfg.eval, cfg.skills, size),
+                              cfg.eval, cfg.output_dir / "videos", cfg.progress)
     record = {s: {"success": r.success, "success_per_seed": r.success_per_seed, "videos": r.videos}
               for s, r in results.items()}
     write_checked_json(cfg.output_dir / "eval.json", {"policy": str(path), "results": record})

@@ -46,6 +46,25 @@ logger = logging.getLogger(__name__)
 EVAL_SEED_OFFSET = 1_000_000
 """Evaluation episodes use reset seeds far from the demonstration seeds."""
 
+
+def episode_positions(skills: Sequence[str], stream: Sequence[str] | None = None) -> list[int]:
+    """Each skill's position in its stream, which seeds its evaluation episodes (:func:`evaluate_skills`), so that an
+    evaluation outside the run (sr-eval, sr-sleep) draws the run's own episodes in any stream order.
+
+    Args:
+        skills: the skills to evaluate.
+        stream: the run's skill order, when known (the checkpoint's ``train_config.json``, the memories' skills).
+
+    Returns:
+        Per skill: its position in ``stream`` where it is there; else a needle skill's place in the needle's own order
+        (approach ... pullout: the default stream); else its position in ``skills``.
+    """
+    from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
+
+    stream = list(stream or [])
+    return [stream.index(s) if s in stream else NEEDLE_SKILLS.index(s) if s in NEEDLE_SKILLS else i
+            for i, s in enumerate(skills)]
+
 SPI_FEATURES: tuple[int, ...] = tuple(range(7))
 """Policy-dependent entries of the needle env's 35-d ``agent_pos`` used by SPI: the active arm's tool setpoint
 ``cur_x, cur_y, cur_z`` (cm), ``cur_roll, cur_pitch, cur_yaw`` (rad) and ``cur_jaw`` (``envs.needle.env.STATE_NAMES``

@@ -27,8 +27,9 @@ from sr_imitation.core.memory import load_memory
 from sr_imitation.infra.cli_errors import run_cli
 from sr_imitation.io import CorruptFileError, read_checked_json, verify_manifest
 from sr_imitation.stream.substrate import phase_seed
-from sr_imitation.substrates.act.cli import sleep_main
+from sr_imitation.substrates.act.cli import checkpoint_stream, sleep_main
 from sr_imitation.substrates.act.config import SurgicAISleepConfig
+from sr_imitation.substrates.act.evaluate import episode_positions
 from sr_imitation.substrates.act.offline_sleep import (
     AnchorConfig,
     OfflineSleepConfig,
@@ -40,7 +41,7 @@ from sr_imitation.substrates.act.offline_sleep import (
 )
 from sr_imitation.substrates.act.trainer import ACTTrainer
 from tests.substrates.act.conftest import SKILLS
-from tests.substrates.act.helpers import fake_env_factory, tiny_policy, tiny_stream_config
+from tests.substrates.act.helpers import FakeNeedleEnv, fake_env_factory, tiny_policy, tiny_stream_config
 
 SEED = 7  # tiny_stream_config's run seed
 # The gate of Eq. 2 decides (a finite tau), and the anchor is strong enough to change the result.
@@ -361,3 +362,40 @@ def test_the_sleep_logs_its_progress_with_the_time_left(caplog):
                      "losses [0.25, 0.125]",
                      "sleep iteration 200/1000 (20%), 1m00s elapsed, at most ~4m00s left: objective 0.5, memory "
                      "losses [0.25, 0.125]"]
+
+
+# -- the run's own episodes in any stream order ----------------------------------------------------------------------
+class _RecordingEnv(FakeNeedleEnv):
+    """The fake environment, noting every reset seed under its skill."""
+
+    seeds: dict[str, set[int]] = {}
+
+    def reset(self, *, seed=None, options=None):
+        type(self).seeds.setdefault(self.skill, set()).add(seed)
+        return super().reset(seed=seed, options=options)
+
+
+def test_sr_sleep_and_sr_eval_draw_the_run_s_own_episodes_in_a_non_needle_order(state_datasets, tmp_path):
+    """A run in the order place -> approach (not the needle's approach -> place): sr-sleep's evaluation before and after
+    the sleep resets each skill with exactly the seeds the run evaluated it with (each skill's position in the
+    memories' skill order), and sr-eval finds that order in the checkpoint. Before 2026-12-07 both took a needle
+    skill's place in the needle's own order, so in another order they drew other episodes than the run."""
+    order = ["place", "approach"]
+    cfg = tiny_stream_config(state_datasets, tmp_path / "run", order, use_images=False, sleep=RUN_SLEEP)
+    _RecordingEnv.seeds = {}
+    ACTTrainer(cfg, lambda skill, render: _RecordingEnv(skill, render)).run()
+    run_seeds, _RecordingEnv.seeds = _RecordingEnv.seeds, {}
+    wake = tmp_path / "run" / "skill_2_approach" / "wake" / "pretrained_model"
+    memories = [tmp_path / "run" / "memories" / f"skill_{i + 1}_{s}.safetensors" for i, s in enumerate(order)]
+    sleep_cfg = OfflineSleepConfig(
+        policy=PolicyPathConfig(path=wake), memories=memories,
+        sleep=SurgicAISleepConfig(max_iterations=3, batch_size=4),
+        eval=SleepEvalConfig(skills=order, episodes=cfg.eval.episodes, seeds=list(cfg.eval.seeds),
+                             max_steps=cfg.eval.max_steps, videos_per_skill=0),
+        output_dir=tmp_path / "slept", progress=False)
+    run_offline_sleep(sleep_cfg, make_env=lambda skill, render: _RecordingEnv(skill, render))
+    assert _RecordingEnv.seeds == run_seeds and run_seeds["place"] != run_seeds["approach"]
+    assert checkpoint_stream(wake) == order
+    assert episode_positions(["approach", "place"], checkpoint_stream(wake)) == [1, 0]
+    assert episode_positions(["approach", "place"]) == [0, 1]  # no stream known: the needle's own order
+    assert episode_positions(["reach-v3", "insert"], ["reach-v3"]) == [0, 2]

@@ -59,7 +59,8 @@ class SleepEvalConfig:
 
     skills: list[str] = field(default_factory=list)
     """Skills to evaluate before and after the sleep, in stream order; empty - no evaluation (the default: a
-    deployed policy may have no environment here; the memory losses are reported either way)."""
+    deployed policy may have no environment here; the memory losses are reported either way). Each skill's episodes
+    are those of its position in the memories' skill order: an sr-train run's own episodes, in any stream order."""
     env: str = "needle"
     """Where each skill is evaluated, as sr-train's --eval.env - needle (the needle skills), metaworld (a Meta-World
     v3 task per skill), gym (--eval.gym_ids) or lerobot (--eval.env_type, --eval.env_tasks)."""

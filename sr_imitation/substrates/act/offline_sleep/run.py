@@ -13,7 +13,6 @@ import torch
 
 from lerobot_policy_act_sr.actor_memory import ActorMemory
 from sr_imitation.core.sleep import SleepConfig
-from sr_imitation.envs.needle.skills import SKILL_NAMES as NEEDLE_SKILLS
 from sr_imitation.io import (
     WriteError,
     atomic_write_bytes,
@@ -24,6 +23,7 @@ from sr_imitation.io import (
 from sr_imitation.progress import format_duration
 from sr_imitation.substrates.act.evaluate import (
     EnvFactory,
+    episode_positions,
     evaluate_skills,
     make_env_factory,
 )
@@ -58,10 +58,12 @@ def memory_loss(memory: ActorMemory, policy_fn: Callable[[Mapping[str, torch.Ten
     return total / memory.size
 
 
-def _evaluate(cfg: OfflineSleepConfig, loaded: LoadedPolicy, make_env: EnvFactory | None, video_dir: Path
-              ) -> dict[str, Any]:
+def _evaluate(cfg: OfflineSleepConfig, loaded: LoadedPolicy, make_env: EnvFactory | None, video_dir: Path,
+              stream: Sequence[str]) -> dict[str, Any]:
+    """Success on ``--eval.skills``, each skill's episodes those of its position in ``stream`` (the memories' skills,
+    in skill order): the run's own episodes."""
     skills, protocol = list(cfg.eval.skills), cfg.eval.protocol()
-    indices = [NEEDLE_SKILLS.index(s) if s in NEEDLE_SKILLS else i for i, s in enumerate(skills)]
+    indices = episode_positions(skills, stream)
     if make_env is None:
         images = list(loaded.config.image_features)
         size = None if not images else tuple(int(x) for x in loaded.config.image_features[images[0]].shape[1:])
@@ -90,7 +92,9 @@ def run_offline_sleep(cfg: OfflineSleepConfig, make_env: EnvFactory | None = Non
         with staged_directory(out) as tmp:
             before = [memory_loss(m.memory, problem.policy) for m in memories]
             check_losses(memories, before, "before the sleep")
-            success_before = _evaluate(cfg, loaded, make_env, tmp / "videos" / "before") if cfg.eval.skills else None
+            stream = [m.memory.skill for m in memories]  # the skill order (checked by check_inputs)
+            success_before = (_evaluate(cfg, loaded, make_env, tmp / "videos" / "before", stream)
+                              if cfg.eval.skills else None)
             seed_everything(cfg.sleep.seed)
             t0 = time.perf_counter()
             result = problem.consolidate([m.memory for m in memories], inputs.anchor, inputs.wake_snapshots,
@@ -100,7 +104,8 @@ def run_offline_sleep(cfg: OfflineSleepConfig, make_env: EnvFactory | None = Non
             after = [memory_loss(m.memory, problem.policy) for m in memories]
             check_losses(memories, after, "after the sleep")
             check_moved(memories, before, after, result.stop_iteration)
-            success_after = _evaluate(cfg, loaded, make_env, tmp / "videos" / "after") if cfg.eval.skills else None
+            success_after = (_evaluate(cfg, loaded, make_env, tmp / "videos" / "after", stream)
+                             if cfg.eval.skills else None)
             record = _record(cfg, inputs, result, seconds, before, after, success_before, success_after)
             policy._reservoir = None  # the consolidated policy has no skill memory of its own to write beside it
             save_pretrained_model(tmp / "pretrained_model", policy, loaded.preprocessor, loaded.postprocessor)
