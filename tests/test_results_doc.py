@@ -1548,6 +1548,9 @@ def test_step_b_s_cpu_types_are_stated_where_its_numbers_are():
 
 
 SAMPLER0 = "_final_sleep_anchor_off_sampler0"
+NEEDLE_EPISODES = "_final_sleep_anchor_off_needle_episodes"
+"""The needle reverse order's anchor-off re-sleeps of 16:00-17:00 UTC 2026-12-07, evaluated on the episodes of each
+skill's place in the needle's own order rather than the run's (the 17:xx entry); the entries before it read them."""
 """The anchor-off re-sleeps made before 2026-12-07 16:00 UTC with sleep seed 0 instead of the run's final sleep's own
 (the entries written from them recompute from them; the stream-order record's 16:00 entry says why they were redone)."""
 
@@ -1695,10 +1698,10 @@ def test_the_stream_orders_re_sleep_seed_correction_recomputes():
     from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
 
     numbers, moved = [], []
-    for name in ("lerobot06_needle_m16", "order_needle_m16_reverse"):
+    for name, suffix in (("lerobot06_needle_m16", ANCHOR_OFF), ("order_needle_m16_reverse", NEEDLE_EPISODES)):
         folder = DOCS / "results" / name
         on = [last_sleep_row(folder / f"sr_seed{s}") for s in range(5)]
-        off = [resleep_row(folder / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+        off = [resleep_row(folder / f"sr_seed{s}{suffix}") for s in range(5)]
         old = [resleep_row(folder / f"sr_seed{s}{SAMPLER0}") for s in range(5)]
         assert [r["loss_before"] for r in off] == [r["loss_before"] for r in on]  # the run's own first batch
         assert all(a["loss_before"] != b["loss_before"] for a, b in zip(on, old, strict=True))
