@@ -1719,3 +1719,36 @@ def test_the_stream_orders_re_sleep_seed_correction_recomputes():
     fwd, rev = numbers[:3], numbers[3:]
     _states("orders-resleep-seed", _signed(moved[0]), _signed(moved[1]), fwd[0], fwd[2], rev[0], rev[2], fwd[1],
             rev[1])
+
+
+def test_the_needle_reverse_re_sleeps_on_the_run_s_episodes_recompute():
+    """The episodes correction: every new reverse re-sleep starts from its run's own evaluation (success before the
+    sleep equals the run's after its last wake) with the earlier one's memory losses and stop, the earlier ones did
+    not on seeds 0, 2 and 3 (regrasp), and the corrected readings."""
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+    from sr_imitation.reporting.results import load_results
+
+    folder = DOCS / "results" / "order_needle_m16_reverse"
+    on = [last_sleep_row(folder / f"sr_seed{s}") for s in range(5)]
+    new = [resleep_row(folder / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+    old = [resleep_row(folder / f"sr_seed{s}{NEEDLE_EPISODES}") for s in range(5)]
+    regrasp = []
+    for s in range(5):
+        woke = load_results(folder / f"sr_seed{s}")["extra"]["success_matrix_after_wake"][-1]
+        for suffix, ok in ((ANCHOR_OFF, True), (NEEDLE_EPISODES, None)):
+            record = read_checked_json(folder / f"sr_seed{s}{suffix}" / "sleep.json")
+            before = [record["success"][k]["before"] for k in record["sleep"]["skills"]]
+            if ok:
+                assert before == woke
+            else:
+                assert [b - w for b, w in zip(before, woke, strict=True) if b != w] == [
+                    b - w for b, w in zip(before[1:2], woke[1:2], strict=True) if b != w]  # regrasp only
+                regrasp.append(round(before[1] - woke[1], 3))
+        assert (new[s]["loss_after"], new[s]["stop_iteration"]) == (old[s]["loss_after"], old[s]["stop_iteration"])
+    assert regrasp == [-0.233, 0.0, -0.033, 0.133, 0.0]
+    assert [r["newest_after_sleep"] for r in new] == [1.0] * 5
+    diff = [a["older_mean_change"] - b["older_mean_change"] for a, b in zip(on, new, strict=True)]
+    ahead = (sum(d > 1e-9 for d in diff), sum(abs(d) <= 1e-9 for d in diff), sum(d < -1e-9 for d in diff))
+    assert ahead == (2, 2, 1)
+    _states("orders-resleep-episodes", "-0.233", "-0.033", "+0.133", _signed([r["older_mean_change"] for r in new]),
+            _signed([r["older_mean_change"] for r in old]).split(" ")[0], _signed(diff))
