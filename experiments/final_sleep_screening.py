@@ -146,7 +146,9 @@ def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
         verdicts[c] = {"orders": per, "rules": rules, "passes": all(rules.values())}
     passing = [c for c in CANDIDATES if verdicts.get(c, {}).get("passes")]
     winner = max(passing, key=lambda c: (verdicts[c]["orders"][trigger]["mean"], -CANDIDATES.index(c)), default=None)
-    return {"trigger_order": trigger, "candidates": verdicts, "winner": winner}
+    repeats = {o: {s: orders[o][CHECK][s] == orders[o]["C0"][s] for s in sorted(orders[o].get(CHECK, {}))}
+               for o in orders}
+    return {"trigger_order": trigger, "candidates": verdicts, "winner": winner, "own_repeats_c0": repeats}
 
 
 def _pm(values: Sequence[float]) -> str:
@@ -177,6 +179,11 @@ def render(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
                           for o, p in v["orders"].items())
         rules = ", ".join(f"({k}) {'yes' if ok else 'no'}" for k, ok in v["rules"].items())
         lines.append(f"- {c}: minus C0 {diffs}; {rules}: {'passes' if v['passes'] else 'does not pass'}.")
+    for o, seeds in decision["own_repeats_c0"].items():
+        if seeds:
+            same = [s for s, ok in seeds.items() if ok]
+            lines.append(f"- {o}: sr-sleep repeating the run's own final sleep ({CHECK}) gives C0's measures "
+                         f"exactly on {len(same)} of {len(seeds)} seeds ({', '.join(map(str, seeds))}).")
     lines += ["", f"Winner: {decision['winner']}." if decision["winner"] else
               "No candidate passes: the final sleep's cost to the newest skill stands."]
     return "\n".join(lines) + "\n"
