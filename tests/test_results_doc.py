@@ -1752,3 +1752,29 @@ def test_the_needle_reverse_re_sleeps_on_the_run_s_episodes_recompute():
     assert ahead == (2, 2, 1)
     _states("orders-resleep-episodes", "-0.233", "-0.033", "+0.133", _signed([r["older_mean_change"] for r in new]),
             _signed([r["older_mean_change"] for r in old]).split(" ")[0], _signed(diff))
+
+
+def test_the_mt5_seed1_entry_recomputes():
+    """Seed 1's final AFSR in both orders, the reverse order's last sleep with and without the anchor, and the check
+    that sr-sleep repeats the run's own final sleep exactly on both reverse seeds."""
+    from experiments.final_sleep_screening import order_rows
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+    from sr_imitation.reporting.results import load_results
+
+    results = DOCS / "results"
+    afsr = {(a, v): np.mean(load_results(results / a / f"{v}_seed1")["success_matrix"][-1])
+            for a in ("lerobot06_mt5_imitation", "order_mt5_imitation_reverse") for v in ("sr", "wake_only")}
+    reverse = results / "order_mt5_imitation_reverse"
+    run, off = last_sleep_row(reverse / "sr_seed1"), resleep_row(reverse / f"sr_seed1{ANCHOR_OFF}")
+    assert run["newest"] == "reach-v3" and off["newest_after_sleep"] == run["newest_after_wake"]
+    both = [last_sleep_row(reverse / f"sr_seed{s}")["newest_change"] for s in (0, 1)]
+    rows = order_rows(reverse)
+    assert all(rows["own"][s] == rows["C0"][s] for s in (0, 1))
+    for s in (0, 1):
+        own = read_checked_json(reverse / f"sr_seed{s}_final_sleep_own" / "sleep.json")["sleep"]["final_memory_losses"]
+        assert own == load_results(reverse / f"sr_seed{s}")["stages"][-1]["sleep"]["final_memory_losses"]
+    f = lambda x: f"{x:.3f}"  # noqa: E731
+    _states("orders-mt5-seed1", *(f(afsr[k]) for k in afsr), f(run["newest_after_wake"]), f(run["newest_after_sleep"]),
+            f"{run['older_change']['button-press-topdown-v3']:+.3f}", f"{run['older_change']['door-open-v3']:+.3f}",
+            f"{run['older_mean_change']:+.3f}", f(off["newest_after_sleep"]), f"{off['older_mean_change']:+.3f}",
+            _signed(both))
