@@ -179,7 +179,8 @@ def render(summary: Mapping[str, Mapping[str, Any]]) -> str:
         lines.append("")
         for o in orders:
             e = s["orders"][o]
-            lines.append(f"- {o}: ranking {' > '.join(e['ranking'])}; SR - sr_no_anchor {_pm(e['anchor'])}")
+            anchor = "not run" if e["anchor"] is None else _pm(e["anchor"])
+            lines.append(f"- {o}: ranking {' > '.join(e['ranking'])}; SR - sr_no_anchor {anchor}")
             if e.get("last_sleep"):
                 ls = e["last_sleep"]
                 lines.append(f"  - the last sleep of its SR runs: the newest skill ({ls['newest']}) "
