@@ -73,6 +73,8 @@ def test_the_reader_takes_c0_from_the_run_and_a_candidate_from_its_re_sleep():
     results = read_checked_json(REVERSE / "sr_seed0_final_sleep_anchor_off" / "sleep.json")["success"]
     assert rows["anchor_off"][0]["afsr"] == pytest.approx(sum(r["after"] for r in results.values()) / 5, abs=1e-12)
     assert rows["own"][0] == rows["C0"][0]  # sr-sleep repeats the run's own final sleep (exactly, AMD EPYC 26/2)
+    forward = order_rows(R2)
+    assert forward["own"][0] == forward["C0"][0]  # in the forward order too
     assert decide({"forward": order_rows(R2), "reverse": rows}, "reverse")["own_repeats_c0"]["reverse"][0] is True
 
 
