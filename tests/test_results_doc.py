@@ -1778,3 +1778,29 @@ def test_the_mt5_seed1_entry_recomputes():
             f"{run['older_change']['button-press-topdown-v3']:+.3f}", f"{run['older_change']['door-open-v3']:+.3f}",
             f"{run['older_mean_change']:+.3f}", f(off["newest_after_sleep"]), f"{off['older_mean_change']:+.3f}",
             _signed(both))
+
+
+def test_the_mt5_seed2_entry_recomputes():
+    """Seed 2's final AFSR in both orders, the reverse last sleep with and without the anchor, seeds 0-2's newest
+    change both ways, and own repeating the run's sleep on seed 2."""
+    from experiments.final_sleep_screening import order_rows
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+    from sr_imitation.reporting.results import load_results
+
+    results = DOCS / "results"
+    afsr = [np.mean(load_results(results / a / f"{v}_seed2")["success_matrix"][-1])
+            for a in ("lerobot06_mt5_imitation", "order_mt5_imitation_reverse") for v in ("sr", "wake_only")]
+    reverse = results / "order_mt5_imitation_reverse"
+    run, off = last_sleep_row(reverse / "sr_seed2"), resleep_row(reverse / f"sr_seed2{ANCHOR_OFF}")
+    with_anchor = [last_sleep_row(reverse / f"sr_seed{s}")["newest_change"] for s in range(3)]
+    without = [resleep_row(reverse / f"sr_seed{s}{ANCHOR_OFF}")["newest_change"] for s in range(3)]
+    rows = order_rows(reverse)
+    assert rows["own"][2] == rows["C0"][2]
+    f = lambda x: f"{x:.3f}"  # noqa: E731
+    wc = "window-close-v3"
+    woke_wc = load_results(reverse / "sr_seed2")["extra"]["success_matrix_after_wake"][-1][1]
+    assert run["skills"][1] == wc
+    _states("orders-mt5-seed2", *map(f, afsr), f(run["newest_after_wake"]), f(run["newest_after_sleep"]), f(woke_wc),
+            f(woke_wc + run["older_change"][wc]), f"{run['older_change'][wc]:+.3f}", f"{run['older_mean_change']:+.3f}",
+            f(off["newest_after_sleep"]), f"{off['older_change'][wc]:+.3f}", f"{off['older_mean_change']:+.3f}",
+            _signed(with_anchor), _signed(without))
