@@ -17,7 +17,6 @@ the stream's skills), the newest skill's change across that sleep and the older 
 
 from __future__ import annotations
 
-import logging
 import re
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
@@ -31,7 +30,6 @@ from sr_imitation.io import atomic_write_bytes, read_checked_json, write_checked
 from sr_imitation.reporting.last_sleep import last_sleep_row, resleep_row
 from sr_imitation.reporting.results import load_results, save_figure
 
-logger = logging.getLogger(__name__)
 PROG = "python -m experiments.final_sleep_screening"
 CANDIDATES = ("anchor_off", "anchor_newest", "guard")
 """C1-C3 in the protocol's tie order (the simplest first)."""
