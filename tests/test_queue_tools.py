@@ -288,6 +288,30 @@ def test_protocol_w_s_pending_runs_name_the_cpu_types_their_pairs_were_made_on()
                 and not ln.startswith("#")]
 
 
+def test_the_final_sleep_screening_s_runs_wait_behind_every_pre_registered_line():
+    """Issue 89 item 4's protocol: its six SR runs (calibration seeds 100-102, both MT5 orders) are queued after every
+    pre-registered line still pending, on the code the runs they compare with are pinned to, each with the MT5 test
+    preset's recorded ``--extra`` (RESULTS' 08:49 line) and, in the reverse order, the stream-order protocol's order."""
+    from tests.test_results_doc import _by_id
+
+    lines = [ln for ln in (TOOLS / "queue_pending.txt").read_text().splitlines() if ln and not ln.startswith("#")]
+    names = [ln.split()[0] for ln in lines]
+    screening = [i for i, n in enumerate(names) if n.startswith("scr_")]
+    assert [names[i] for i in screening] == [f"scr_mt5{o}_sr_{s}" for s in (100, 101, 102) for o in "fr"]
+    assert max(i for i, n in enumerate(names) if not n.startswith("scr_")) < min(screening)
+    extra = _by_id("mt5-test-preset")
+    skills = "button-press-topdown-v3,window-close-v3,drawer-open-v3,door-open-v3,reach-v3"
+    reverse = extra[:-1] + f',"--stream.skills=[{skills}]"]'
+    for i in screening:
+        name, pin, *flags = lines[i].split()
+        order, seed = ("reverse" if name.startswith("scr_mt5r") else "forward"), name.rsplit("_", 1)[1]
+        assert pin == "@a4c8b2c" and flags == [
+            "-m", "sr_imitation.experiments.needle_compare", "--preset=configs/metaworld_mt5_imitation.json",
+            reverse if order == "reverse" else extra, "--variants=[sr]", f"--seeds=[{seed}]",
+            f"--output_root=/work/main/outputs/order_mt5_screening_{order}/sr_{seed}",
+            f"--archive=/work/main/docs/results/order_mt5_screening_{order}"], name
+
+
 def test_archiving_every_finished_run_commits_each_once_and_drops_its_pending_line(tmp_path):
     """queue_archive_done.sh in a throwaway clone: of three taken lines, the one that ended rc=0 with its folder
     archived is committed (its queue lines only) and leaves the pending file; a failed run and a finished run whose

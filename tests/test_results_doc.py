@@ -414,9 +414,10 @@ def test_every_protocol_run_came_from_code_that_already_held_its_protocol(archiv
 
 
 PREREGISTERED = {("metaworld_mt5_imitation_compare", "hypotheses"), ("needle_cpu_m16_replication", "hypotheses"),
-                 ("sac_mt5_gate", "hypotheses"), ("sac_mt5_gate_xeon", "hypotheses_sleep")}
+                 ("sac_mt5_gate", "hypotheses"), ("sac_mt5_gate_xeon", "hypotheses_sleep"),
+                 ("stream_orders", "hypotheses")}
 """The archives (and folders) whose tests were stated before any run of their preset: M1 and M2, N1 (the imitation
-protocol), G1 (the SAC gate), V1 and V2 (issue 59's confirmation, RESULTS' 10:20 line)."""
+protocol), G1 (the SAC gate), V1 and V2 (issue 59's confirmation, RESULTS' 10:20 line), O1-O3 (the stream orders)."""
 
 
 def test_only_tests_stated_before_any_run_are_labelled_pre_registered_in_an_archive():
@@ -1804,3 +1805,44 @@ def test_the_mt5_seed2_entry_recomputes():
             f(woke_wc + run["older_change"][wc]), f"{run['older_change'][wc]:+.3f}", f"{run['older_mean_change']:+.3f}",
             f(off["newest_after_sleep"]), f"{off['older_change'][wc]:+.3f}", f"{off['older_mean_change']:+.3f}",
             _signed(with_anchor), _signed(without))
+
+
+def test_the_stream_orders_mt5_o3_entry_recomputes():
+    """The family's entry (MT5 reverse, seeds 0-4): every seed's final AFSR, O3's statistics, the three Holm p values
+    from the archived family (equal to a recompute), and the reverse last sleep with and without the anchor, with the
+    memory-loss ratios it quotes and the trigger's reading."""
+    from sr_imitation.experiments.hypotheses import format_p
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+
+    results = DOCS / "results"
+    mt5 = results / "order_mt5_imitation_reverse"
+    tests = ["O1=sr>wake_only@0-4", "O2=sr!=replay@0-4", f"O3={mt5}::sr>wake_only@0-4"]
+    family = run_tests(HypothesesConfig(archive=results / "order_needle_m16_reverse", tests=tests, holm=True))
+    stored = json.loads((results / "stream_orders" / "hypotheses" / "hypotheses.json").read_text())["tests"]
+    assert [t["p_holm"] for t in stored] == pytest.approx([t["p_holm"] for t in family], rel=1e-12)
+    assert (results / "stream_orders" / "hypotheses" / "hypotheses.md").read_text().startswith("Pre-registered")
+    o1, o2, o3 = family
+    sr, wake = o3["a_values"], o3["b_values"]
+    assert o3["seeds"] == [0, 1, 2, 3, 4] and [a > b for a, b in zip(sr, wake, strict=True)].count(True) == 4
+    assert o2["significant_holm"] and not o3["significant_holm"] and not o1["significant_holm"]
+    reverse = results / "order_mt5_imitation_reverse"
+    on = [last_sleep_row(reverse / f"sr_seed{s}") for s in range(5)]
+    off = [resleep_row(reverse / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+    assert all(r["newest"] == "reach-v3" and r["newest_change"] < 0 for r in on)
+    assert sum(r["newest_change"] == 0 for r in off) == 4
+    assert np.mean([r["newest_change"] for r in on]) <= -0.10  # the trigger
+    ratios = [a["loss_after"] / b["loss_after"] for a, b in zip(on, off, strict=True)]
+    newest_loss = [r["newest_loss_after"] for r in on]
+    assert all(r["newest_loss_before"] == 0 for r in on)
+    f = lambda x: f"{x:.3f}"  # noqa: E731
+    _states("orders-mt5-o3", " / ".join(map(f, sr)), f"({_mean_se(sr)})", " / ".join(map(f, wake)),
+            f"({_mean_se(wake)})", f"{sr[4] - wake[4]:+.3f}", f"{o3['mean']:+.3f} +- {o3['sem']:.3f}",
+            f"t = {o3['t']:.2f}", f"p = {format_p(o3['p'])}", f"p = {format_p(o3['sign_flip_p'])}",
+            f"[{o3['ci_low']:+.3f}, {o3['ci_high']:+.3f}]", f"p = {format_p(o2['p_holm'])}",
+            f"{format_p(o2['sign_flip_p'])}", f"p = {format_p(o3['p_holm'])}", f"O1 {format_p(o1['p_holm'])}",
+            *(f"{r['newest_after_wake']:.3f} -> {r['newest_after_sleep']:.3f}" for r in on),
+            _signed([r["newest_change"] for r in on]), _signed([r["older_mean_change"] for r in on]),
+            f"seed 3 {on[3]['older_mean_change']:+.3f}", f"seed 4 {on[4]['older_mean_change']:+.3f}",
+            _signed([r["newest_change"] for r in off]), _signed([r["older_mean_change"] for r in off]),
+            f"{min(ratios):.1f}-{max(ratios):.1f}x", f"{min(newest_loss):.1e}-{max(newest_loss):.1e}",
+            f"{np.mean([r['newest_change'] for r in on]):.3f}")
