@@ -1652,22 +1652,37 @@ def test_the_stream_orders_needle_complete_entry_recomputes():
 
 
 def test_the_evidence_page_s_stream_order_paragraph_recomputes():
-    """EVIDENCE's reverse-order paragraph (and README's needle row, which quotes it): both means, O1's and O2's
-    differences and p-values, replay's mean, from the archived reverse-order runs."""
+    """EVIDENCE's reverse-order paragraph (and README's needle and MT5 rows, which quote it): the means, O1's, O2's and
+    O3's differences and p-values (before and after Holm), and MT5's reverse last sleep with and without the anchor,
+    from the archived reverse-order runs and re-sleeps."""
     from sr_imitation.experiments.hypotheses import format_p
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
 
-    reverse = DOCS / "results" / "order_needle_m16_reverse"
-    o1, o2 = run_tests(HypothesesConfig(archive=reverse, tests=["O1=sr>wake_only@0-4", "O2=sr!=replay@0-4"]))
-    assert o1["seeds"] == o2["seeds"] == [0, 1, 2, 3, 4]
+    reverse, mt5 = DOCS / "results" / "order_needle_m16_reverse", DOCS / "results" / "order_mt5_imitation_reverse"
+    o1, o2, o3 = run_tests(HypothesesConfig(archive=reverse, holm=True, tests=[
+        "O1=sr>wake_only@0-4", "O2=sr!=replay@0-4", f"O3={mt5}::sr>wake_only@0-4"]))
+    assert o1["seeds"] == o2["seeds"] == o3["seeds"] == [0, 1, 2, 3, 4]
     assert all(a > b for a, b in zip(o2["a_values"], o2["b_values"], strict=True))
+    assert sum(a > b for a, b in zip(o3["a_values"], o3["b_values"], strict=True)) == 4
+    on = [last_sleep_row(mt5 / f"sr_seed{s}") for s in range(5)]
+    off = [resleep_row(mt5 / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+    assert all(r["newest"] == "reach-v3" and r["newest_change"] < 0 for r in on)
+    newest = _signed([r["newest_change"] for r in on])
     _states("ev-stream-orders", _mean_se(o1["a_values"]), _mean_se(o1["b_values"]),
             f"{o1['mean']:+.3f} +- {o1['sem']:.3f}", f"p = {o1['p']:.2f}", f"p = {o1['sign_flip_p']:.2f}",
             f"by {o1['mean']:.3f}", _mean_se(o2["b_values"]), f"{o2['mean']:+.3f} +- {o2['sem']:.3f}",
-            f"p = {format_p(o2['p'])}")
+            f"p = {format_p(o2['p'])}", f"{format_p(o2['p_holm'])} after Holm", _mean_se(o3["a_values"]),
+            _mean_se(o3["b_values"]), f"{o3['mean']:+.3f} +- {o3['sem']:.3f}", f"p = {o3['p']:.3f}",
+            f"p = {o3['sign_flip_p']}", f"{o3['p_holm']:.3f} after Holm", newest,
+            _signed([r["older_mean_change"] for r in on]), _signed([r["newest_change"] for r in off]))
     readme = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1]
     (row,) = [line for line in readme.splitlines() if line.startswith("| [needle, 16 stored frames]")]
     assert f"SR {_mean_se(o1['a_values'])} and wake-only {_mean_se(o1['b_values'])}" in row
-    assert f"(p = {o1['p']:.2f})" in row
+    assert f"(p = {o1['p']:.2f})" in row and f"(O2, Holm p = {format_p(o2['p_holm'])})" in row
+    (row,) = [line for line in readme.splitlines() if line.startswith("| [Meta-World MT5 by imitation]")]
+    assert f"SR {_mean_se(o3['a_values'])} and wake-only {_mean_se(o3['b_values'])}" in row
+    assert f"(O3, p = {o3['p']:.3f}, adjusted {o3['p_holm']:.3f})" in row and not o3["significant_holm"]
+    assert f"lowered the newest skill by {newest[1:]}" in row and newest.startswith("-")
 
 
 def test_the_stream_orders_mt5_seed0_entry_recomputes():
