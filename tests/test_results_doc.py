@@ -1861,3 +1861,85 @@ def test_the_stream_orders_mt5_o3_entry_recomputes():
             _signed([r["newest_change"] for r in off]), _signed([r["older_mean_change"] for r in off]),
             f"{min(ratios):.1f}-{max(ratios):.1f}x", f"{min(newest_loss):.1e}-{max(newest_loss):.1e}",
             f"{np.mean([r['newest_change'] for r in on]):.3f}")
+
+
+def test_the_lerobot06_replication_r2_recomputes():
+    """R2 of the LeRobot 0.6 replication (MT5 by imitation, descriptive, seeds 0-4): each arm's final AFSR per seed and
+    mean +- SE, BWT against both references, the paired differences with the protocol's "holds" rule and the
+    descriptive p values, the change from LeRobot 0.4.4's archived runs on the same seeds, and the newest skill kept
+    across every final sleep with and without the anchor, from the archive and its re-sleeps."""
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+
+    archive = DOCS / "results" / "lerobot06_mt5_imitation"
+    arms = ("sr", "wake_only")
+    afsr = {v: archived_values(archive, v, "afsr") for v in arms}
+    assert all(sorted(afsr[v]) == [0, 1, 2, 3, 4] for v in arms)
+    values = {v: [afsr[v][s] for s in range(5)] for v in arms}
+    numbers = [x for v in arms for x in (" / ".join(f"{a:.3f}" for a in values[v]), f"({_mean_se(values[v])})")]
+    for metric in ("bwt", "bwt_wake"):
+        numbers += [f"{np.mean(list(archived_values(archive, v, metric).values())):.3f}" for v in arms]
+    (t,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only@0-4"]))
+    diffs = np.subtract(t["a_values"], t["b_values"])
+    assert t["mean"] > 0 and sum(diffs > 0) == 5  # "five of five positive": holds
+    numbers += [" / ".join(f"{d:+.3f}" for d in diffs), f"{t['mean']:+.3f} +- {t['sem']:.3f}",
+                f"p = {t['p']:.4f}", f"p = {t['sign_flip_p']:.4f}"]
+    for v in arms:  # what the stack changed: 0.6.1 - 0.4.4 on the same seeds
+        old = archived_values(MT5_IMITATION, v, "afsr")
+        numbers += [_signed([afsr[v][s] - old[s] for s in range(5)]),
+                    f"{np.mean(values[v]):.3f} against {np.mean([old[s] for s in range(5)]):.3f}"]
+    _states("r2-complete", *numbers)
+    _states("ev-lerobot06", *(_mean_se(values[v]) for v in arms), f"{t['mean']:+.3f} +- {t['sem']:.3f}")
+    readme = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1]
+    (row,) = [line for line in readme.splitlines() if line.startswith("| [Meta-World MT5 by imitation]")]
+    assert f"LeRobot 0.6.1: {_mean_se(values['sr'])} (seeds 0-4)" in row
+    assert f"LeRobot 0.6.1: wake-only {_mean_se(values['wake_only'])}" in row
+    assert "replicated on LeRobot 0.6.1 (descriptive, seeds 0-4)" in row
+    for s in range(5):
+        on, off = last_sleep_row(archive / f"sr_seed{s}"), resleep_row(archive / f"sr_seed{s}{ANCHOR_OFF}")
+        assert on["newest"] == "button-press-topdown-v3"
+        assert on["newest_after_wake"] == on["newest_after_sleep"] == off["newest_after_sleep"] == 1.0
+    assert (archive / "last_sleep" / "last_sleep.md").is_file()
+
+
+def test_the_stream_orders_complete_entry_recomputes():
+    """The closing descriptive entry: MT5's means in both orders and the interaction, the needle's interaction, MT5's
+    forward last sleep with and without the anchor (the newest skill kept everywhere) and the reverse order's
+    with-minus-without, the last-sleep tables beside every archive, and the archived order table it names."""
+    from experiments.stream_orders import interaction
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+
+    results = DOCS / "results"
+    names = {"needle": ("lerobot06_needle_m16", "order_needle_m16_reverse"),
+             "mt5": ("lerobot06_mt5_imitation", "order_mt5_imitation_reverse")}
+    arms = ("sr", "wake_only")
+    def both(stream: str) -> dict[str, dict[str, dict[int, float]]]:
+        return {o: {v: archived_values(results / n, v, "afsr") for v in arms}
+                for o, n in zip(("f", "r"), names[stream], strict=True)}
+
+    mt5, needle = both("mt5"), both("needle")
+    numbers = [_mean_se(list(mt5[o][v].values())) for o in ("f", "r") for v in arms]
+    for values in (mt5, needle):
+        inter = interaction(values["f"], values["r"])
+        assert inter["seeds"] == [0, 1, 2, 3, 4]
+        numbers.append(f"{inter['mean']:+.3f} +- {inter['sem']:.3f}")
+    rows = {}
+    for order, name in zip(("f", "r"), names["mt5"], strict=True):
+        on = [last_sleep_row(results / name / f"sr_seed{s}") for s in range(5)]
+        off = [resleep_row(results / name / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+        rows[order] = (on, off)
+    on, off = rows["f"]
+    assert all(r["newest_after_wake"] == r["newest_after_sleep"] == 1.0 for r in on + off)
+    numbers += [_signed([r["older_mean_change"] for r in on]), _signed([r["older_mean_change"] for r in off]),
+                _signed([a["older_mean_change"] - b["older_mean_change"] for a, b in zip(on, off, strict=True)])]
+    on, off = rows["r"]
+    numbers += [_signed([a[k] - b[k] for a, b in zip(on, off, strict=True)])
+                for k in ("older_mean_change", "newest_change")]
+    _states("orders-complete", *numbers)
+    for name in (*names["needle"], *names["mt5"]):
+        table = read_checked_json(results / name / "last_sleep" / "last_sleep.json")
+        runs = [Path(r["run"]).name for r in table["rows"]]
+        assert [f"sr_seed{s}" for s in range(5)] == [r for r in runs if r.startswith("sr_seed") and "_final" not in r]
+        assert [f"sr_seed{s}{ANCHOR_OFF}" for s in range(5)] == [r for r in runs if r.endswith(ANCHOR_OFF)], name
+        assert (results / name / "last_sleep" / "last_sleep.png").is_file(), name
+    orders = (results / "stream_orders" / "orders.md").read_text()
+    assert "## mt5" in orders and orders.count("the ranking of sr, wake_only held") == 1
