@@ -1943,3 +1943,20 @@ def test_the_stream_orders_complete_entry_recomputes():
         assert (results / name / "last_sleep" / "last_sleep.png").is_file(), name
     orders = (results / "stream_orders" / "orders.md").read_text()
     assert "## mt5" in orders and orders.count("the ranking of sr, wake_only held") == 1
+
+
+def test_own_repeats_the_final_sleep_of_every_mt5_reverse_run():
+    """Entry ``orders-own-all``: on each of the five MT5 reverse seeds, the ``own`` re-sleep's success values equal the
+    run's final sleep's (the screening's reader) and its memory losses after the sleep equal the run's exactly."""
+    from experiments.final_sleep_screening import order_rows
+    from sr_imitation.reporting.results import load_results
+
+    reverse = DOCS / "results" / "order_mt5_imitation_reverse"
+    rows = order_rows(reverse)
+    seeds = sorted(rows["own"])
+    assert seeds == sorted(rows["C0"]) == [0, 1, 2, 3, 4]
+    for s in seeds:
+        assert rows["own"][s] == rows["C0"][s], s
+        own = read_checked_json(reverse / f"sr_seed{s}_final_sleep_own" / "sleep.json")["sleep"]["final_memory_losses"]
+        assert own == load_results(reverse / f"sr_seed{s}")["stages"][-1]["sleep"]["final_memory_losses"], s
+    _states("orders-own-all", f"all {len(seeds)} MT5 reverse seeds")
