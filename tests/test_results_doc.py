@@ -1651,21 +1651,37 @@ def test_the_stream_orders_needle_complete_entry_recomputes():
     assert "reverse: ranking sr > wake_only > sr_no_anchor > replay" in table
 
 
+MT5_REVERSE = DOCS / "results" / "order_mt5_imitation_reverse"
+
+
+@functools.cache
+def _stream_order_family() -> tuple[dict, dict, dict]:
+    """O1, O2, O3 on seeds 0-4 with Holm over the three, as the stream-order protocol declares them."""
+    tests = ["O1=sr>wake_only@0-4", "O2=sr!=replay@0-4", f"O3={MT5_REVERSE}::sr>wake_only@0-4"]
+    o1, o2, o3 = run_tests(HypothesesConfig(archive=DOCS / "results" / "order_needle_m16_reverse", tests=tests,
+                                            holm=True))
+    return o1, o2, o3
+
+
+def _last_sleeps(archive: Path) -> tuple[list[dict], list[dict]]:
+    """Seeds 0-4: each SR run's final sleep as the run made it, and its re-sleep with the anchor off."""
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+
+    return ([last_sleep_row(archive / f"sr_seed{s}") for s in range(5)],
+            [resleep_row(archive / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)])
+
+
 def test_the_evidence_page_s_stream_order_paragraph_recomputes():
     """EVIDENCE's reverse-order paragraph (and README's needle and MT5 rows, which quote it): the means, O1's, O2's and
     O3's differences and p-values (before and after Holm), and MT5's reverse last sleep with and without the anchor,
     from the archived reverse-order runs and re-sleeps."""
     from sr_imitation.experiments.hypotheses import format_p
-    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
 
-    reverse, mt5 = DOCS / "results" / "order_needle_m16_reverse", DOCS / "results" / "order_mt5_imitation_reverse"
-    o1, o2, o3 = run_tests(HypothesesConfig(archive=reverse, holm=True, tests=[
-        "O1=sr>wake_only@0-4", "O2=sr!=replay@0-4", f"O3={mt5}::sr>wake_only@0-4"]))
+    o1, o2, o3 = _stream_order_family()
     assert o1["seeds"] == o2["seeds"] == o3["seeds"] == [0, 1, 2, 3, 4]
     assert all(a > b for a, b in zip(o2["a_values"], o2["b_values"], strict=True))
     assert sum(a > b for a, b in zip(o3["a_values"], o3["b_values"], strict=True)) == 4
-    on = [last_sleep_row(mt5 / f"sr_seed{s}") for s in range(5)]
-    off = [resleep_row(mt5 / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+    on, off = _last_sleeps(MT5_REVERSE)
     assert all(r["newest"] == "reach-v3" and r["newest_change"] < 0 for r in on)
     newest = _signed([r["newest_change"] for r in on])
     _states("ev-stream-orders", _mean_se(o1["a_values"]), _mean_se(o1["b_values"]),
@@ -1827,12 +1843,9 @@ def test_the_stream_orders_mt5_o3_entry_recomputes():
     from the archived family (equal to a recompute), and the reverse last sleep with and without the anchor, with the
     memory-loss ratios it quotes and the trigger's reading."""
     from sr_imitation.experiments.hypotheses import format_p
-    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
 
     results = DOCS / "results"
-    mt5 = results / "order_mt5_imitation_reverse"
-    tests = ["O1=sr>wake_only@0-4", "O2=sr!=replay@0-4", f"O3={mt5}::sr>wake_only@0-4"]
-    family = run_tests(HypothesesConfig(archive=results / "order_needle_m16_reverse", tests=tests, holm=True))
+    family = _stream_order_family()
     stored = json.loads((results / "stream_orders" / "hypotheses" / "hypotheses.json").read_text())["tests"]
     assert [t["p_holm"] for t in stored] == pytest.approx([t["p_holm"] for t in family], rel=1e-12)
     assert (results / "stream_orders" / "hypotheses" / "hypotheses.md").read_text().startswith("Pre-registered")
@@ -1840,9 +1853,7 @@ def test_the_stream_orders_mt5_o3_entry_recomputes():
     sr, wake = o3["a_values"], o3["b_values"]
     assert o3["seeds"] == [0, 1, 2, 3, 4] and [a > b for a, b in zip(sr, wake, strict=True)].count(True) == 4
     assert o2["significant_holm"] and not o3["significant_holm"] and not o1["significant_holm"]
-    reverse = results / "order_mt5_imitation_reverse"
-    on = [last_sleep_row(reverse / f"sr_seed{s}") for s in range(5)]
-    off = [resleep_row(reverse / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
+    on, off = _last_sleeps(MT5_REVERSE)
     assert all(r["newest"] == "reach-v3" and r["newest_change"] < 0 for r in on)
     assert sum(r["newest_change"] == 0 for r in off) == 4
     assert np.mean([r["newest_change"] for r in on]) <= -0.10  # the trigger
@@ -1868,8 +1879,6 @@ def test_the_lerobot06_replication_r2_recomputes():
     mean +- SE, BWT against both references, the paired differences with the protocol's "holds" rule and the
     descriptive p values, the change from LeRobot 0.4.4's archived runs on the same seeds, and the newest skill kept
     across every final sleep with and without the anchor, from the archive and its re-sleeps."""
-    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
-
     archive = DOCS / "results" / "lerobot06_mt5_imitation"
     arms = ("sr", "wake_only")
     afsr = {v: archived_values(archive, v, "afsr") for v in arms}
@@ -1894,8 +1903,7 @@ def test_the_lerobot06_replication_r2_recomputes():
     assert f"LeRobot 0.6.1: {_mean_se(values['sr'])} (seeds 0-4)" in row
     assert f"LeRobot 0.6.1: wake-only {_mean_se(values['wake_only'])}" in row
     assert "replicated on LeRobot 0.6.1 (descriptive, seeds 0-4)" in row
-    for s in range(5):
-        on, off = last_sleep_row(archive / f"sr_seed{s}"), resleep_row(archive / f"sr_seed{s}{ANCHOR_OFF}")
+    for on, off in zip(*_last_sleeps(archive), strict=True):
         assert on["newest"] == "button-press-topdown-v3"
         assert on["newest_after_wake"] == on["newest_after_sleep"] == off["newest_after_sleep"] == 1.0
     assert (archive / "last_sleep" / "last_sleep.md").is_file()
@@ -1906,7 +1914,7 @@ def test_the_stream_orders_complete_entry_recomputes():
     forward last sleep with and without the anchor (the newest skill kept everywhere) and the reverse order's
     with-minus-without, the last-sleep tables beside every archive, and the archived order table it names."""
     from experiments.stream_orders import interaction
-    from sr_imitation.reporting.last_sleep import ANCHOR_OFF, last_sleep_row, resleep_row
+    from sr_imitation.reporting.last_sleep import ANCHOR_OFF
 
     results = DOCS / "results"
     names = {"needle": ("lerobot06_needle_m16", "order_needle_m16_reverse"),
@@ -1922,11 +1930,7 @@ def test_the_stream_orders_complete_entry_recomputes():
         inter = interaction(values["f"], values["r"])
         assert inter["seeds"] == [0, 1, 2, 3, 4]
         numbers.append(f"{inter['mean']:+.3f} +- {inter['sem']:.3f}")
-    rows = {}
-    for order, name in zip(("f", "r"), names["mt5"], strict=True):
-        on = [last_sleep_row(results / name / f"sr_seed{s}") for s in range(5)]
-        off = [resleep_row(results / name / f"sr_seed{s}{ANCHOR_OFF}") for s in range(5)]
-        rows[order] = (on, off)
+    rows = {order: _last_sleeps(results / name) for order, name in zip(("f", "r"), names["mt5"], strict=True)}
     on, off = rows["f"]
     assert all(r["newest_after_wake"] == r["newest_after_sleep"] == 1.0 for r in on + off)
     numbers += [_signed([r["older_mean_change"] for r in on]), _signed([r["older_mean_change"] for r in off]),
