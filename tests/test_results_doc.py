@@ -1909,6 +1909,51 @@ def test_the_lerobot06_replication_r2_recomputes():
     assert (archive / "last_sleep" / "last_sleep.md").is_file()
 
 
+VISION_044 = DOCS / "results" / "needle_cpu_vision_compare"
+
+
+def test_the_lerobot06_replication_r3_recomputes():
+    """R3 of the LeRobot 0.6 replication (the camera preset, descriptive, seeds 0-1): each arm's final AFSR per seed,
+    BWT against both references, the paired differences with the protocol's rule for R3 (holds: both pairs > 0;
+    weakened: mean > 0 with fewer) and the descriptive p values, where seed 1's pair went, the change from LeRobot
+    0.4.4's archived runs on the same seeds; README's camera row and the evidence page state the same outcome."""
+    archive = DOCS / "results" / "lerobot06_needle_vision"
+    arms = ("sr", "wake_only")
+    afsr = {v: archived_values(archive, v, "afsr") for v in arms}
+    assert all(sorted(afsr[v]) == [0, 1] for v in arms)
+    values = {v: [afsr[v][s] for s in range(2)] for v in arms}
+    numbers = [x for v in arms for x in (" / ".join(f"{a:.3f}" for a in values[v]), f"(mean {np.mean(values[v]):.3f})")]
+    for metric in ("bwt", "bwt_wake"):
+        numbers += [f"{np.mean(list(archived_values(archive, v, metric).values())):.3f}" for v in arms]
+    (t,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only@0-1"]))
+    diffs = np.subtract(t["a_values"], t["b_values"])
+    outcome = "holds" if t["mean"] > 0 and all(diffs > 0) else "weakened" if t["mean"] > 0 else "not seen"
+    assert outcome == "weakened" and sum(diffs > 0) == 1  # the entry's words: "one of the two pairs positive"
+    numbers += [" / ".join(f"{d:+.3f}" for d in diffs), f"{t['mean']:+.3f} +- {t['sem']:.3f}", f"**{outcome}**",
+                f"p = {t['p']:.4f}", f"p = {t['sign_flip_p']:.4f}"]
+    from sr_imitation.reporting.results import load_results
+
+    sr1, wake1 = (load_results(archive / f"{v}_seed1") for v in arms)
+    regrasp = sr1["skills"].index("regrasp")
+    others = [x for i, x in enumerate(sr1["success_matrix"][-1]) if i != regrasp]
+    assert wake1["success_after_own_wake"][regrasp] == 1.0
+    numbers += [f"regrasp to {sr1['success_after_own_wake'][regrasp]:.2f}",
+                f"{wake1['success_after_own_wake'][regrasp]:.2f})",
+                f"at {sr1['success_matrix'][-1][regrasp]:.2f}", f"at {min(others):.2f}-{max(others):.2f}",
+                f"wake is {archived_values(archive, 'sr', 'bwt_wake')[1]:.3f}"]
+    for v in arms:  # what the stack changed: 0.6.1 - 0.4.4 on the same seeds
+        old = archived_values(VISION_044, v, "afsr")
+        numbers += [" / ".join(f"{afsr[v][s] - old[s]:+.3f}" for s in range(2)),
+                    f"{np.mean(values[v]):.3f} against {np.mean([old[s] for s in range(2)]):.3f}"]
+    _states("r3-complete", *numbers)
+    _states("ev-lerobot06", f"{np.mean(values['sr']):.3f} against {np.mean(values['wake_only']):.3f}")
+    readme = (DOCS.parent / "README.md").read_text().split("## Which method where", 1)[1]
+    (row,) = [line for line in readme.splitlines() if line.startswith("| [needle with a camera]")]
+    assert f"LeRobot 0.6.1: {np.mean(values['sr']):.3f} (seeds 0-1)" in row
+    assert f"LeRobot 0.6.1: wake-only {np.mean(values['wake_only']):.3f}" in row
+    assert f"{outcome} on LeRobot 0.6.1 (descriptive, seeds 0-1): SR ahead on {sum(diffs > 0)} of 2 seeds" in row
+
+
 def test_the_stream_orders_complete_entry_recomputes():
     """The closing descriptive entry: MT5's means in both orders and the interaction, the needle's interaction, MT5's
     forward last sleep with and without the anchor (the newest skill kept everywhere) and the reverse order's
