@@ -1954,6 +1954,32 @@ def test_the_lerobot06_replication_r3_recomputes():
     assert f"{outcome} on LeRobot 0.6.1 (descriptive, seeds 0-1): SR ahead on {sum(diffs > 0)} of 2 seeds" in row
 
 
+def test_the_lerobot06_replication_r4_main_job_recomputes():
+    """R4's main job (``configs/needle_cpu.json``, seed 1000) on LeRobot 0.6.1: every success cell 1.00, AFSR and BWT,
+    the run's wall time from the queue's log, and LeRobot 0.4.4's run of the same preset and seed; README's line for
+    that preset states both."""
+    from datetime import datetime
+
+    from sr_imitation.reporting.results import load_results
+
+    archive = DOCS / "results" / "lerobot06_main_job"
+    new, old = load_results(archive / "sr_seed1000"), load_results(DOCS / "results" / "needle_cpu_main_41b435c")
+    assert new["seed"] == old["seed"] == 1000 and new["config"]["torch_threads"] == 1
+    assert all(x == 1.0 for row in new["success_matrix"] for x in row if x is not None)
+    assert all(x == 1.0 for x in new["success_after_own_wake"])
+    m, o = new["metrics"], old["metrics"]
+    assert m["bwt"]["final"] == m["bwt_wake"]["final"] == 0.0
+    stamps = [datetime.fromisoformat(line.split()[0]) for line in (archive / "queue_log.txt").read_text().splitlines()
+              if line.startswith("20") and "l06_main_sr_1000" in line]
+    minutes, seconds = divmod(int((stamps[-1] - stamps[0]).total_seconds()), 60)
+    insert = old["skills"].index("insert")
+    _states("r4-main-job", f"{minutes} min {seconds} s", _afsr_cell(m), _afsr_cell(o),
+            f"(insert {old['success_matrix'][-1][insert]:.2f})")
+    readme = " ".join((DOCS.parent / "README.md").read_text().split())
+    assert (f"configs/needle_cpu.json` runs the older single SR run with 1024 stored frames a skill (seed 1000 on "
+            f"LeRobot 0.6.1: every skill at 1.00 at the end; AFSR {o['afsr']['final']:.3f} on LeRobot 0.4.4)") in readme
+
+
 def test_the_stream_orders_complete_entry_recomputes():
     """The closing descriptive entry: MT5's means in both orders and the interaction, the needle's interaction, MT5's
     forward last sleep with and without the anchor (the newest skill kept everywhere) and the reverse order's
