@@ -1874,6 +1874,22 @@ def test_the_stream_orders_mt5_o3_entry_recomputes():
             f"{np.mean([r['newest_change'] for r in on]):.3f}")
 
 
+def _replication_arms(archive: Path, seeds: int) -> tuple[dict, dict, list[str], dict]:
+    """SR and wake-only of a replication archive on seeds 0..seeds-1: final AFSR by seed, the values in seed order,
+    the numbers its entry states first (each arm's values and mean, +- SE from three seeds on; mean BWT against the
+    stage before, then against each skill's own wake) and the paired one-sided test SR > wake-only."""
+    arms = ("sr", "wake_only")
+    afsr = {v: archived_values(archive, v, "afsr") for v in arms}
+    assert all(sorted(afsr[v]) == list(range(seeds)) for v in arms)
+    values = {v: [afsr[v][s] for s in range(seeds)] for v in arms}
+    mean = (lambda x: f"({_mean_se(x)})") if seeds > 2 else (lambda x: f"(mean {np.mean(x):.3f})")
+    numbers = [x for v in arms for x in (" / ".join(f"{a:.3f}" for a in values[v]), mean(values[v]))]
+    for metric in ("bwt", "bwt_wake"):
+        numbers += [f"{np.mean(list(archived_values(archive, v, metric).values())):.3f}" for v in arms]
+    (t,) = run_tests(HypothesesConfig(archive=archive, tests=[f"sr>wake_only@0-{seeds - 1}"]))
+    return afsr, values, numbers, t
+
+
 def test_the_lerobot06_replication_r2_recomputes():
     """R2 of the LeRobot 0.6 replication (MT5 by imitation, descriptive, seeds 0-4): each arm's final AFSR per seed and
     mean +- SE, BWT against both references, the paired differences with the protocol's "holds" rule and the
@@ -1881,13 +1897,7 @@ def test_the_lerobot06_replication_r2_recomputes():
     across every final sleep with and without the anchor, from the archive and its re-sleeps."""
     archive = DOCS / "results" / "lerobot06_mt5_imitation"
     arms = ("sr", "wake_only")
-    afsr = {v: archived_values(archive, v, "afsr") for v in arms}
-    assert all(sorted(afsr[v]) == [0, 1, 2, 3, 4] for v in arms)
-    values = {v: [afsr[v][s] for s in range(5)] for v in arms}
-    numbers = [x for v in arms for x in (" / ".join(f"{a:.3f}" for a in values[v]), f"({_mean_se(values[v])})")]
-    for metric in ("bwt", "bwt_wake"):
-        numbers += [f"{np.mean(list(archived_values(archive, v, metric).values())):.3f}" for v in arms]
-    (t,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only@0-4"]))
+    afsr, values, numbers, t = _replication_arms(archive, seeds=5)
     diffs = np.subtract(t["a_values"], t["b_values"])
     assert t["mean"] > 0 and sum(diffs > 0) == 5  # "five of five positive": holds
     numbers += [" / ".join(f"{d:+.3f}" for d in diffs), f"{t['mean']:+.3f} +- {t['sem']:.3f}",
@@ -1919,13 +1929,7 @@ def test_the_lerobot06_replication_r3_recomputes():
     0.4.4's archived runs on the same seeds; README's camera row and the evidence page state the same outcome."""
     archive = DOCS / "results" / "lerobot06_needle_vision"
     arms = ("sr", "wake_only")
-    afsr = {v: archived_values(archive, v, "afsr") for v in arms}
-    assert all(sorted(afsr[v]) == [0, 1] for v in arms)
-    values = {v: [afsr[v][s] for s in range(2)] for v in arms}
-    numbers = [x for v in arms for x in (" / ".join(f"{a:.3f}" for a in values[v]), f"(mean {np.mean(values[v]):.3f})")]
-    for metric in ("bwt", "bwt_wake"):
-        numbers += [f"{np.mean(list(archived_values(archive, v, metric).values())):.3f}" for v in arms]
-    (t,) = run_tests(HypothesesConfig(archive=archive, tests=["sr>wake_only@0-1"]))
+    afsr, values, numbers, t = _replication_arms(archive, seeds=2)
     diffs = np.subtract(t["a_values"], t["b_values"])
     outcome = "holds" if t["mean"] > 0 and all(diffs > 0) else "weakened" if t["mean"] > 0 else "not seen"
     assert outcome == "weakened" and sum(diffs > 0) == 1  # the entry's words: "one of the two pairs positive"
