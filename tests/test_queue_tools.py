@@ -288,17 +288,39 @@ def test_protocol_w_s_pending_runs_name_the_cpu_types_their_pairs_were_made_on()
                 and not ln.startswith("#")]
 
 
+def _archived_starts(archive: Path) -> dict[str, str]:
+    """``{queue line name: its last start (ISO UTC)}`` from an archive's ``queue_log.txt`` (none if it has no log)."""
+    log = archive / "queue_log.txt"
+    starts = [ln.split() for ln in (log.read_text().splitlines() if log.is_file() else []) if " start " in ln]
+    return {words[2]: words[0] for words in starts if not words[0].startswith("#")}
+
+
 def test_the_final_sleep_screening_s_runs_wait_behind_every_pre_registered_line():
     """Issue 89 item 4's protocol: its six SR runs (calibration seeds 100-102, both MT5 orders) are queued after every
-    pre-registered line still pending, on the code the runs they compare with are pinned to, each with the MT5 test
-    preset's recorded ``--extra`` (RESULTS' 08:49 line) and, in the reverse order, the stream-order protocol's order."""
+    pre-registered line (each pending one waits behind every pending pre-registered line; each that ran started after
+    every archived run of the replication and stream-order protocols), on the code the runs they compare with are
+    pinned to, each pending one with the MT5 test preset's recorded ``--extra`` (RESULTS' 08:49 line) and, in the
+    reverse order, the stream-order protocol's order; a run leaves the pending file only once archived."""
     from tests.test_results_doc import _by_id
 
+    results = Path(__file__).resolve().parents[1] / "docs" / "results"
     lines = [ln for ln in (TOOLS / "queue_pending.txt").read_text().splitlines() if ln and not ln.startswith("#")]
     names = [ln.split()[0] for ln in lines]
     screening = [i for i, n in enumerate(names) if n.startswith("scr_")]
-    assert [names[i] for i in screening] == [f"scr_mt5{o}_sr_{s}" for s in (100, 101, 102) for o in "fr"]
-    assert max(i for i, n in enumerate(names) if not n.startswith("scr_")) < min(screening)
+    ran = {**_archived_starts(results / "order_mt5_screening_forward"),
+           **_archived_starts(results / "order_mt5_screening_reverse")}
+    expected = [f"scr_mt5{o}_sr_{s}" for s in (100, 101, 102) for o in "fr"]
+    assert [names[i] for i in screening] == [n for n in expected if n not in ran]
+    assert set(ran) <= set(expected)
+    for name in ran:  # archived: its run folder is committed
+        order, seed = ("reverse" if name.startswith("scr_mt5r") else "forward"), name.rsplit("_", 1)[1]
+        assert (results / f"order_mt5_screening_{order}" / f"sr_seed{seed}" / "results.json").is_file(), name
+    pre_registered = {n: t for a in ("lerobot06_needle_m16", "lerobot06_first_look", "lerobot06_mt5_imitation",
+                                     "lerobot06_needle_vision", "lerobot06_main_job", "order_needle_m16_reverse",
+                                     "order_needle_m16_forward", "order_mt5_imitation_reverse")
+                      for n, t in _archived_starts(results / a).items()}
+    assert len(pre_registered) >= 70 and min(ran.values(), default="9") > max(pre_registered.values())
+    assert max((i for i, n in enumerate(names) if not n.startswith("scr_")), default=-1) < min(screening, default=99)
     extra = _by_id("mt5-test-preset")
     skills = "button-press-topdown-v3,window-close-v3,drawer-open-v3,door-open-v3,reach-v3"
     reverse = extra[:-1] + f',"--stream.skills=[{skills}]"]'
