@@ -71,6 +71,15 @@ def test_archiving_a_run_commits_it_with_the_queue_s_record_of_it(tmp_path):
                              text=True)
     assert missing.returncode == 2
     assert missing.stderr.strip() == "queue_archive: docs/arch/sr_seed9: no such archived run"
+    first = tmp_path / "docs" / "new_arch"  # the first run archived in a folder: the log starts with a header
+    (first / "sr_seed100").mkdir(parents=True)
+    (first / "sr_seed100" / "results.json").write_text("{}")
+    subprocess.run(["bash", str(script), "docs/new_arch", "mt5_sr_1", "sr_seed100", "first"], check=True,
+                   capture_output=True)
+    lines = (first / "queue_log.txt").read_text().splitlines()
+    assert lines[0].startswith("# Start and end") and lines[1:] == ["T2 start mt5_sr_1", "T3 mt5_sr_1 rc=0"]
+    assert sorted(git("show", "--name-only", "--format=", "HEAD").split()) == [
+        "docs/new_arch/queue_log.txt", "docs/new_arch/sr_seed100/results.json"]
 
 
 def _resume_clone(tmp_path, pending_lines, manifest_lines, env=None):

@@ -12,6 +12,10 @@ cd "$(dirname "${BASH_SOURCE[0]}")/../.."
 archive="$1"; prefix="$2"; run="$3"; message="$4"; done_file="outputs/queue.txt.done"
 [ -d "$archive/$run" ] || { echo "queue_archive: $archive/$run: no such archived run" >&2; exit 2; }
 log="$archive/queue_log.txt"
+if [ ! -f "$log" ]; then  # the first run archived here: the log starts with its header line
+  echo "# Start and end (exit status) of each run archived here, as the queue worker logged them (UTC;" \
+    "tools/experiments/queue_worker.sh), merged over sessions." > "$log"
+fi
 { head -1 "$log"; { tail -n +2 "$log"; grep " $prefix" "$done_file" || true; } | sort -u; } > "$log.tmp"
 mv "$log.tmp" "$log"
 git add "$archive/$run" "$log"
