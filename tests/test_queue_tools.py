@@ -298,10 +298,9 @@ def test_protocol_w_s_pending_runs_name_the_cpu_types_their_pairs_were_made_on()
 
 
 def _archived_starts(archive: Path) -> dict[str, str]:
-    """``{queue line name: its last start (ISO UTC)}`` from an archive's ``queue_log.txt`` (none if it has no log)."""
-    log = archive / "queue_log.txt"
-    starts = [ln.split() for ln in (log.read_text().splitlines() if log.is_file() else []) if " start " in ln]
-    return {words[2]: words[0] for words in starts if not words[0].startswith("#")}
+    """``{queue line name: its last start (ISO UTC)}`` of every run an archive's ``queue_log.txt`` logs as ended."""
+    _, finished = load_tool("experiments/queue_status").runs(archive / "queue_log.txt")
+    return {r["name"]: r["started"] for r in finished}
 
 
 def test_the_final_sleep_screening_s_runs_wait_behind_every_pre_registered_line():
@@ -329,7 +328,8 @@ def test_the_final_sleep_screening_s_runs_wait_behind_every_pre_registered_line(
                                      "order_needle_m16_forward", "order_mt5_imitation_reverse")
                       for n, t in _archived_starts(results / a).items()}
     assert len(pre_registered) >= 70 and min(ran.values(), default="9") > max(pre_registered.values())
-    assert max((i for i, n in enumerate(names) if not n.startswith("scr_")), default=-1) < min(screening, default=99)
+    pending_pre_registered = [i for i, n in enumerate(names) if not n.startswith("scr_")]
+    assert max(pending_pre_registered, default=-1) < min(screening, default=len(names))
     extra = _by_id("mt5-test-preset")
     skills = "button-press-topdown-v3,window-close-v3,drawer-open-v3,door-open-v3,reach-v3"
     reverse = extra[:-1] + f',"--stream.skills=[{skills}]"]'

@@ -1927,6 +1927,8 @@ def test_the_lerobot06_replication_r3_recomputes():
     BWT against both references, the paired differences with the protocol's rule for R3 (holds: both pairs > 0;
     weakened: mean > 0 with fewer) and the descriptive p values, where seed 1's pair went, the change from LeRobot
     0.4.4's archived runs on the same seeds; README's camera row and the evidence page state the same outcome."""
+    from sr_imitation.reporting.results import load_results
+
     archive = DOCS / "results" / "lerobot06_needle_vision"
     arms = ("sr", "wake_only")
     afsr, values, numbers, t = _replication_arms(archive, seeds=2)
@@ -1935,8 +1937,6 @@ def test_the_lerobot06_replication_r3_recomputes():
     assert outcome == "weakened" and sum(diffs > 0) == 1  # the entry's words: "one of the two pairs positive"
     numbers += [" / ".join(f"{d:+.3f}" for d in diffs), f"{t['mean']:+.3f} +- {t['sem']:.3f}", f"**{outcome}**",
                 f"p = {t['p']:.4f}", f"p = {t['sign_flip_p']:.4f}"]
-    from sr_imitation.reporting.results import load_results
-
     sr1, wake1 = (load_results(archive / f"{v}_seed1") for v in arms)
     regrasp = sr1["skills"].index("regrasp")
     others = [x for i, x in enumerate(sr1["success_matrix"][-1]) if i != regrasp]
@@ -1965,6 +1965,7 @@ def test_the_lerobot06_replication_r4_main_job_recomputes():
     from datetime import datetime
 
     from sr_imitation.reporting.results import load_results
+    from tests.tool_loader import load_tool
 
     archive = DOCS / "results" / "lerobot06_main_job"
     new, old = load_results(archive / "sr_seed1000"), load_results(DOCS / "results" / "needle_cpu_main_41b435c")
@@ -1973,9 +1974,10 @@ def test_the_lerobot06_replication_r4_main_job_recomputes():
     assert all(x == 1.0 for x in new["success_after_own_wake"])
     m, o = new["metrics"], old["metrics"]
     assert m["bwt"]["final"] == m["bwt_wake"]["final"] == 0.0
-    stamps = [datetime.fromisoformat(line.split()[0]) for line in (archive / "queue_log.txt").read_text().splitlines()
-              if line.startswith("20") and "l06_main_sr_1000" in line]
-    minutes, seconds = divmod(int((stamps[-1] - stamps[0]).total_seconds()), 60)
+    _, finished = load_tool("experiments/queue_status").runs(archive / "queue_log.txt")
+    (run,) = [r for r in finished if r["name"] == "l06_main_sr_1000"]
+    wall = datetime.fromisoformat(run["ended"]) - datetime.fromisoformat(run["started"])
+    minutes, seconds = divmod(int(wall.total_seconds()), 60)
     insert = old["skills"].index("insert")
     _states("r4-main-job", f"{minutes} min {seconds} s", _afsr_cell(m), _afsr_cell(o),
             f"(insert {old['success_matrix'][-1][insert]:.2f})")

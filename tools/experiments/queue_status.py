@@ -71,15 +71,16 @@ def queued_hours(lines: list[str], hours: dict[str, float] = HOURS_PER_RUN) -> s
 
 
 def runs(done: Path) -> tuple[dict[str, dict], list[dict]]:
-    """``(in_flight, finished)`` from the worker's start and exit lines, oldest first."""
+    """``(in_flight, finished)`` from the worker's start and exit lines, oldest first (a finished run's ``started`` is
+    its last start, None if the file has none: a run resumed after a kill starts more than once)."""
     flight: dict[str, dict] = {}
     finished = []
     for line in _lines(done):
         if m := START.match(line):
             flight[m[2]] = {"name": m[2], "started": m[1], "cpu": m[3] or "not named"}
         elif m := END.match(line):
-            flight.pop(m[2], None)
-            finished.append({"name": m[2], "ended": m[1], "rc": int(m[3])})
+            started = flight.pop(m[2], {}).get("started")
+            finished.append({"name": m[2], "started": started, "ended": m[1], "rc": int(m[3])})
     return flight, finished
 
 
