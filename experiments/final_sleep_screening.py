@@ -122,7 +122,8 @@ def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
     Returns:
         Per candidate its means, differences to C0, seeds above C0 in the trigger's order, rules (i)-(iii) and
         ``passes``; ``winner`` (the passing candidate with the highest mean in the trigger's order, ties to the
-        earlier in :data:`CANDIDATES`; ``None`` when none passes).
+        earlier in :data:`CANDIDATES`; ``None`` when none passes, or while ``missing`` names a run or re-sleep the
+        rule still needs).
     """
     (other,) = [o for o in orders if o != trigger]
     verdicts: dict[str, Any] = {}
@@ -142,11 +143,21 @@ def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
                  "ii": t["newest_change"] > NEWEST_FLOOR + _EPS,
                  "iii": u["diff"] >= -OTHER_LOSS - _EPS}
         verdicts[c] = {"orders": per, "rules": rules, "passes": all(rules.values())}
-    passing = [c for c in CANDIDATES if verdicts.get(c, {}).get("passes")]
+    missing = _missing(orders)
+    passing = [c for c in CANDIDATES if verdicts.get(c, {}).get("passes")] if not missing else []
     winner = max(passing, key=lambda c: (verdicts[c]["orders"][trigger]["mean"], -CANDIDATES.index(c)), default=None)
     repeats = {o: {s: orders[o][CHECK][s] == orders[o]["C0"][s] for s in sorted(orders[o].get(CHECK, {}))}
                for o in orders}
-    return {"trigger_order": trigger, "candidates": verdicts, "winner": winner, "own_repeats_c0": repeats}
+    return {"trigger_order": trigger, "candidates": verdicts, "winner": winner, "own_repeats_c0": repeats,
+            "missing": missing}
+
+
+def _missing(orders: Mapping[str, Mapping[str, Mapping[int, Any]]]) -> list[str]:
+    """What the rule still lacks: each order needs C0 on the same seeds as the other order, and every candidate on
+    exactly C0's seeds (the rule reads means over the protocol's seeds; a partial screening names no winner)."""
+    seeds = sorted(set().union(*(rows["C0"] for rows in orders.values())))
+    return [f"{o} {c} seed {s}" for o, rows in orders.items() for c in ("C0", *CANDIDATES) for s in seeds
+            if s not in rows.get(c, {})]
 
 
 def _pm(values: Sequence[float]) -> str:
@@ -182,8 +193,12 @@ def render(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
             same = [s for s, ok in seeds.items() if ok]
             lines.append(f"- {o}: sr-sleep repeating the run's own final sleep ({CHECK}) gives C0's measures "
                          f"exactly on {len(same)} of {len(seeds)} seeds ({', '.join(map(str, seeds))}).")
-    lines += ["", f"Winner: {decision['winner']}." if decision["winner"] else
-              "No candidate passes: the final sleep's cost to the newest skill stands."]
+    if decision["missing"]:
+        lines += ["", f"Not read: the screening is incomplete (missing: {', '.join(decision['missing'])}); "
+                      "the rule names a winner only over every seed of both orders."]
+    else:
+        lines += ["", f"Winner: {decision['winner']}." if decision["winner"] else
+                  "No candidate passes: the final sleep's cost to the newest skill stands."]
     return "\n".join(lines) + "\n"
 
 

@@ -43,8 +43,8 @@ def test_the_rule_passes_a_gain_of_the_size_it_asks_on_two_seeds_and_nothing_les
         "other order loses 0.029": (up([0.04, 0.04, 0.04]), 0.0, [v - 0.029 for v in c0], True),
     }
     for name, (values, newest, in_other, passes) in cases.items():
-        orders = {"forward": _order(c0, {"anchor_off": in_other}),
-                  "reverse": _order(c0, {"anchor_off": values}, newest)}
+        orders = {"forward": _order(c0, {**dict.fromkeys(CANDIDATES, c0), "anchor_off": in_other}),
+                  "reverse": _order(c0, {**dict.fromkeys(CANDIDATES, c0), "anchor_off": values}, newest)}
         verdict = decide(orders, "reverse")
         assert verdict["candidates"]["anchor_off"]["passes"] is passes, name
         assert verdict["winner"] == ("anchor_off" if passes else None), name
@@ -61,6 +61,31 @@ def test_the_winner_is_the_highest_mean_and_a_tie_goes_to_the_simplest():
     forward = _order(c0, {"anchor_off": [0.4] * 3, "anchor_newest": c0, "guard": c0})  # C1 loses the other order
     assert decide({"forward": forward, "reverse": reverse}, "reverse")["winner"] == "anchor_newest"
 
+
+
+def test_a_screening_missing_a_seed_or_a_candidate_names_no_winner():
+    """The rule reads means over every seed of both orders: with a re-sleep, a candidate or a run missing, a
+    candidate that would pass on the seeds it has wins nothing, and the text says what is missing."""
+    from experiments.final_sleep_screening import render
+
+    c0 = [0.5, 0.5, 0.5]
+    full = {"forward": _order(c0, dict.fromkeys(CANDIDATES, c0)),
+            "reverse": _order(c0, {"anchor_off": [0.7] * 3, "anchor_newest": c0, "guard": c0})}
+    assert decide(full, "reverse")["winner"] == "anchor_off" and decide(full, "reverse")["missing"] == []
+    no_seed = {o: {c: dict(r) for c, r in rows.items()} for o, rows in full.items()}
+    del no_seed["reverse"]["guard"][102]
+    no_candidate = {o: {c: dict(r) for c, r in rows.items()} for o, rows in full.items()}
+    del no_candidate["forward"]["anchor_newest"]
+    no_run = {o: {c: dict(r) for c, r in rows.items()} for o, rows in full.items()}
+    for c in no_run["forward"]:
+        del no_run["forward"][c][101]
+    for orders, missing in ((no_seed, ["reverse guard seed 102"]),
+                            (no_candidate, [f"forward anchor_newest seed {s}" for s in (100, 101, 102)]),
+                            (no_run, [f"forward {c} seed 101" for c in ("C0", *CANDIDATES)])):
+        verdict = decide(orders, "reverse")
+        assert verdict["missing"] == missing and verdict["winner"] is None
+        assert "Not read: the screening is incomplete" in render(orders, verdict)
+        assert "Winner" not in render(orders, verdict) and "No candidate passes" not in render(orders, verdict)
 
 def test_the_reader_takes_c0_from_the_run_and_a_candidate_from_its_re_sleep():
     """On the archived MT5 runs: C0's measures are the run's own last sleep, C1's the anchor-off re-sleep's."""
