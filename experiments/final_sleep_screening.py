@@ -51,6 +51,9 @@ class ScreeningConfig:
     """The order where the trigger fired (one of the orders' names): rules (i) and (ii) are read there."""
     output: Path | None = None
     """Where screening.json / .md / .png go (none: print only)."""
+    seeds: list[int] = field(default_factory=lambda: [100, 101, 102])
+    """The protocol's calibration seeds: the rule names a winner only when every one has its run and every
+    candidate's re-sleep in both orders."""
 
     def __post_init__(self) -> None:
         names = []
@@ -112,12 +115,14 @@ def order_rows(archive: Path) -> dict[str, dict[int, dict[str, float]]]:
     return out
 
 
-def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]], trigger: str) -> dict[str, Any]:
+def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]], trigger: str,
+           seeds: Sequence[int] = ()) -> dict[str, Any]:
     """The protocol's decision rule over the seeds each candidate shares with C0 in both orders.
 
     Args:
         orders: per order, :func:`order_rows`' result.
         trigger: the order where the trigger fired.
+        seeds: the seeds the rule reads (beside every C0 seed of either order).
 
     Returns:
         Per candidate its means, differences to C0, seeds above C0 in the trigger's order, rules (i)-(iii) and
@@ -132,18 +137,18 @@ def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
             continue
         per = {}
         for o in orders:
-            seeds = sorted(set(orders[o][c]) & set(orders[o]["C0"]))
-            diffs = [orders[o][c][s]["afsr"] - orders[o]["C0"][s]["afsr"] for s in seeds]
-            per[o] = {"seeds": seeds, "mean": sum(orders[o][c][s]["afsr"] for s in seeds) / len(seeds),
-                      "c0_mean": sum(orders[o]["C0"][s]["afsr"] for s in seeds) / len(seeds),
+            shared = sorted(set(orders[o][c]) & set(orders[o]["C0"]))
+            diffs = [orders[o][c][s]["afsr"] - orders[o]["C0"][s]["afsr"] for s in shared]
+            per[o] = {"seeds": shared, "mean": sum(orders[o][c][s]["afsr"] for s in shared) / len(shared),
+                      "c0_mean": sum(orders[o]["C0"][s]["afsr"] for s in shared) / len(shared),
                       "diff": sum(diffs) / len(diffs), "seeds_above": sum(d > _EPS for d in diffs),
-                      "newest_change": sum(orders[o][c][s]["newest_change"] for s in seeds) / len(seeds)}
+                      "newest_change": sum(orders[o][c][s]["newest_change"] for s in shared) / len(shared)}
         t, u = per[trigger], per[other]
         rules = {"i": t["diff"] >= GAIN - _EPS and t["seeds_above"] >= 2,
                  "ii": t["newest_change"] > NEWEST_FLOOR + _EPS,
                  "iii": u["diff"] >= -OTHER_LOSS - _EPS}
         verdicts[c] = {"orders": per, "rules": rules, "passes": all(rules.values())}
-    missing = _missing(orders)
+    missing = _missing(orders, seeds)
     passing = [c for c in CANDIDATES if verdicts.get(c, {}).get("passes")] if not missing else []
     winner = max(passing, key=lambda c: (verdicts[c]["orders"][trigger]["mean"], -CANDIDATES.index(c)), default=None)
     repeats = {o: {s: orders[o][CHECK][s] == orders[o]["C0"][s] for s in sorted(orders[o].get(CHECK, {}))}
@@ -152,11 +157,11 @@ def decide(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]]
             "missing": missing}
 
 
-def _missing(orders: Mapping[str, Mapping[str, Mapping[int, Any]]]) -> list[str]:
-    """What the rule still lacks: each order needs C0 on the same seeds as the other order, and every candidate on
-    exactly C0's seeds (the rule reads means over the protocol's seeds; a partial screening names no winner)."""
-    seeds = sorted(set().union(*(rows["C0"] for rows in orders.values())))
-    return [f"{o} {c} seed {s}" for o, rows in orders.items() for c in ("C0", *CANDIDATES) for s in seeds
+def _missing(orders: Mapping[str, Mapping[str, Mapping[int, Any]]], seeds: Sequence[int]) -> list[str]:
+    """What the rule still lacks: C0 and every candidate in each order on every seed of ``seeds`` and of either
+    order's C0 (the rule reads means over the protocol's seeds; a partial screening names no winner)."""
+    every = sorted(set(seeds).union(*(rows["C0"] for rows in orders.values())))
+    return [f"{o} {c} seed {s}" for o, rows in orders.items() for c in ("C0", *CANDIDATES) for s in every
             if s not in rows.get(c, {})]
 
 
@@ -227,7 +232,7 @@ def plot(orders: Mapping[str, Mapping[str, Mapping[int, Mapping[str, float]]]], 
 
 def run_screening(cfg: ScreeningConfig) -> tuple[dict[str, Any], dict[str, Any]]:
     orders = {e.partition("=")[0]: order_rows(Path(e.partition("=")[2])) for e in cfg.orders}
-    return orders, decide(orders, cfg.trigger_order)
+    return orders, decide(orders, cfg.trigger_order, cfg.seeds)
 
 
 def main(args: list[str] | None = None) -> None:

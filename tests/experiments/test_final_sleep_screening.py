@@ -86,6 +86,10 @@ def test_a_screening_missing_a_seed_or_a_candidate_names_no_winner():
         assert verdict["missing"] == missing and verdict["winner"] is None
         assert "Not read: the screening is incomplete" in render(orders, verdict)
         assert "Winner" not in render(orders, verdict) and "No candidate passes" not in render(orders, verdict)
+    partial = {o: {c: {100: r[100]} for c, r in rows.items()} for o, rows in full.items()}  # seed 100 alone
+    assert decide(partial, "reverse")["missing"] == []
+    missing = decide(partial, "reverse", seeds=[100, 101, 102])["missing"]
+    assert len(missing) == 16 and missing[0] == "forward C0 seed 101"
 
 def test_the_reader_takes_c0_from_the_run_and_a_candidate_from_its_re_sleep():
     """On the archived MT5 runs: C0's measures are the run's own last sleep, C1's the anchor-off re-sleep's."""
