@@ -2041,3 +2041,31 @@ def test_own_repeats_the_final_sleep_of_every_mt5_reverse_run():
         own = read_checked_json(reverse / f"sr_seed{s}_final_sleep_own" / "sleep.json")["sleep"]["final_memory_losses"]
         assert own == load_results(reverse / f"sr_seed{s}")["stages"][-1]["sleep"]["final_memory_losses"], s
     _states("orders-own-all", f"all {len(seeds)} MT5 reverse seeds")
+
+
+def test_the_final_sleep_screening_entry_recomputes():
+    """Entry ``screening-read``: the screening's table and verdict recomputed from the six runs and their eighteen
+    re-sleeps (every seed of both orders present), equal to the stored screening.json, and the entry's numbers in its
+    order: per order C0's and each candidate's mean final AFSR, the difference to C0 with the seeds above it, the
+    newest skill's mean change; then the verdict."""
+    from experiments.final_sleep_screening import CANDIDATES, ScreeningConfig, run_screening
+
+    results = DOCS / "results"
+    cfg = ScreeningConfig(orders=[f"forward={results / 'order_mt5_screening_forward'}",
+                                  f"reverse={results / 'order_mt5_screening_reverse'}"], trigger_order="reverse")
+    orders, decision = run_screening(cfg)
+    assert decision["missing"] == []
+    stored = read_checked_json(results / "order_mt5_screening" / "screening.json")
+    assert stored["decision"] == json.loads(json.dumps(decision))
+    seeds = (100, 101, 102)
+    numbers = []
+    for o in ("reverse", "forward"):
+        numbers += [f"{np.mean([orders[o]['C0'][s]['afsr'] for s in seeds]):.3f}",
+                    f"{np.mean([orders[o]['C0'][s]['newest_change'] for s in seeds]):+.3f}"]
+        for c in CANDIDATES:
+            v = decision["candidates"][c]["orders"][o]
+            assert v["seeds"] == list(seeds)
+            numbers += [f"{v['mean']:.3f}", f"{v['diff']:+.3f}", f"{v['seeds_above']} of 3",
+                        f"{v['newest_change']:+.3f}"]
+    verdict = f"{decision['winner']} wins" if decision["winner"] else "no candidate passes"
+    _states("screening-read", *numbers, verdict)
