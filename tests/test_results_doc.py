@@ -1441,7 +1441,7 @@ def test_the_contents_link_every_section_and_every_protocol_links_its_record():
     results = (DOCS / "RESULTS.md").read_text()
     headings = [line[3:] for line in results.splitlines() if line.startswith("## ")]
     toc = re.findall(r"^- \[(.+)\]\(#([^)]+)\)$", results, re.M)
-    assert [t for t, _ in toc] == [h for h in headings if h not in ("Summary (2026-12-07)", "Contents")]
+    assert [t for t, _ in toc] == [h for h in headings if not h.startswith("Summary (") and h != "Contents"]
     assert len(toc) >= 5  # the protocols (the SAC gate's statement keeps its own title: it is not edited)
     for title, anchor in toc:  # GitHub's anchors: lower case, punctuation dropped, spaces to hyphens
         assert anchor == re.sub(r"[^\w\- ]", "", title.lower()).replace(" ", "-"), title
