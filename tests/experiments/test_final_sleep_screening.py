@@ -3,6 +3,7 @@ protocol in docs/RESULTS.md writes it, over families of made-up measures, and th
 
 from __future__ import annotations
 
+import copy
 import shutil
 from pathlib import Path
 
@@ -62,7 +63,6 @@ def test_the_winner_is_the_highest_mean_and_a_tie_goes_to_the_simplest():
     assert decide({"forward": forward, "reverse": reverse}, "reverse")["winner"] == "anchor_newest"
 
 
-
 def test_a_screening_missing_a_seed_or_a_candidate_names_no_winner():
     """The rule reads means over every seed of both orders: with a re-sleep, a candidate or a run missing, a
     candidate that would pass on the seeds it has wins nothing, and the text says what is missing."""
@@ -72,11 +72,9 @@ def test_a_screening_missing_a_seed_or_a_candidate_names_no_winner():
     full = {"forward": _order(c0, dict.fromkeys(CANDIDATES, c0)),
             "reverse": _order(c0, {"anchor_off": [0.7] * 3, "anchor_newest": c0, "guard": c0})}
     assert decide(full, "reverse")["winner"] == "anchor_off" and decide(full, "reverse")["missing"] == []
-    no_seed = {o: {c: dict(r) for c, r in rows.items()} for o, rows in full.items()}
+    no_seed, no_candidate, no_run = (copy.deepcopy(full) for _ in range(3))
     del no_seed["reverse"]["guard"][102]
-    no_candidate = {o: {c: dict(r) for c, r in rows.items()} for o, rows in full.items()}
     del no_candidate["forward"]["anchor_newest"]
-    no_run = {o: {c: dict(r) for c, r in rows.items()} for o, rows in full.items()}
     for c in no_run["forward"]:
         del no_run["forward"][c][101]
     for orders, missing in ((no_seed, ["reverse guard seed 102"]),
@@ -90,6 +88,7 @@ def test_a_screening_missing_a_seed_or_a_candidate_names_no_winner():
     assert decide(partial, "reverse")["missing"] == []
     missing = decide(partial, "reverse", seeds=[100, 101, 102])["missing"]
     assert len(missing) == 16 and missing[0] == "forward C0 seed 101"
+
 
 def test_the_reader_takes_c0_from_the_run_and_a_candidate_from_its_re_sleep():
     """On the archived MT5 runs: C0's measures are the run's own last sleep, C1's the anchor-off re-sleep's."""
